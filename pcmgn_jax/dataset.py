@@ -1,0 +1,317 @@
+"""Trajectory datasets: design sampling, directory layout, resumable batched generation, manifest.
+
+Layout of a dataset directory ``OUT``::
+
+    OUT/manifest.json                    # written atomically after every solver batch
+    OUT/train/train_0000.{xdmf,h5,json}  # one trajectory (see trajectory_io.py)
+    OUT/test/test_0000.{xdmf,h5,json}
+    OUT/extrap/extrap_0000....           # any extra named split (explicit designs)
+    OUT/.cache/SPLIT/                    # packed training cache (cache.py)
+
+Designs are thicknesses of ``scene.design_layers`` in metres (the manifest also lists them in µm).
+``train`` and ``test`` come from ONE seeded Latin hypercube of ``n_train + n_test`` points over
+[low, high]^dim (the rows are in random order, so the first ``n_train`` rows are a random subset);
+explicit designs (``--designs``) go into a named split (default ``extrap``).
+
+manifest.json::
+
+    {"format": "pcmgn_jax.dataset", "format_version": 1, "preset": "cpu", "scene": {...},
+     "design_layers": ["OCA1", "OCA2"], "units": {"design_m": "m", "design_um": "µm", "wall_time_s": "s"},
+     "splits": {"train": {"origin": {"kind": "lhs", "seed": 0, "n_total": 150, "rows": [0, 100],
+                                     "low_m": 5e-05, "high_m": 0.00015},
+                          "trajectories": [{"name": "train_0000", "path": "train/train_0000",
+                                            "design_m": [...], "design_um": [...],
+                                            "sha256": "...", "wall_time_s": 1.9}, ...]}, ...}}
+
+Resuming: a trajectory is skipped when its files read back with a matching content hash
+(``read_trajectory(verify=True)``) and its recorded design equals the requested one; anything else is
+(re)generated. A manifest written for other settings (preset, scene, designs of a split) is an error,
+never silently mixed.
+"""
+from __future__ import annotations
+
+import importlib
+import math
+import os
+import re
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from pcmgn_jax.scene import Scene, default_scene
+from pcmgn_jax.trajectory import Trajectory
+from pcmgn_jax.trajectory_io import (TrajectoryFileError, atomic_write_json, read_trajectory,
+                                     write_trajectory)
+
+__all__ = ["DatasetError", "MANIFEST", "PRESETS", "ensure_dataset", "lhs_designs", "load_manifest",
+           "parse_designs", "split_stems"]
+
+MANIFEST = "manifest.json"
+DATASET_FORMAT = "pcmgn_jax.dataset"
+PRESETS = ("tiny", "cpu", "paper")     # mesh resolution / frame count, interpreted by the solver
+DESIGN_LOW = 50e-6                     # default design range [m] (paper: 50-150 µm)
+DESIGN_HIGH = 150e-6
+_SPLIT_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
+
+
+class DatasetError(ValueError):
+    """Inconsistent dataset directory / arguments, or designs the solver could not run."""
+
+
+# ---- designs ------------------------------------------------------------------------------------
+def lhs_designs(n: int, *, seed: int, low: float = DESIGN_LOW, high: float = DESIGN_HIGH,
+                dim: int = 2) -> np.ndarray:
+    """(n, dim) float64 Latin-hypercube designs [m] in [low, high]^dim (scipy.stats.qmc, seeded)."""
+    from scipy.stats import qmc
+
+    if not isinstance(n, (int, np.integer)) or n < 0:
+        raise ValueError(f"lhs_designs: n must be an integer >= 0, got {n!r}")
+    if not (math.isfinite(low) and math.isfinite(high) and 0 < low < high):
+        raise ValueError(f"lhs_designs: need 0 < low < high, got low={low!r}, high={high!r}")
+    if n == 0:
+        return np.zeros((0, dim))
+    sampler = qmc.LatinHypercube(d=dim, rng=np.random.default_rng(seed))
+    return qmc.scale(sampler.random(int(n)), [low] * dim, [high] * dim).astype(np.float64)
+
+
+def parse_designs(text: str, *, dim: int | None = 2) -> np.ndarray:
+    """Parse ``"40,40;40,160"`` (µm, designs separated by ';', values by ',') into (B, dim) [m]."""
+    if not isinstance(text, str) or not text.strip():
+        raise ValueError("--designs: empty; expected e.g. '40,40;40,160' (thicknesses in µm)")
+    rows = []
+    for i, chunk in enumerate(text.strip().strip(";").split(";")):
+        parts = [p.strip() for p in chunk.split(",")]
+        try:
+            vals = [float(p) for p in parts]
+        except ValueError:
+            raise ValueError(f"--designs: design {i + 1} ({chunk.strip()!r}) is not a list of numbers "
+                             "in µm, e.g. '40,160'") from None
+        if any(not math.isfinite(v) or v <= 0 for v in vals):
+            raise ValueError(f"--designs: design {i + 1} ({chunk.strip()!r}) must be finite thicknesses > 0 µm")
+        if dim is not None and len(vals) != dim:
+            raise ValueError(f"--designs: design {i + 1} ({chunk.strip()!r}) has {len(vals)} values, "
+                             f"expected {dim}")
+        if rows and len(vals) != len(rows[0]):
+            raise ValueError(f"--designs: design {i + 1} has {len(vals)} values, design 1 has {len(rows[0])}")
+        rows.append(vals)
+    return np.asarray(rows, dtype=np.float64) * 1e-6
+
+
+# ---- manifest -----------------------------------------------------------------------------------
+def load_manifest(dataset_dir: str | os.PathLike) -> dict[str, Any] | None:
+    """The dataset manifest, or None when there is none. DatasetError if it is not a manifest."""
+    import json
+
+    path = Path(dataset_dir) / MANIFEST
+    if not path.exists():
+        return None
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise DatasetError(f"{path}: cannot parse manifest: {err}") from None
+    if not isinstance(data, dict) or data.get("format") != DATASET_FORMAT:
+        raise DatasetError(f"{path}: field 'format' is not {DATASET_FORMAT!r}")
+    return data
+
+
+def split_stems(dataset_dir: str | os.PathLike, split: str) -> list[Path]:
+    """Path stems (``OUT/split/name``) of a split's trajectories, in manifest order.
+
+    Without a manifest: the sorted sidecars found in ``OUT/split``. DatasetError if the split is unknown.
+    """
+    root = Path(dataset_dir)
+    man = load_manifest(root)
+    if man is not None:
+        if split not in man.get("splits", {}):
+            raise DatasetError(f"{root / MANIFEST}: no split {split!r}; have {sorted(man.get('splits', {}))}")
+        return [root / e["path"] for e in man["splits"][split]["trajectories"]]
+    folder = root / split
+    if not folder.is_dir():
+        raise DatasetError(f"{folder}: split {split!r} not found (and no {MANIFEST})")
+    return [p.with_suffix("") for p in sorted(folder.glob("*.json"))]
+
+
+def _entry(split: str, i: int, design: np.ndarray) -> dict[str, Any]:
+    name = f"{split}_{i:04d}"
+    return {"name": name, "path": f"{split}/{name}", "design_m": [float(v) for v in design],
+            "design_um": [round(float(v) * 1e6, 6) for v in design], "sha256": None, "wall_time_s": None}
+
+
+def _meta_design(traj: Trajectory, layers: Sequence[str]) -> list[float] | None:
+    d = traj.meta.get("design")
+    if isinstance(d, dict):
+        try:
+            return [float(d[k]) for k in layers]
+        except KeyError:
+            return None
+    if isinstance(d, (list, tuple)):
+        return [float(v) for v in d]
+    return None
+
+
+def _is_done(root: Path, entry: dict[str, Any], layers: Sequence[str]) -> bool:
+    try:
+        traj = read_trajectory(root / entry["path"], verify=True)
+    except TrajectoryFileError:
+        return False
+    from pcmgn_jax.trajectory_io import content_hash
+
+    digest = content_hash(traj)
+    if entry.get("sha256") not in (None, digest):
+        return False
+    d = _meta_design(traj, layers)
+    if d is not None and not np.allclose(d, entry["design_m"], rtol=1e-9, atol=0):
+        return False
+    entry["sha256"] = digest
+    if entry.get("wall_time_s") is None and traj.meta.get("wall_time_s") is not None:
+        entry["wall_time_s"] = float(traj.meta["wall_time_s"])
+    return True
+
+
+def _solver(solve_fn):
+    """(solve_designs, SolverError classes) — the real solver module, imported lazily."""
+    try:
+        mod = importlib.import_module("pcmgn_jax.solver")
+    except ImportError:
+        if solve_fn is None:
+            raise
+        return solve_fn, ()
+    errors = (mod.SolverError,) if hasattr(mod, "SolverError") else ()
+    return (solve_fn or mod.solve_designs), errors
+
+
+# ---- generation ---------------------------------------------------------------------------------
+def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: int = 100,
+                   n_test: int = 50, seed: int = 0, designs: np.ndarray | None = None,
+                   split: str | None = None, scene: Scene | None = None, batch: int = 8,
+                   progress: bool = True, low: float = DESIGN_LOW, high: float = DESIGN_HIGH,
+                   solve_fn: Callable[..., list[Trajectory]] | None = None) -> Path:
+    """Generate the missing trajectories of a dataset with the solver; return ``Path(out_dir)``.
+
+    designs=None: splits ``train``/``test`` from one seeded LHS of n_train + n_test designs [m].
+    designs=(B, n_design) [m]: only the split ``split`` (default ``'extrap'``) with these designs.
+    Resumable: valid trajectories (hash-verified, same design) are skipped. The solver is called as
+    ``solve_fn(scene, designs (b, n_design) [m], preset=preset) -> list[Trajectory]`` in batches of
+    ``batch`` (default ``pcmgn_jax.solver.solve_designs``). Designs that raise ``SolverError`` are
+    retried one by one, recorded in the manifest with their error, and reported in a DatasetError
+    raised after everything else has been written.
+    """
+    root = Path(out_dir)
+    scene = scene if scene is not None else default_scene()
+    if preset not in PRESETS:
+        raise DatasetError(f"preset must be one of {PRESETS}, got {preset!r}")
+    if not isinstance(batch, int) or batch < 1:
+        raise DatasetError(f"batch must be an integer >= 1, got {batch!r}")
+    n_design = len(scene.design_layers)
+    plan: dict[str, tuple[np.ndarray, dict[str, Any]]] = {}
+    if designs is None:
+        if split is not None:
+            raise DatasetError("split is only used with explicit designs")
+        if n_train < 0 or n_test < 0 or n_train + n_test == 0:
+            raise DatasetError(f"need n_train + n_test > 0, got n_train={n_train}, n_test={n_test}")
+        lhs = lhs_designs(n_train + n_test, seed=seed, low=low, high=high, dim=n_design)
+        origin = {"kind": "lhs", "seed": int(seed), "n_total": n_train + n_test, "low_m": low, "high_m": high}
+        plan["train"] = (lhs[:n_train], {**origin, "rows": [0, n_train]})
+        plan["test"] = (lhs[n_train:], {**origin, "rows": [n_train, n_train + n_test]})
+    else:
+        designs = np.asarray(designs, dtype=np.float64)
+        split = split or "extrap"
+        if designs.ndim != 2 or designs.shape[1] != n_design or len(designs) == 0:
+            raise DatasetError(f"designs must have shape (B>0, {n_design}) for {scene.design_layers}, "
+                               f"got {designs.shape}")
+        if not np.all(np.isfinite(designs)) or np.any(designs <= 0):
+            raise DatasetError("designs must be finite thicknesses > 0 [m]")
+        plan[split] = (designs, {"kind": "explicit"})
+    for name in plan:
+        if not _SPLIT_RE.match(name):
+            raise DatasetError(f"split name {name!r} must match {_SPLIT_RE.pattern}")
+
+    man = load_manifest(root)
+    manifest_path = root / MANIFEST
+    if man is None:
+        man = {"format": DATASET_FORMAT, "format_version": 1, "preset": preset, "scene": scene.to_dict(),
+               "design_layers": list(scene.design_layers),
+               "units": {"design_m": "m", "design_um": "µm", "wall_time_s": "s"}, "splits": {}}
+    else:
+        if man.get("preset") != preset:
+            raise DatasetError(f"{manifest_path}: dataset was generated with preset {man.get('preset')!r}, "
+                               f"not {preset!r}; use another --out")
+        if man.get("scene") != scene.to_dict():
+            raise DatasetError(f"{manifest_path}: dataset was generated for a different scene; use another --out")
+    for name, (des, origin) in plan.items():
+        old = man["splits"].get(name)
+        entries = [_entry(name, i, d) for i, d in enumerate(des)]
+        if old is not None:
+            old_d = np.asarray([e["design_m"] for e in old["trajectories"]], dtype=np.float64).reshape(-1, n_design)
+            if old_d.shape != des.shape or not np.allclose(old_d, des, rtol=1e-12, atol=0):
+                raise DatasetError(
+                    f"{manifest_path}: split {name!r} holds {len(old_d)} other designs "
+                    f"(origin {old.get('origin')}); requested {len(des)} designs ({origin}). "
+                    "Use another --out or --split.")
+            for e, o in zip(entries, old["trajectories"]):
+                e["sha256"], e["wall_time_s"] = o.get("sha256"), o.get("wall_time_s")
+        man["splits"][name] = {"origin": origin, "trajectories": entries}
+
+    layers = scene.design_layers
+    todo: list[tuple[str, dict[str, Any]]] = []
+    for name in plan:
+        (root / name).mkdir(parents=True, exist_ok=True)
+        for e in man["splits"][name]["trajectories"]:
+            if not _is_done(root, e, layers):
+                e["sha256"], e["wall_time_s"] = None, None
+                todo.append((name, e))
+    root.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(manifest_path, man)
+    if not todo:
+        return root
+
+    solve, solver_errors = _solver(solve_fn)
+    from tqdm.auto import tqdm
+
+    failures: list[str] = []
+    bar = tqdm(total=len(todo), unit="design", desc=f"generate {root.name}", disable=not progress,
+               dynamic_ncols=True)
+    try:
+        for start in range(0, len(todo), batch):
+            chunk = todo[start:start + batch]
+            groups = [chunk]
+            t0 = time.perf_counter()
+            try:
+                results = [_solve_checked(solve, scene, chunk, preset)]
+            except solver_errors:
+                groups = [[item] for item in chunk]     # isolate the failing design(s)
+                results = []
+                for item in groups:
+                    try:
+                        results.append(_solve_checked(solve, scene, item, preset))
+                    except solver_errors as err:
+                        results.append(None)
+                        item[0][1]["error"] = f"{type(err).__name__}: {err}"
+                        failures.append(f"{item[0][1]['name']} design_um={item[0][1]['design_um']}: {err}")
+            elapsed = time.perf_counter() - t0
+            for group, trajs in zip(groups, results):
+                if trajs is None:
+                    continue
+                for (_, e), traj in zip(group, trajs):
+                    e["sha256"] = write_trajectory(traj, root / e["path"])
+                    wall = traj.meta.get("wall_time_s")
+                    e["wall_time_s"] = float(wall) if wall is not None else elapsed / len(chunk)
+                    e.pop("error", None)
+            atomic_write_json(manifest_path, man)
+            bar.update(len(chunk))
+    finally:
+        bar.close()
+    if failures:
+        raise DatasetError(f"{manifest_path}: {len(failures)} design(s) failed in the solver "
+                           "(rerun to retry):\n  " + "\n  ".join(failures))
+    return root
+
+
+def _solve_checked(solve, scene: Scene, items, preset: str) -> list[Trajectory]:
+    des = np.asarray([e["design_m"] for _, e in items], dtype=np.float64)
+    trajs = list(solve(scene, des, preset=preset))
+    if len(trajs) != len(items):
+        raise DatasetError(f"solver returned {len(trajs)} trajectories for {len(items)} designs")
+    return trajs
