@@ -1,0 +1,147 @@
+"""Packed, memory-mapped training cache of one dataset split.
+
+``OUT/.cache/SPLIT/`` holds one ``.npy`` file per Trajectory array field, each the flat (1-D)
+concatenation of that field over all trajectories of the split (in manifest order), plus
+``index.json``: per trajectory its name, source content hash (sha256 from the sidecar), shapes,
+element offsets into each ``.npy`` and its meta dict. Loading maps the files with
+``np.load(mmap_mode='r')`` and hands out zero-copy reshaped views, so a split loads in milliseconds
+regardless of size; pages are read on first touch.
+
+The cache is rebuilt exactly when the list of (trajectory name, sidecar sha256) of the split
+changes. Building reads every trajectory with hash verification (``read_trajectory(verify=True)``),
+writes into a temporary directory and swaps it in (index.json last), so a killed build never leaves a
+cache that loads. Arrays keep their dtypes; if trajectories of one split have different dtypes for a
+field, the field is stored in their common (promoted) dtype. Note: the cache compares hashes from
+the sidecars only; an HDF5 file modified behind an unchanged sidecar is not noticed here (the cache
+still holds the verified data it was built from).
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pcmgn_jax.dataset import split_stems
+from pcmgn_jax.trajectory import Trajectory
+from pcmgn_jax.trajectory_io import (ARRAY_FIELDS, RESERVED_KEYS, TrajectoryFileError, atomic_write_json,
+                                     read_sidecar, read_trajectory)
+
+__all__ = ["CACHE_DIR", "cache_dir", "ensure_cache", "load_split"]
+
+CACHE_DIR = ".cache"
+INDEX = "index.json"
+CACHE_FORMAT = "pcmgn_jax.cache"
+CACHE_VERSION = 1
+
+
+def cache_dir(dataset_dir: str | os.PathLike, split: str) -> Path:
+    """``dataset_dir/.cache/split``."""
+    return Path(dataset_dir) / CACHE_DIR / split
+
+
+def _sources(dataset_dir: Path, split: str) -> list[dict[str, Any]]:
+    out = []
+    for stem in split_stems(dataset_dir, split):
+        side = read_sidecar(stem)
+        out.append({"name": stem.name, "path": str(stem.relative_to(dataset_dir)), "sha256": side["sha256"],
+                    "n_nodes": side["n_nodes"], "n_cells": side["n_cells"], "n_frames": side["n_frames"],
+                    "dtypes": side["dtypes"]})
+    if not out:
+        raise TrajectoryFileError(f"{dataset_dir}: split {split!r} has no trajectories")
+    return out
+
+
+def _read_index(path: Path) -> dict[str, Any] | None:
+    try:
+        idx = json.loads((path / INDEX).read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    if idx.get("format") != CACHE_FORMAT or idx.get("format_version") != CACHE_VERSION:
+        return None
+    return idx
+
+
+def _shapes(n: int, e: int, t: int) -> dict[str, tuple[int, ...]]:
+    return {"points": (n, 2), "cells": (e, 4), "cell_part": (e,), "node_part": (n,), "node_type": (n,),
+            "times": (t,), "displacement": (t, n, 2), "velocity": (t, n, 2), "von_mises": (t, n)}
+
+
+def _build(dataset_dir: Path, split: str, sources: list[dict[str, Any]]) -> None:
+    final = cache_dir(dataset_dir, split)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{split}.tmp-", dir=final.parent))
+    try:
+        shapes = [_shapes(s["n_nodes"], s["n_cells"], s["n_frames"]) for s in sources]
+        entries, outs, fields = [], {}, {}
+        for f in ARRAY_FIELDS:
+            dtype = np.result_type(*[np.dtype(s["dtypes"][f]) for s in sources])
+            sizes = [int(np.prod(sh[f])) for sh in shapes]
+            offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+            outs[f] = np.lib.format.open_memmap(tmp / f"{f}.npy", mode="w+", dtype=dtype,
+                                                shape=(int(offsets[-1]),))
+            fields[f] = {"file": f"{f}.npy", "dtype": dtype.str, "offsets": offsets.tolist()}
+        for i, src in enumerate(sources):
+            traj = read_trajectory(dataset_dir / src["path"], verify=True)
+            for f in ARRAY_FIELDS:
+                a, b = fields[f]["offsets"][i], fields[f]["offsets"][i + 1]
+                outs[f][a:b] = np.asarray(getattr(traj, f)).reshape(-1)
+            entries.append({"name": src["name"], "path": src["path"], "sha256": src["sha256"],
+                            "shapes": {f: list(shapes[i][f]) for f in ARRAY_FIELDS},
+                            "meta": {k: v for k, v in traj.meta.items() if k not in RESERVED_KEYS}})
+        for f in ARRAY_FIELDS:
+            outs[f].flush()
+            del outs[f]
+        atomic_write_json(tmp / INDEX, {
+            "format": CACHE_FORMAT, "format_version": CACHE_VERSION, "split": split,
+            "sources": [{"name": s["name"], "sha256": s["sha256"]} for s in sources],
+            "fields": fields, "trajectories": entries})
+        old = None
+        if final.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{split}.old-", dir=final.parent))
+            os.replace(final, old / split)
+        os.replace(tmp, final)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def ensure_cache(dataset_dir: str | os.PathLike, split: str, *, force: bool = False) -> tuple[Path, bool]:
+    """Build the cache of ``split`` if missing or stale; return ``(cache path, rebuilt?)``."""
+    root = Path(dataset_dir)
+    sources = _sources(root, split)
+    path = cache_dir(root, split)
+    idx = _read_index(path)
+    key = [{"name": s["name"], "sha256": s["sha256"]} for s in sources]
+    if not force and idx is not None and idx.get("sources") == key:
+        return path, False
+    _build(root, split, sources)
+    return path, True
+
+
+def load_split(dataset_dir: str | os.PathLike, split: str) -> list[Trajectory]:
+    """All trajectories of ``split`` as Trajectories whose arrays are read-only memmap views.
+
+    Rebuilds the cache first when the split's content hashes changed (see module docstring).
+    ``meta`` is the sidecar's plus ``name`` and ``source_sha256``.
+    Shapes and units as in :class:`pcmgn_jax.trajectory.Trajectory`.
+    """
+    path, _ = ensure_cache(dataset_dir, split)
+    idx = _read_index(path)
+    if idx is None:
+        raise TrajectoryFileError(f"{path / INDEX}: cache index missing or unreadable")
+    arrays = {f: np.load(path / spec["file"], mmap_mode="r", allow_pickle=False)
+              for f, spec in idx["fields"].items()}
+    out = []
+    for i, entry in enumerate(idx["trajectories"]):
+        kw = {}
+        for f in ARRAY_FIELDS:
+            offs = idx["fields"][f]["offsets"]
+            kw[f] = arrays[f][offs[i]:offs[i + 1]].reshape(entry["shapes"][f])
+        out.append(Trajectory(**kw, meta=dict(entry["meta"], name=entry["name"], source_sha256=entry["sha256"])))
+    return out
