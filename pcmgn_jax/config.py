@@ -1,0 +1,183 @@
+"""Training configuration: one frozen dataclass, three presets, paper-style ``--key=value`` flags.
+
+Every default lives here with a comment. Unknown keys (in flags or JSON) raise ``ValueError``.
+
+    cfg = TrainConfig.from_flags(["--preset", "tiny", "--lambda_pen=0", "--latent_size=32"])
+    cfg.save_json(workdir / "config.json")
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import typing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+TARGETS = ("velocity", "displacement", "position")
+NOISE_PARTS = ("none", "ball", "panel", "all")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    # ---- data -------------------------------------------------------------------------------
+    preset: str = "cpu"              # which preset filled the defaults (tiny | cpu | paper)
+    data_preset: str = "cpu"         # mesh/solver preset handed to dataset.ensure_dataset
+    dataset_dir: str = ""            # dataset root; "" -> data/<data_preset>
+    n_train: int = 12                # training trajectories
+    n_val: int = 2                   # held out from the train split for the validation rollout
+    n_test: int = 6                  # test trajectories (evaluation)
+    data_seed: int = 0               # seed of the Latin-hypercube designs for dataset generation
+    # ---- graph ------------------------------------------------------------------------------
+    contact_radius: float = 0.0      # r_w [m]; 0 -> auto: 1.5 x median CG top-surface side length
+    contact_capacity_factor: float = 2.0  # contact buffer = factor x max pairs seen in training
+    # ---- model (paper: 2 x 128, 15 steps) ----------------------------------------------------
+    latent_size: int = 64            # width of every MLP layer and of the latents
+    mlp_layers: int = 2              # hidden layers per MLP
+    message_passing_steps: int = 8   # processor blocks
+    target: str = "velocity"         # velocity (x += v dt) | displacement (x += dx) | position (x = x^)
+    # ---- loss -------------------------------------------------------------------------------
+    lambda_pen: float = 0.0          # weight of the penetration term (0 = vanilla MGN; paper: 10)
+    poly_ball: int = 6               # polynomial degree of the ball boundary fit (penetration term)
+    poly_panel: int = 5              # polynomial degree of the cover-glass fit (penetration term)
+    noise_std: float = 0.0           # Gaussian noise on input world positions [m] (paper: 3e-7)
+    noise_parts: str = "none"        # none | ball | panel | all
+    # ---- optimisation -----------------------------------------------------------------------
+    seed: int = 0                    # model init, data order and noise
+    learning_rate: float = 1e-3      # Adam initial learning rate (paper)
+    lr_decay_rate: float = 0.1       # exponential decay: lr = lr0 * rate ** (step / lr_decay_steps)
+    lr_decay_steps: int = 0          # 0 -> total number of steps (lr ends at lr0 * rate)
+    epochs: int = 20                 # passes over all (trajectory, frame) pairs
+    num_steps: int = 0               # >0 overrides epochs: total optimiser steps
+    batch_graphs: int = 1            # graphs per step (same topology, stacked + vmapped); paper: 1
+    steps_per_dispatch: int = 25     # optimiser steps per jitted call (lax.scan)
+    # ---- bookkeeping ------------------------------------------------------------------------
+    log_every: int = 100             # steps between metrics.jsonl lines (rounded to the dispatch)
+    ckpt_every: int = 1000           # steps between periodic checkpoints (rounded to the dispatch)
+    val_every: int = 1000            # steps between validation rollouts (best checkpoint)
+    max_to_keep: int = 2             # periodic checkpoints kept
+    progress: bool = True            # tqdm progress bar
+
+    def __post_init__(self):
+        def bad(name, why):
+            raise ValueError(f"config: {name}={getattr(self, name)!r} {why}")
+        if self.preset not in PRESETS:
+            bad("preset", f"must be one of {sorted(PRESETS)}")
+        if self.target not in TARGETS:
+            bad("target", f"must be one of {TARGETS}")
+        if self.noise_parts not in NOISE_PARTS:
+            bad("noise_parts", f"must be one of {NOISE_PARTS}")
+        for name in ("n_train", "latent_size", "mlp_layers", "batch_graphs", "steps_per_dispatch",
+                     "log_every", "ckpt_every", "val_every", "max_to_keep", "epochs"):
+            if getattr(self, name) < 1:
+                bad(name, "must be >= 1")
+        for name in ("n_val", "n_test", "message_passing_steps", "num_steps", "lr_decay_steps"):
+            if getattr(self, name) < 0:
+                bad(name, "must be >= 0")
+        if self.contact_radius < 0 or self.noise_std < 0 or self.lambda_pen < 0:
+            bad("contact_radius/noise_std/lambda_pen", "must be >= 0")
+        if not 0 < self.learning_rate < 1:
+            bad("learning_rate", "must be in (0, 1)")
+
+    # ---- construction ------------------------------------------------------------------------
+    @classmethod
+    def from_preset(cls, preset: str = "cpu", **overrides: Any) -> "TrainConfig":
+        if preset not in PRESETS:
+            raise ValueError(f"config: unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
+        unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(cls)})
+        if unknown:
+            raise ValueError(f"config: unknown key(s) {unknown}")
+        return cls(**{**PRESETS[preset], "preset": preset, **overrides})
+
+    @classmethod
+    def from_flags(cls, argv: Sequence[str]) -> "TrainConfig":
+        """Parse ``--key=value`` / ``--key value`` / ``--flag`` (bool True) / ``--no-flag``."""
+        raw = parse_flags(argv)
+        preset = raw.pop("preset", "cpu")
+        types = {f.name: f.type for f in dataclasses.fields(cls)}
+        hints = typing.get_type_hints(cls)
+        unknown = sorted(set(raw) - set(types))
+        if unknown:
+            raise ValueError(f"unknown flag(s) {['--' + k for k in unknown]}; known: "
+                             f"{sorted('--' + k for k in types)}")
+        return cls.from_preset(preset, **{k: _convert(k, v, hints[k]) for k, v in raw.items()})
+
+    @classmethod
+    def from_json(cls, data: dict) -> "TrainConfig":
+        unknown = sorted(set(data) - {f.name for f in dataclasses.fields(cls)})
+        if unknown:
+            raise ValueError(f"config: unknown key(s) {unknown}")
+        return cls(**data)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "TrainConfig":
+        return cls.from_json(json.loads(Path(path).read_text()))
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def save_json(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2, sort_keys=True) + "\n")
+
+    def replace(self, **kw) -> "TrainConfig":
+        return dataclasses.replace(self, **kw)
+
+    @property
+    def resolved_dataset_dir(self) -> str:
+        return self.dataset_dir or f"data/{self.data_preset}"
+
+
+PRESETS: dict[str, dict[str, Any]] = {
+    # tests and smoke checks: tiny mesh, small model, < 1 min
+    "tiny": dict(data_preset="tiny", n_train=3, n_val=1, n_test=2, latent_size=32,
+                 message_passing_steps=3, epochs=1, num_steps=400, steps_per_dispatch=20,
+                 log_every=20, ckpt_every=200, val_every=200),
+    # the README's main job on a 2-core CPU (~20 min train + evaluate after data generation)
+    "cpu": dict(data_preset="cpu", n_train=12, n_val=2, n_test=6, latent_size=64,
+                message_passing_steps=8, epochs=1, num_steps=4000, steps_per_dispatch=25,
+                log_every=100, ckpt_every=1000, val_every=1000),
+    # the paper: 15 x 128, 100 epochs, 100 training / 50 test trajectories (a GPU job)
+    "paper": dict(data_preset="paper", n_train=100, n_val=5, n_test=50, latent_size=128,
+                  message_passing_steps=15, epochs=100, num_steps=0, steps_per_dispatch=50,
+                  log_every=500, ckpt_every=10000, val_every=10000),
+}
+
+
+def parse_flags(argv: Sequence[str]) -> dict[str, str | bool]:
+    out: dict[str, str | bool] = {}
+    argv = list(argv)
+    i = 0
+    while i < len(argv):
+        arg = argv[i]
+        if not arg.startswith("--"):
+            raise ValueError(f"unexpected argument {arg!r}; flags look like --key=value")
+        body = arg[2:].replace("-", "_")
+        if "=" in body:
+            key, val = body.split("=", 1)
+        elif i + 1 < len(argv) and not argv[i + 1].startswith("--"):
+            key, val = body, argv[i + 1]
+            i += 1
+        elif body.startswith("no_"):
+            key, val = body[3:], False
+        else:
+            key, val = body, True
+        out[key] = val
+        i += 1
+    return out
+
+
+def _convert(key: str, value: str | bool, typ) -> Any:
+    try:
+        if typ is bool:
+            if isinstance(value, bool):
+                return value
+            if value.lower() in ("1", "true", "yes"):
+                return True
+            if value.lower() in ("0", "false", "no"):
+                return False
+            raise ValueError(value)
+        if isinstance(value, bool):
+            raise ValueError("a value is required")
+        return typ(value)
+    except ValueError:
+        raise ValueError(f"flag --{key}: cannot read {value!r} as {typ.__name__}") from None

@@ -1,0 +1,167 @@
+"""Contact edges between the scene's contact pair (ball <-> cover glass), jax-md style.
+
+``allocate`` (host, NumPy) finds the candidate nodes once from the reference mesh -- ball surface
+nodes facing down x cover-glass top-surface nodes -- and sizes a fixed-capacity edge buffer from the
+frames it is shown. ``update`` (jittable) recomputes the edges from current positions:
+
+    index = allocate(points=..., cells=..., cell_part=..., ball_part=0, panel_part=1,
+                     radius=r_w, positions=[(T, N, 2) world frames, ...])
+    edges = update(index, positions)      # ContactEdges(senders, receivers, mask, count, overflow)
+
+Edges are within ``radius`` [m] (Euclidean, world space), both directions (ball -> CG and CG -> ball),
+never self-loops or mesh edges. When more pairs are in range than the buffer holds, ``overflow`` is
+True and ``count`` the number needed; callers must re-allocate (``grow``) outside jit and redo the
+computation -- the dropped edges are never silently ignored.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+
+@struct.dataclass
+class ContactIndex:
+    """Contact candidates (arrays) and buffer size (static); a pytree, pass it to jit.
+
+    ball_nodes:  [Nb]      int32  ball surface nodes whose outward normal points down
+    panel_nodes: [Np]      int32  contact-layer (CG) top-surface nodes
+    allowed:     [Nb, Np]  bool   False for mesh edges / identical nodes
+    radius:      float            contact radius r_w [m]
+    capacity:    int              directed-edge buffer size C (even)
+    """
+
+    ball_nodes: np.ndarray
+    panel_nodes: np.ndarray
+    allowed: np.ndarray
+    radius: float = struct.field(pytree_node=False)
+    capacity: int = struct.field(pytree_node=False)
+
+
+class ContactEdges(NamedTuple):
+    senders: jnp.ndarray    # [C] int32 (padding: 0)
+    receivers: jnp.ndarray  # [C] int32 (padding: 0)
+    mask: jnp.ndarray       # [C] bool
+    count: jnp.ndarray      # []  int32 number of directed edges in range (may exceed C)
+    overflow: jnp.ndarray   # []  bool  count > C
+
+
+def surface_nodes(points: np.ndarray, cells: np.ndarray, cell_part: np.ndarray, part: int,
+                  *, facing: str) -> np.ndarray:
+    """Nodes of ``part`` on boundary sides whose outward normal points ``facing`` ('up'|'down').
+
+    A side is on the boundary of the part when only one cell of that part has it. Cell orientation is
+    taken from its signed area, so clockwise cells work too.
+    """
+    if facing not in ("up", "down"):
+        raise ValueError(f"facing must be 'up' or 'down', got {facing!r}")
+    points = np.asarray(points, np.float64)
+    sel = np.asarray(cells)[np.asarray(cell_part) == part]
+    if sel.size == 0:
+        raise ValueError(f"no cells with part id {part}")
+    p = points[sel]                                    # (e, 4, 2)
+    area2 = np.sum(p[:, :, 0] * np.roll(p[:, :, 1], -1, 1) - np.roll(p[:, :, 0], -1, 1) * p[:, :, 1], 1)
+    a, b = sel.reshape(-1), np.roll(sel, -1, axis=1).reshape(-1)
+    key = np.stack([np.minimum(a, b), np.maximum(a, b)], 1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    boundary = counts[inv.reshape(-1)] == 1
+    d = points[b] - points[a]
+    sign = np.repeat(np.sign(area2), 4)                 # +1 counter-clockwise
+    normal_y = -d[:, 0] * sign                           # outward normal = sign * (dy, -dx)
+    length = np.hypot(d[:, 0], d[:, 1])
+    want = normal_y > 0.5 * length if facing == "up" else normal_y < -0.5 * length
+    keep = boundary & want
+    return np.unique(np.concatenate([a[keep], b[keep]])).astype(np.int32)
+
+
+def count_pairs(index_nodes: tuple[np.ndarray, np.ndarray, np.ndarray], positions: np.ndarray,
+                radius: float) -> np.ndarray:
+    """Host-side number of directed contact edges in each frame of ``positions`` (T, N, 2)."""
+    ball, panel, allowed = index_nodes
+    positions = np.asarray(positions, np.float64)
+    out = np.empty(positions.shape[0], np.int64)
+    for t in range(positions.shape[0]):
+        d = positions[t, ball][:, None, :] - positions[t, panel][None, :, :]
+        out[t] = 2 * int(np.sum((np.einsum("ijk,ijk->ij", d, d) <= radius * radius) & allowed))
+    return out
+
+
+def allocate(*, points: np.ndarray, cells: np.ndarray, cell_part: np.ndarray, ball_part: int = 0,
+             panel_part: int = 1, radius: float, positions=(), capacity_factor: float = 1.5,
+             min_capacity: int = 64, capacity: int | None = None) -> ContactIndex:
+    """Host-side: candidates from the reference mesh and a buffer sized from ``positions``.
+
+    points/cells/cell_part: reference mesh (SI). radius: r_w [m].
+    positions: iterable of world-position arrays (T, N, 2) [m] (e.g. every training trajectory);
+      capacity = max(min_capacity, ceil(capacity_factor * max pairs seen)), rounded up to a multiple
+      of 16, or ``capacity`` if given. Never larger than all candidate pairs (2 * Nb * Np).
+    """
+    if not (isinstance(radius, (int, float)) and math.isfinite(radius) and radius > 0):
+        raise ValueError(f"contact radius must be a finite number > 0 [m], got {radius!r}")
+    ball = surface_nodes(points, cells, cell_part, ball_part, facing="down")
+    panel = surface_nodes(points, cells, cell_part, panel_part, facing="up")
+    allowed = ball[:, None] != panel[None, :]
+    cells = np.asarray(cells)
+    a, b = cells.reshape(-1), np.roll(cells, -1, axis=1).reshape(-1)
+    mesh_pairs = set(zip(a.tolist(), b.tolist())) | set(zip(b.tolist(), a.tolist()))
+    pos_b = {int(n): i for i, n in enumerate(ball)}
+    pos_p = {int(n): j for j, n in enumerate(panel)}
+    for s, r in mesh_pairs:
+        if s in pos_b and r in pos_p:
+            allowed[pos_b[s], pos_p[r]] = False
+    full = 2 * int(allowed.sum())
+    if capacity is None:
+        seen = 0
+        for frames in positions:
+            frames = np.asarray(frames)
+            if frames.ndim == 2:
+                frames = frames[None]
+            seen = max(seen, int(count_pairs((ball, panel, allowed), frames, radius).max()))
+        capacity = max(int(min_capacity), int(math.ceil(capacity_factor * seen)))
+        capacity = int(16 * math.ceil(capacity / 16))
+    capacity = max(2, min(int(capacity), max(full, 2)))
+    capacity += capacity % 2
+    return ContactIndex(ball_nodes=ball, panel_nodes=panel, allowed=allowed, radius=float(radius),
+                        capacity=int(capacity))
+
+
+def grow(index: ContactIndex, needed: int, factor: float = 1.5) -> ContactIndex:
+    """A larger buffer holding at least ``needed`` directed edges (host-side, after an overflow)."""
+    full = max(2 * int(np.asarray(index.allowed).sum()), 2)
+    cap = min(full, max(index.capacity * 2, int(16 * math.ceil(factor * needed / 16))))
+    cap += cap % 2
+    return index.replace(capacity=int(cap))
+
+
+def update(index: ContactIndex, positions: jnp.ndarray) -> ContactEdges:
+    """Jittable: contact edges for world ``positions`` (N, 2) [m]; static shapes (capacity C).
+
+    Edges come in pairs: slot 2k is ball -> panel, slot 2k+1 the reverse, in row-major candidate
+    order, so the selection is deterministic.
+    """
+    ball = jnp.asarray(index.ball_nodes)
+    panel = jnp.asarray(index.panel_nodes)
+    d = positions[ball][:, None, :] - positions[panel][None, :, :]
+    within = (jnp.sum(d * d, axis=-1) <= index.radius ** 2) & jnp.asarray(index.allowed)
+    flat = within.reshape(-1)
+    n_pairs = index.capacity // 2
+    (idx,) = jnp.nonzero(flat, size=n_pairs, fill_value=0)
+    count = jnp.sum(flat, dtype=jnp.int32)
+    valid = jnp.arange(n_pairs) < count
+    bi, pj = idx // panel.shape[0], idx % panel.shape[0]
+    bn = jnp.where(valid, ball[bi], 0)
+    pn = jnp.where(valid, panel[pj], 0)
+    senders = jnp.stack([bn, pn], axis=1).reshape(-1).astype(jnp.int32)
+    receivers = jnp.stack([pn, bn], axis=1).reshape(-1).astype(jnp.int32)
+    mask = jnp.repeat(valid, 2)
+    return ContactEdges(senders=senders, receivers=receivers, mask=mask, count=2 * count,
+                        overflow=2 * count > index.capacity)
+
+
+def empty_edges(capacity: int) -> ContactEdges:
+    z = jnp.zeros((capacity,), jnp.int32)
+    return ContactEdges(senders=z, receivers=z, mask=jnp.zeros((capacity,), bool),
+                        count=jnp.zeros((), jnp.int32), overflow=jnp.zeros((), bool))

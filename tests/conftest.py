@@ -1,0 +1,82 @@
+"""Shared tiny synthetic trajectories (no solver needed; others may reuse ``make_synthetic_trajectory``).
+
+Geometry (SI): a 3 x 2-cell "ball" block (part 0) hovering 10 µm above a 6-cell-wide panel of two
+layers -- "CG" (part 1, top row) and "PLATE" (part 2, two rows) -- whose bottom row is fixed
+(node_type 3). Motion is analytic: the ball dips 15 µm and comes back (so it reaches the CG top), the
+CG top is pushed down under the ball, the panel stress follows the dip. ``design`` scales the dip
+amplitude and the CG thickness so trajectories differ.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pcmgn_jax.scene import Layer, Scene
+from pcmgn_jax.trajectory import Trajectory
+
+DT = 4e-6
+
+
+def _grid(x0, y0, nx, ny, dx, dys):
+    xs = x0 + dx * np.arange(nx + 1)
+    ys = y0 + np.concatenate([[0.0], np.cumsum(dys)])
+    pts = np.array([(x, y) for y in ys for x in xs])
+    cells = [[j * (nx + 1) + i, j * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i]
+             for j in range(ny) for i in range(nx)]
+    return pts, np.array(cells)
+
+
+def make_synthetic_trajectory(design: float = 1.0, n_frames: int = 12) -> Trajectory:
+    dx = 50e-6
+    t_cg = 100e-6 * design
+    # panel: rows bottom->top: PLATE, PLATE, CG
+    p_pts, p_cells = _grid(0.0, 0.0, 6, 3, dx, [200e-6, 200e-6, t_cg])
+    p_cell_part = np.array([2] * 12 + [1] * 6)
+    top = p_pts[:, 1].max()
+    b_pts, b_cells = _grid(0.0, top + 10e-6, 3, 2, dx, [50e-6, 50e-6])
+    points = np.concatenate([p_pts, b_pts])
+    cells = np.concatenate([p_cells, b_cells + len(p_pts)])
+    cell_part = np.concatenate([p_cell_part, np.zeros(len(b_cells), int)]).astype(np.int32)
+    n_p = len(p_pts)
+    node_part = np.full(len(points), 2, np.int32)
+    node_part[n_p:] = 0
+    node_part[:n_p][p_pts[:, 1] >= 400e-6 - 1e-12] = 1
+    node_type = node_part.copy()
+    node_type[:n_p][p_pts[:, 1] <= 1e-12] = 3
+
+    times = DT * np.arange(n_frames)
+    T = DT * (n_frames - 1)
+    amp = 15e-6 * design
+    ph = np.pi * times / T
+    u = np.zeros((n_frames, len(points), 2))
+    v = np.zeros_like(u)
+    ball = node_part == 0
+    u[:, ball, 1] = -amp * np.sin(ph)[:, None]
+    v[:, ball, 1] = -amp * np.pi / T * np.cos(ph)[:, None]
+    x = points[:, 0]
+    shape = np.exp(-(x / 150e-6) ** 2) * (points[:, 1] / 400e-6).clip(0, 1.2)
+    panel = ~ball
+    dip = np.clip(np.sin(ph), 0, None) ** 2
+    u[:, panel, 1] = -0.5 * amp * dip[:, None] * shape[panel]
+    v[:, panel, 1] = -0.5 * amp * (2 * np.sin(ph) * np.cos(ph) * np.pi / T)[:, None] * shape[panel]
+    u[:, panel, 0] = 0.1 * amp * dip[:, None] * (x[panel] / 300e-6) * shape[panel]
+    v[:, panel, 0] = 0.1 * amp * (2 * np.sin(ph) * np.cos(ph) * np.pi / T)[:, None] * (x[panel] / 300e-6) * shape[panel]
+    fixed = node_type == 3
+    u[:, fixed] = 0.0
+    v[:, fixed] = 0.0
+    vm = 1e8 * design * dip[:, None] * np.exp(-x / 100e-6)[None] * np.where(ball, 0.3, 1.0)[None]
+
+    scene = Scene(layers=(Layer("CG", 77e9, 0.21, t_cg, 2500.0), Layer("PLATE", 68.9e9, 0.33, 400e-6, 2700.0)),
+                  half_width=300e-6, output_dt=DT, n_frames=n_frames - 1, design_layers=("CG",))
+    traj = Trajectory(points=points, cells=cells, cell_part=cell_part, node_part=node_part,
+                      node_type=node_type, times=times, displacement=u, velocity=v, von_mises=vm,
+                      meta={"scene": scene.to_dict(), "output_dt": DT, "part_names": list(scene.part_names),
+                            "design": {"CG": t_cg}, "source": "synthetic"})
+    traj.validate()
+    return traj
+
+
+@pytest.fixture(scope="session")
+def tiny_trajs():
+    """Four synthetic trajectories of one topology (designs 0.8..1.2)."""
+    return [make_synthetic_trajectory(d) for d in (0.8, 0.93, 1.07, 1.2)]
