@@ -1,0 +1,502 @@
+"""Ball / cover-glass penetration: boundary nodes, stable polynomial fits, the paper's loss, a fit-free metric.
+
+Paper section 2.3 (DESIGN.md §6), made numerically safe:
+
+1. :func:`boundary_nodes` (host, NumPy, once per reference mesh): ball bottom nodes and cover-glass (CG) top
+   nodes, sorted by reference x, plus a fixed fit interval ``[x_lo, x_hi]``.
+2. :func:`poly_fit_eval` (jittable, differentiable): least-squares polynomial of a static degree. x is mapped
+   to t in [-1, 1] on the fixed interval, the basis is Legendre (orthogonal on [-1, 1]), y is centred and
+   scaled, and the problem is solved by a Householder QR of the (ridge-augmented) design matrix. The
+   paper's normal equations (V^T V)^-1 V^T y on raw metre coordinates are never formed: in float32,
+   x^6 of a millimetre is 1e-18 and cond(V^T V) = cond(V)^2.
+3. :func:`penetration_depth`, :func:`penetration_loss`: d = y_CG(x) - y_ball(x) at the ball boundary nodes
+   inside the overlap of both x ranges; L_pen = mean of (d / length_scale)^2 over nodes with d > 0.
+4. :func:`signed_distance_to_polyline`, :func:`penetration_stats`: fit-free evaluation metric (true
+   Euclidean distance of ball boundary nodes to the CG top polyline, negative = penetration).
+
+Coordinates: x = radius >= 0 (axisymmetric half model, axis at x = 0) or width, y = height, both [m];
+the ball sits above the panel. All public inputs and outputs are SI metres except where a name says
+``_um`` (micrometres) and the loss (dimensionless, d measured in ``length_scale`` units).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.linalg import solve_triangular
+
+__all__ = [
+    "BoundaryNodes",
+    "boundary_nodes",
+    "legendre_basis",
+    "poly_fit",
+    "poly_fit_eval",
+    "penetration_depth",
+    "penetration_loss",
+    "signed_distance_to_polyline",
+    "penetration_stats",
+]
+
+DEFAULT_RIDGE = 1e-10
+DEFAULT_REFINE = 3
+
+
+# ---------------------------------------------------------------------------------------------------------
+# 1. Boundary nodes (host side, reference mesh, once)
+# ---------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class BoundaryNodes:
+    """Boundary node sets of the declared contact pair, from the reference mesh.
+
+    ball:      (Mb,) int64  node indices of the ball's lower surface, sorted by reference x
+    panel:     (Mp,) int64  node indices of the cover glass top surface, sorted by reference x
+    interval:  (x_lo, x_hi) [m] fixed fit interval mapped to t in [-1, 1]; covers both sets' reference x
+               with a margin for the expected motion (radial displacements are O(µm))
+    ball_rule, panel_rule: how each set was found ('columns' | 'edges' | 'bins'), see boundary_nodes.
+    """
+
+    ball: np.ndarray
+    panel: np.ndarray
+    interval: tuple[float, float]
+    ball_rule: str = "columns"
+    panel_rule: str = "columns"
+
+
+def _x_clusters(x: np.ndarray, tol: float) -> np.ndarray:
+    """Column label of every entry of x: single-linkage clusters of sorted x with gaps <= tol."""
+    order = np.argsort(x, kind="stable")
+    xs = x[order]
+    new = np.concatenate([[True], np.diff(xs) > tol])
+    labels_sorted = np.cumsum(new) - 1
+    labels = np.empty_like(labels_sorted)
+    labels[order] = labels_sorted
+    return labels
+
+
+def _extreme_per_label(idx: np.ndarray, labels: np.ndarray, y: np.ndarray, side: str) -> np.ndarray:
+    """For each label, the index (from idx) of the lowest ('bottom') or highest ('top') y."""
+    key = y if side == "bottom" else -y
+    # sort by (label, key); first of each label is the extreme
+    order = np.lexsort((key, labels))
+    first = np.concatenate([[True], labels[order][1:] != labels[order][:-1]])
+    return idx[order[first]]
+
+
+def _surface_by_edges(points: np.ndarray, cells: np.ndarray, side: str, normal_tol: float) -> np.ndarray:
+    """Nodes of boundary edges (edges used by exactly one of ``cells``) whose outward normal points down
+    ('bottom': n_y < -normal_tol) or up ('top': n_y > normal_tol). Orientation-independent: the outward
+    side is the one away from the owning cell's centroid."""
+    cells = np.asarray(cells, dtype=np.int64)
+    k = cells.shape[1]
+    a = cells.reshape(-1)
+    b = np.roll(cells, -1, axis=1).reshape(-1)
+    owner = np.repeat(np.arange(cells.shape[0]), k)
+    key = np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    boundary = counts[inv.reshape(-1)] == 1
+    a, b, owner = a[boundary], b[boundary], owner[boundary]
+    pa, pb = points[a], points[b]
+    t = pb - pa
+    n = np.stack([t[:, 1], -t[:, 0]], axis=1)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    centroid = points[cells[owner]].mean(axis=1)
+    flip = np.einsum("ij,ij->i", n, 0.5 * (pa + pb) - centroid) < 0
+    n[flip] *= -1
+    sel = n[:, 1] < -normal_tol if side == "bottom" else n[:, 1] > normal_tol
+    return np.unique(np.concatenate([a[sel], b[sel]]))
+
+
+def _surface_nodes(points, idx, side, *, tol, cells, rule, normal_tol):
+    """Lower ('bottom') or upper ('top') surface nodes of one part; returns (indices, rule used)."""
+    x, y = points[idx, 0], points[idx, 1]
+    labels = _x_clusters(x, tol)
+    n_cols = int(labels.max()) + 1 if len(idx) else 0
+    columnar = n_cols <= 0.5 * len(idx)  # a columnar mesh has >= 2 nodes per column on average
+    if rule == "auto":
+        rule = "columns" if columnar else ("edges" if cells is not None else "bins")
+    if rule == "columns":
+        out = _extreme_per_label(idx, labels, y, side)
+    elif rule == "edges":
+        if cells is None:
+            raise ValueError("boundary_nodes: rule 'edges' needs the part's cells")
+        out = _surface_by_edges(points, cells, side, normal_tol)
+        out = out[np.isin(out, idx)]
+    elif rule == "bins":
+        # bin x at the mesh spacing h (median nearest-neighbour distance of the part's nodes)
+        from scipy.spatial import cKDTree
+
+        dist, _ = cKDTree(points[idx]).query(points[idx], k=2)
+        h = float(np.median(dist[:, 1]))
+        out = _extreme_per_label(idx, np.floor((x - x.min()) / h).astype(np.int64), y, side)
+    else:
+        raise ValueError(f"boundary_nodes: unknown rule {rule!r} (auto | columns | edges | bins)")
+    return out[np.argsort(points[out, 0], kind="stable")].astype(np.int64), rule
+
+
+def boundary_nodes(
+    points,
+    node_part,
+    *,
+    ball_part: int = 0,
+    panel_part: int = 1,
+    x_max: float | None = None,
+    tol: float | None = None,
+    cells=None,
+    cell_part=None,
+    rule: str = "auto",
+    margin: float | None = None,
+    normal_tol: float = 1e-6,
+) -> BoundaryNodes:
+    """Ball bottom and cover-glass top nodes of the reference mesh (host-side NumPy, call once).
+
+    points:    (N, 2) reference coordinates [m]; node_part: (N,) part ids (0 = ball, 1 = CG, ...).
+    x_max:     [m] keep only nodes with reference x <= x_max (the window where contact can happen; both
+               boundaries use it). None keeps all. Recommended: a few contact radii (0.5-1 mm for the
+               paper's scene), because a degree-5/6 polynomial over the whole 5 mm ball or the whole panel
+               cannot resolve a ~0.25 mm contact patch.
+    tol:       [m] x-column tolerance; default 1e-6 x the mesh's x extent (5 nm on 5 mm).
+    cells, cell_part: optional quad connectivity (E, 4) and per-cell part ids, used by rule 'edges'.
+    rule:      how the surface of each part is found:
+               'columns' (the paper's definition): nodes sharing a reference x within ``tol`` form a
+                   column; ball bottom = lowest ball node per column, CG top = highest CG node per column.
+               'edges': nodes of boundary edges of the part's cells whose outward normal points down
+                   (ball) / up (CG), |n_y| > normal_tol. Exact for any (unstructured) mesh; excludes the
+                   symmetry-axis edge (n_y = 0).
+               'bins': x binned at the mesh spacing (median nearest-neighbour distance), extreme node per
+                   bin. Fallback for unstructured meshes without cells; can pick a node one layer inside
+                   the surface where a bin holds no surface node.
+               'auto' (default): 'columns' if the part is columnar (>= 2 nodes per column on average),
+                   else 'edges' if cells are given, else 'bins'. Decided per part.
+    margin:    [m] added on both sides of the fit interval; default 2 % of the x span (>> the O(µm)
+               radial motion, so predicted x stays inside [-1, 1] after mapping).
+
+    Returns BoundaryNodes(ball, panel, interval, ball_rule, panel_rule).
+    """
+    points = np.asarray(points, dtype=np.float64)
+    node_part = np.asarray(node_part)
+    if points.ndim != 2 or points.shape[1] != 2 or node_part.shape != (points.shape[0],):
+        raise ValueError(f"boundary_nodes: points (N, 2) and node_part (N,) expected, got "
+                         f"{points.shape} and {node_part.shape}")
+    span = float(np.ptp(points[:, 0])) if len(points) else 0.0
+    tol = 1e-6 * max(span, 1e-12) if tol is None else float(tol)
+
+    def part_nodes(pid):
+        idx = np.flatnonzero(node_part == pid)
+        if x_max is not None:
+            idx = idx[points[idx, 0] <= x_max + tol]
+        if len(idx) == 0:
+            raise ValueError(f"boundary_nodes: no nodes of part {pid} (x_max={x_max})")
+        return idx
+
+    def part_cells(pid):
+        if cells is None:
+            return None
+        c = np.asarray(cells)
+        if cell_part is not None:
+            return c[np.asarray(cell_part) == pid]
+        return c[np.all(node_part[c] == pid, axis=1)]
+
+    ball, ball_rule = _surface_nodes(points, part_nodes(ball_part), "bottom", tol=tol,
+                                     cells=part_cells(ball_part), rule=rule, normal_tol=normal_tol)
+    panel, panel_rule = _surface_nodes(points, part_nodes(panel_part), "top", tol=tol,
+                                       cells=part_cells(panel_part), rule=rule, normal_tol=normal_tol)
+    if x_max is not None:
+        ball = ball[points[ball, 0] <= x_max + tol]
+        panel = panel[points[panel, 0] <= x_max + tol]
+    allx = np.concatenate([points[ball, 0], points[panel, 0]])
+    lo, hi = float(allx.min()), float(allx.max())
+    m = 0.02 * max(hi - lo, 1e-12) if margin is None else float(margin)
+    return BoundaryNodes(ball=ball, panel=panel, interval=(lo - m, hi + m),
+                         ball_rule=ball_rule, panel_rule=panel_rule)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# 2. Least-squares polynomial fit (jittable, differentiable)
+# ---------------------------------------------------------------------------------------------------------
+def legendre_basis(t, degree: int):
+    """Legendre polynomials P_0..P_degree at t: (...,) -> (..., degree + 1). |P_k(t)| <= 1 on [-1, 1]."""
+    cols = [jnp.ones_like(t)]
+    if degree >= 1:
+        cols.append(t)
+    for k in range(1, degree):
+        cols.append(((2 * k + 1) * t * cols[k] - k * cols[k - 1]) / (k + 1))
+    return jnp.stack(cols, axis=-1)
+
+
+def _to_t(x, interval):
+    lo, hi = interval
+    c = 0.5 * (hi + lo)
+    h = 0.5 * (hi - lo)
+    return (x - c) / h
+
+
+def poly_fit(x, y, degree: int, *, interval, weights=None, ridge: float = DEFAULT_RIDGE,
+             refine: int = DEFAULT_REFINE):
+    """Weighted least-squares Legendre fit on a fixed interval; returns (coef, offset, scale).
+
+    The fitted polynomial is  p(x) = offset + scale * sum_k coef[k] * P_k(t(x)),
+    t(x) = (2 x - x_lo - x_hi) / (x_hi - x_lo).  See :func:`poly_fit_eval` for the method and arguments.
+    coef: (degree + 1,); offset, scale: scalars in the units of y.
+    """
+    degree = int(degree)
+    x = jnp.asarray(x)
+    y = jnp.asarray(y)
+    if x.ndim != 1 or y.shape != x.shape:
+        raise ValueError(f"poly_fit: x and y must be 1-D of equal length, got {x.shape} and {y.shape}")
+    if degree < 0:
+        raise ValueError(f"poly_fit: degree must be >= 0, got {degree}")
+    n = degree + 1
+    m = x.shape[0]
+    if m < n:
+        raise ValueError(f"poly_fit: {m} points cannot determine a degree-{degree} polynomial "
+                         f"({n} coefficients); lower the degree or add boundary nodes")
+    dtype = jnp.result_type(x.dtype, y.dtype, jnp.float32)
+    x = x.astype(dtype)
+    y = y.astype(dtype)
+    if weights is None:
+        w = jnp.ones((m,), dtype)
+    else:
+        w = jnp.asarray(weights).astype(dtype)
+        if w.shape != (m,):
+            raise ValueError(f"poly_fit: weights must have shape {(m,)}, got {w.shape}")
+    w = jax.lax.stop_gradient(jnp.where(w > 0, w, 0))
+    use = w > 0
+    lo, hi = interval
+    mid = 0.5 * (lo + hi)
+    # double-where: padded / excluded entries may hold anything (even NaN) without poisoning values or grads
+    xs = jnp.where(use, x, jnp.asarray(mid, dtype))
+    ys = jnp.where(use, y, 0)
+    wsum = jnp.sum(w)
+    wsafe = jnp.where(wsum > 0, wsum, 1)
+    offset = jnp.sum(w * ys) / wsafe
+    dev = jnp.where(use, ys - offset, 0)
+    scale = jax.lax.stop_gradient(jnp.max(jnp.abs(dev)))
+    scale = jnp.where(scale > 0, scale, 1).astype(dtype)
+    z = dev / scale
+    sw = jnp.where(use, jnp.sqrt(jnp.where(use, w, 1)), 0)
+    basis = legendre_basis(_to_t(xs, (lo, hi)), degree)  # (m, n)
+    a = sw[:, None] * basis
+    b = sw * z
+    # Tikhonov ridge as extra rows: [A; sqrt(mu) I] c = [b; 0]. Keeps R non-singular (finite values and
+    # gradients for all-equal x or too few weighted points) and stays an orthogonal-factorisation solve.
+    mu = jnp.asarray(ridge, dtype) * wsafe
+    a_aug = jnp.concatenate([a, jnp.sqrt(mu) * jnp.eye(n, dtype=dtype)], axis=0)
+    b_aug = jnp.concatenate([b, jnp.zeros((n,), dtype)])
+    q, r = jnp.linalg.qr(a_aug, mode="reduced")
+    q_top, q_bot = q[:m], q[m:]
+    qtb = q_top.T @ b
+    coef = solve_triangular(r, qtb, lower=False)
+    # Iterated Tikhonov with the same factorisation: c <- argmin |A c - b|^2 + mu |c - c_prev|^2, i.e.
+    # rhs [b; sqrt(mu) c_prev]. Each pass shrinks the ridge bias in a direction with singular value s by
+    # mu / (s^2 + mu); directions with s = 0 stay at 0 (minimum-norm solution), so degenerate inputs
+    # remain finite while well- and moderately-conditioned fits converge to the unregularised LS fit.
+    sqrt_mu = jnp.sqrt(mu)
+    for _ in range(int(refine)):
+        coef = solve_triangular(r, qtb + sqrt_mu * (q_bot.T @ coef), lower=False)
+    return coef, offset, scale
+
+
+def poly_fit_eval(x, y, degree: int, x_eval, *, interval, weights=None, ridge: float = DEFAULT_RIDGE,
+                  refine: int = DEFAULT_REFINE, split: bool = False):
+    """Least-squares polynomial of degree ``degree`` through (x, y), evaluated at ``x_eval``.
+
+    x, y:     (M,) sample abscissae and values (e.g. metres, float32 is fine).
+    degree:   static int; M >= degree + 1 is required (ValueError at trace time otherwise).
+    x_eval:   (K,) where to evaluate the fit.
+    interval: (x_lo, x_hi) fixed mapping of x to t = (2 x - x_lo - x_hi) / (x_hi - x_lo) in [-1, 1]
+              (use BoundaryNodes.interval: the same for every frame, so fits are comparable).
+    weights:  optional (M,) non-negative weights; 0 excludes a point (padding, out-of-window nodes) with
+              static shapes. Excluded entries may contain garbage (inf/NaN): they touch neither values
+              nor gradients. Weights are not differentiated.
+    ridge:    relative Tikhonov weight (mu = ridge * sum(weights)) on the Legendre coefficients of the
+              centred, scaled data. 1e-6 biases well-posed fits by ~1e-6 of the y range; it regularises
+              rank-deficient cases (all points at one x, fewer weighted points than coefficients) to the
+              minimum-norm-like fit, e.g. the weighted mean, instead of NaN.
+    split:    return (offset, deviation) with fit = offset + deviation instead of their sum. offset is the
+              weighted mean of y (scalar), deviation (K,) the rest; use it to keep sub-ulp detail when y
+              sits on a large offset (difference of two fits: subtract the offsets first, as
+              :func:`penetration_depth` does). With all weights 0 the fit is 0.
+
+    Method: y is centred (weighted mean) and scaled (max |y - mean|, gradient-stopped: the fit is linear
+    in y, so the scale cancels exactly), x is mapped to [-1, 1], the Legendre design matrix (rows scaled by
+    sqrt(w)) is augmented by sqrt(mu) I and solved with a Householder QR (jnp.linalg.qr) and a triangular
+    solve. Never the normal equations. Differentiable in x, y and x_eval (finite gradients, incl.
+    duplicated and all-equal x). Jittable and vmappable (degree, interval and ridge static/closed over).
+    """
+    coef, offset, scale = poly_fit(x, y, degree, interval=interval, weights=weights, ridge=ridge,
+                                   refine=refine)
+    x_eval = jnp.asarray(x_eval).astype(coef.dtype)
+    dev = scale * (legendre_basis(_to_t(x_eval, interval), int(degree)) @ coef)
+    if split:
+        return offset, dev
+    return offset + dev
+
+
+# ---------------------------------------------------------------------------------------------------------
+# 3. Penetration depth and loss
+# ---------------------------------------------------------------------------------------------------------
+def _masked_min_max(x, mask):
+    big = jnp.asarray(jnp.finfo(x.dtype).max, x.dtype)
+    return jnp.min(jnp.where(mask, x, big)), jnp.max(jnp.where(mask, x, -big))
+
+
+def penetration_depth(ball_xy, panel_xy, *, degree_ball: int = 6, degree_panel: int = 5, interval,
+                      ball_mask=None, panel_mask=None, ridge: float = DEFAULT_RIDGE,
+                      refine: int = DEFAULT_REFINE):
+    """Penetration depth d = y_CG(x) - y_ball(x) [m] at the ball boundary nodes (paper eq. step 3).
+
+    ball_xy:   (Mb, 2) predicted world positions [m] of the ball bottom nodes (BoundaryNodes.ball).
+    panel_xy:  (Mp, 2) predicted world positions [m] of the CG top nodes (BoundaryNodes.panel).
+    degree_ball, degree_panel: static polynomial degrees (paper best: B.6 / P.5).
+    interval:  fixed fit interval (BoundaryNodes.interval).
+    ball_mask, panel_mask: optional (Mb,), (Mp,) bool; False excludes a node from fit and result.
+
+    y_ball(x), y_CG(x) are least-squares fits (:func:`poly_fit_eval`) of each boundary, both evaluated at
+    the ball nodes' predicted x. The offsets (mean heights) are subtracted before the deviations are added,
+    so float32 keeps sub-nm resolution on mm heights. d > 0 means the ball surface is below the glass
+    surface (penetration); d < 0 is a gap.
+
+    Returns (d, valid): d (Mb,) [m], 0 where not valid; valid (Mb,) bool = node masked in and its x inside
+    the overlap [max(min x_b, min x_p), min(max x_b, max x_p)] of the two boundaries' predicted x ranges.
+    Use jax.vmap over a leading frame axis for several frames.
+    """
+    ball_xy = jnp.asarray(ball_xy)
+    panel_xy = jnp.asarray(panel_xy)
+    mb, mp = ball_xy.shape[0], panel_xy.shape[0]
+    bm = jnp.ones((mb,), bool) if ball_mask is None else jnp.asarray(ball_mask, bool)
+    pm = jnp.ones((mp,), bool) if panel_mask is None else jnp.asarray(panel_mask, bool)
+    xb, yb = ball_xy[:, 0], ball_xy[:, 1]
+    xp, yp = panel_xy[:, 0], panel_xy[:, 1]
+    xb_eval = jnp.where(bm, xb, 0.5 * (interval[0] + interval[1]))
+    off_b, dev_b = poly_fit_eval(xb, yb, degree_ball, xb_eval, interval=interval, weights=bm, ridge=ridge,
+                                 refine=refine, split=True)
+    off_p, dev_p = poly_fit_eval(xp, yp, degree_panel, xb_eval, interval=interval, weights=pm, ridge=ridge,
+                                 refine=refine, split=True)
+    d = (off_p - off_b) + (dev_p - dev_b)
+    xs_b = jax.lax.stop_gradient(xb)
+    xs_p = jax.lax.stop_gradient(xp)
+    lo_b, hi_b = _masked_min_max(xs_b, bm)
+    lo_p, hi_p = _masked_min_max(xs_p, pm)
+    enough = (jnp.sum(bm) >= degree_ball + 1) & (jnp.sum(pm) >= degree_panel + 1)
+    valid = bm & (xs_b >= jnp.maximum(lo_b, lo_p)) & (xs_b <= jnp.minimum(hi_b, hi_p)) & enough
+    return jnp.where(valid, d, 0), valid
+
+
+def penetration_loss(d, valid, *, length_scale: float = 1e-6, reduction: str = "positive"):
+    """Paper's penetration loss L_pen = (1/|N_p|) sum_{i in N_p} (d_i / length_scale)^2, N_p = {valid, d_i > 0}.
+
+    d:            (..., M) penetration depth [m] (from :func:`penetration_depth`); valid: (..., M) bool.
+    length_scale: unit of d inside the loss, default 1e-6 m: d is measured in micrometres. Why: the data
+                  loss is an MSE of normalised targets, O(1) (and O(1e-2..1e-1) once trained). In metres a
+                  penetration would give L_pen ~ 1e-12 and lambda = 10 would do nothing; in µm a 1 µm
+                  penetration gives L_pen = 1, so lambda * L_pen = 10 outweighs the data loss until the
+                  penetration is well below a micrometre - the regime the paper's lambda = 10 describes
+                  (the paper's ANSYS data are in µm units, x 1e-6 m). Log lambda * L_pen / L_data to check.
+    reduction:    'positive' (paper): mean over the penetrating nodes of each frame (the last axis);
+                  'valid': sum over penetrating nodes / number of valid nodes (continuous in d; an option).
+    Returns the loss of shape d.shape[:-1] (a scalar for one frame); average over frames yourself.
+    Exactly 0 with an exactly zero, finite gradient when no node penetrates (safe division, double where).
+    """
+    d = jnp.asarray(d)
+    valid = jnp.asarray(valid, bool)
+    ds = jnp.where(valid, d, 0) / length_scale  # double-where: invalid entries never reach the gradient
+    pos = valid & (ds > 0)
+    sq = jnp.where(pos, ds * ds, 0)
+    if reduction == "positive":
+        count = jnp.sum(pos, axis=-1)
+    elif reduction == "valid":
+        count = jnp.sum(valid, axis=-1)
+    else:
+        raise ValueError(f"penetration_loss: reduction must be 'positive' or 'valid', got {reduction!r}")
+    total = jnp.sum(sq, axis=-1)
+    has = count > 0
+    return jnp.where(has, total / jnp.where(has, count, 1).astype(total.dtype), 0)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# 4. Fit-free metric
+# ---------------------------------------------------------------------------------------------------------
+def _xp(*arrays):
+    return np if all(isinstance(a, (np.ndarray, float, int, list, tuple)) for a in arrays) else jnp
+
+
+def signed_distance_to_polyline(points_xy, polyline_xy):
+    """Signed Euclidean distance [m] of points to a polyline (the CG top surface).
+
+    points_xy:   (..., P, 2) points [m] (ball bottom nodes).
+    polyline_xy: (..., S + 1, 2) polyline vertices [m] ordered by increasing x (the CG top nodes in
+                 BoundaryNodes.panel order); leading axes broadcast with points_xy.
+    Returns (..., P): distance to the nearest point of the polyline, positive above it (gap, the outward
+    side of the panel = left of the direction of increasing x), negative below it (penetration), 0 on it.
+    The sign is the side of the nearest segment (at a vertex both adjacent segments agree). Points beyond
+    the polyline's ends are measured to the end vertex; exclude them (penetration_stats does).
+    NumPy in -> NumPy out (float64 stays float64); jax arrays in -> jax array out (jittable).
+    """
+    xp = _xp(points_xy, polyline_xy)
+    p = xp.asarray(points_xy)[..., :, None, :]  # (..., P, 1, 2)
+    poly = xp.asarray(polyline_xy)
+    a = poly[..., None, :-1, :]  # (..., 1, S, 2)
+    ab = poly[..., None, 1:, :] - a
+    l2 = xp.sum(ab * ab, axis=-1)
+    l2s = xp.where(l2 > 0, l2, 1)
+    ap = p - a
+    u = xp.clip(xp.sum(ap * ab, axis=-1) / l2s, 0, 1)
+    diff = ap - u[..., None] * ab  # p - closest point
+    d2 = xp.sum(diff * diff, axis=-1)  # (..., P, S)
+    k = xp.argmin(d2, axis=-1)[..., None]
+    d2min = xp.take_along_axis(d2, k, axis=-1)[..., 0]
+    abk = xp.take_along_axis(xp.broadcast_to(ab, diff.shape), k[..., None], axis=-2)[..., 0, :]
+    dk = xp.take_along_axis(diff, k[..., None], axis=-2)[..., 0, :]
+    cross = abk[..., 0] * dk[..., 1] - abk[..., 1] * dk[..., 0]
+    dist = xp.sqrt(xp.where(d2min > 0, d2min, 0))
+    return xp.where(cross < 0, -dist, dist)
+
+
+def penetration_stats(ball_xy_frames, panel_xy_frames, *, ball_mask=None, threshold_um: float = 0.0):
+    """Fit-free penetration statistics of a rollout (or ground truth), in micrometres.
+
+    ball_xy_frames:  (T, Mb, 2) or (Mb, 2) world positions [m] of the ball bottom nodes.
+    panel_xy_frames: (T, Mp, 2) or (Mp, 2) world positions [m] of the CG top nodes, ordered by x.
+    ball_mask:       optional (Mb,) bool of nodes to include.
+    threshold_um:    a node penetrates when its depth exceeds this [µm] (0: any depth > 0).
+
+    Penetration of a node = max(0, -signed distance to the CG polyline), counted only for nodes whose x
+    lies inside the polyline's x range of that frame. Computed in float64 NumPy.
+    Returns dict:
+      max_um:                  largest penetration over all frames and nodes [µm]
+      mean_um:                 mean depth over all (frame, node) pairs that penetrate [µm] (0 if none)
+      frames_with_penetration: number of frames whose max exceeds threshold_um (int)
+      per_frame_max_um:        (T,) float64 per-frame max [µm]
+      per_frame_mean_um:       (T,) float64 per-frame mean over penetrating nodes [µm] (0 if none)
+    Note: penalty-contact ground truth penetrates slightly too; compare models against its numbers.
+    """
+    b = np.asarray(ball_xy_frames, dtype=np.float64)
+    p = np.asarray(panel_xy_frames, dtype=np.float64)
+    if b.ndim == 2:
+        b = b[None]
+    if p.ndim == 2:
+        p = p[None]
+    t = max(b.shape[0], p.shape[0])
+    b = np.broadcast_to(b, (t,) + b.shape[1:])
+    p = np.broadcast_to(p, (t,) + p.shape[1:])
+    sd = signed_distance_to_polyline(b, p)  # (T, Mb)
+    inside = (b[..., 0] >= p[..., 0].min(axis=-1, keepdims=True)) & \
+             (b[..., 0] <= p[..., 0].max(axis=-1, keepdims=True))
+    if ball_mask is not None:
+        inside &= np.asarray(ball_mask, bool)[None]
+    depth_um = np.where(inside, np.maximum(-sd, 0.0), 0.0) * 1e6
+    pen = depth_um > threshold_um
+    per_max = depth_um.max(axis=-1) if depth_um.shape[-1] else np.zeros(t)
+    cnt = pen.sum(axis=-1)
+    per_mean = np.where(cnt > 0, np.where(pen, depth_um, 0).sum(axis=-1) / np.maximum(cnt, 1), 0.0)
+    n_pen = int(pen.sum())
+    return {
+        "max_um": float(per_max.max()) if t else 0.0,
+        "mean_um": float(depth_um[pen].sum() / n_pen) if n_pen else 0.0,
+        "frames_with_penetration": int(np.sum(per_max > threshold_um)),
+        "per_frame_max_um": per_max,
+        "per_frame_mean_um": per_mean,
+    }
