@@ -40,6 +40,8 @@ class TrainConfig:
     lambda_pen: float = 0.0          # weight of the penetration term (0 = vanilla MGN; paper: 10)
     poly_ball: int = 6               # polynomial degree of the ball boundary fit (penetration term)
     poly_panel: int = 5              # polynomial degree of the cover-glass fit (penetration term)
+    pen_x_max: float = 1e-3          # [m] boundary nodes with reference x <= this enter the fits
+    pen_length_scale: float = 1e-6   # [m] unit of the penetration depth d in L_pen (µm, see penetration.py)
     noise_std: float = 0.0           # Gaussian noise on input world positions [m] (paper: 3e-7)
     noise_parts: str = "none"        # none | ball | panel | all
     # ---- optimisation -----------------------------------------------------------------------

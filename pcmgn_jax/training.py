@@ -36,7 +36,9 @@ from pcmgn_jax import contact as contact_lib
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.graphs import Topology, build_graph, topology_from_trajectory
 from pcmgn_jax.model import EncodeProcessDecode
-from pcmgn_jax.normalization import (Accumulator, Stats, make_stats, normalize_target)
+from pcmgn_jax.noise import correct_target
+from pcmgn_jax.normalization import (Accumulator, Stats, denormalize_output, make_stats,
+                                     normalize_target)
 from pcmgn_jax.rollout import Spec, input_velocity, integrate, make_target, predict, rollout_checked
 from pcmgn_jax.scene import Scene
 
@@ -55,6 +57,10 @@ class TrainSpec:
     lr_decay_steps: int = 1000
     lambda_pen: float = 0.0
     noise_std: float = 0.0
+    poly_ball: int = 6
+    poly_panel: int = 5
+    pen_interval: tuple = (0.0, 1.0)  # [m] fixed fit interval (penetration.BoundaryNodes.interval)
+    pen_length_scale: float = 1e-6
 
 
 class Setup(NamedTuple):
@@ -65,6 +71,7 @@ class Setup(NamedTuple):
     index: contact_lib.ContactIndex
     stats: Stats
     noise_mask: np.ndarray   # [N] bool  free nodes of the noised parts
+    pen_nodes: dict          # {"ball": [Mb] int, "panel": [Mp] int} boundary nodes of the fits
     scene: Scene
     n_pairs: int             # (trajectory, frame) training pairs
     total_steps: int
@@ -73,17 +80,22 @@ class Setup(NamedTuple):
 # ---- setup -------------------------------------------------------------------------------------
 
 def check_supported(cfg: TrainConfig) -> None:
-    """Refuse options whose implementation has not landed (never accept and ignore)."""
+    """Refuse options whose implementation is missing (never accept and ignore)."""
     if cfg.lambda_pen > 0:
         try:
             import pcmgn_jax.penetration  # noqa: F401
         except ImportError:
             raise ValueError(
                 f"--lambda_pen={cfg.lambda_pen} needs the penetration loss (pcmgn_jax.penetration, "
-                "issue 5), which is not installed yet; use --lambda_pen=0 (vanilla MGN)") from None
-        raise ValueError(
-            "--lambda_pen > 0: pcmgn_jax.penetration exists but is not wired into "
-            "training._penetration_loss yet (issue 5 integration); use --lambda_pen=0")
+                "issue 5), which is not installed; use --lambda_pen=0 (vanilla MGN)") from None
+
+
+def penetration_boundary(cfg: TrainConfig, ref, panel_part: int):
+    """Ball-bottom / CG-top node sets and fit interval (pcmgn_jax.penetration.boundary_nodes)."""
+    from pcmgn_jax.penetration import boundary_nodes
+    x_max = cfg.pen_x_max if cfg.pen_x_max < float(np.max(ref.points[:, 0])) else None
+    return boundary_nodes(ref.points, ref.node_part, ball_part=0, panel_part=panel_part, x_max=x_max,
+                          cells=ref.cells, cell_part=ref.cell_part)
 
 
 def make_model(cfg: TrainConfig) -> EncodeProcessDecode:
@@ -141,15 +153,26 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
     sim = Spec(model=make_model(cfg), target=cfg.target, dt=dt)
     n_pairs = sum(t.n_frames - 1 for t in train_trajs)
     steps = total_steps(cfg, n_pairs)
-    spec = TrainSpec(sim=sim, learning_rate=cfg.learning_rate, lr_decay_rate=cfg.lr_decay_rate,
-                     lr_decay_steps=cfg.lr_decay_steps or steps, lambda_pen=cfg.lambda_pen,
-                     noise_std=cfg.noise_std)
+    spec, pen_nodes = _train_spec(cfg, sim, steps, ref, panel_part)
     stats = compute_stats(train_trajs, topology, index, target=cfg.target, dt=dt,
                           max_frames=stats_max_frames, noise_std=cfg.noise_std)
     parts = {"none": [], "ball": [0], "panel": list(range(1, len(scene.part_names))),
              "all": list(range(len(scene.part_names)))}[cfg.noise_parts]
     noise_mask = np.isin(ref.node_part, parts) & ~np.asarray(topology.fixed)
-    return Setup(spec, topology, index, stats, noise_mask, scene, n_pairs, steps)
+    return Setup(spec, topology, index, stats, noise_mask, pen_nodes, scene, n_pairs, steps)
+
+
+def _train_spec(cfg: TrainConfig, sim: Spec, steps: int, ref, panel_part: int):
+    kw, pen_nodes = {}, {"ball": np.zeros(0, np.int32), "panel": np.zeros(0, np.int32)}
+    if cfg.lambda_pen > 0:
+        bn = penetration_boundary(cfg, ref, panel_part)
+        kw = dict(pen_interval=tuple(float(v) for v in bn.interval))
+        pen_nodes = {"ball": np.asarray(bn.ball, np.int32), "panel": np.asarray(bn.panel, np.int32)}
+    spec = TrainSpec(sim=sim, learning_rate=cfg.learning_rate, lr_decay_rate=cfg.lr_decay_rate,
+                     lr_decay_steps=cfg.lr_decay_steps or steps, lambda_pen=cfg.lambda_pen,
+                     noise_std=cfg.noise_std, poly_ball=cfg.poly_ball, poly_panel=cfg.poly_panel,
+                     pen_length_scale=cfg.pen_length_scale, **kw)
+    return spec, pen_nodes
 
 
 @jax.jit
@@ -232,37 +255,34 @@ def make_optimizer(spec: TrainSpec) -> optax.GradientTransformation:
     return optax.adam(functools.partial(learning_rate, spec))
 
 
-def _penetration_loss(spec: TrainSpec, topology: Topology, points, u_next):
-    """Hook for the physics term (issue 5): L_pen of the predicted next positions, or 0 when off.
-
-    Integration: compute boundary nodes once (host), then here
-    ``d = penetration_depth(...points + u_next...)``; ``return penetration_loss(d, valid)``.
-    """
+def _penetration_loss(spec: TrainSpec, pen_nodes, points, u_next):
+    """Physics term (paper 2.3): L_pen of the predicted next world positions (d in pen_length_scale)."""
     if spec.lambda_pen == 0:
         return jnp.zeros((), jnp.float32)
-    raise NotImplementedError("penetration term not wired in yet (see training.check_supported)")
+    from pcmgn_jax.penetration import penetration_depth, penetration_loss
+    pos = points + u_next
+    d, valid = penetration_depth(pos[pen_nodes["ball"]], pos[pen_nodes["panel"]], degree_ball=spec.poly_ball,
+                                 degree_panel=spec.poly_panel, interval=spec.pen_interval)
+    return penetration_loss(d, valid, length_scale=spec.pen_length_scale)
 
 
-def loss_fn(params, spec: TrainSpec, stats: Stats, topology: Topology, index, noise_mask, sample, key):
+def loss_fn(params, spec: TrainSpec, stats: Stats, topology: Topology, index, noise_mask, pen_nodes,
+            sample, key):
     """Loss of one graph. sample: points, u, v (N,2) and target (N,3) SI. Returns (loss, aux)."""
     sim = spec.sim
     u, target = sample["u"], sample["target"]
     if spec.noise_std > 0:
         n = spec.noise_std * jax.random.normal(key, u.shape) * noise_mask[:, None]
         u = u + n
-        if sim.target == "velocity":
-            target = target.at[:, :2].add(-n / sim.dt)
-        elif sim.target == "displacement":
-            target = target.at[:, :2].add(-n)
+        target = target.at[:, :2].set(correct_target(target[:, :2], n, sim.target, dt=sim.dt))
     out, edges = predict(sim, params, stats, topology, index, sample["points"], u, sample["v"])
     err = (out - normalize_target(stats, target)) ** 2
     free = (~topology.fixed).astype(jnp.float32)
     w = jnp.stack([free, free, jnp.ones_like(free)], axis=-1)
     loss_data = jnp.mean(jnp.sum(w * err, axis=0) / jnp.sum(w, axis=0))
     if spec.lambda_pen > 0:
-        from pcmgn_jax.normalization import denormalize_output
         u_next, _, _ = integrate(sim, topology, sample["points"], u, denormalize_output(stats, out))
-        loss_pen = _penetration_loss(spec, topology, sample["points"], u_next)
+        loss_pen = _penetration_loss(spec, pen_nodes, sample["points"], u_next)
     else:
         loss_pen = jnp.zeros((), jnp.float32)
     loss = loss_data + spec.lambda_pen * loss_pen
@@ -270,23 +290,23 @@ def loss_fn(params, spec: TrainSpec, stats: Stats, topology: Topology, index, no
                       contact_count=edges.count)
 
 
-def _batch_loss(params, spec, stats, topology, index, noise_mask, batch, key):
+def _batch_loss(params, spec, stats, topology, index, noise_mask, pen_nodes, batch, key):
     keys = jax.random.split(key, batch["u"].shape[0])
-    fn = lambda s, k: loss_fn(params, spec, stats, topology, index, noise_mask, s, k)  # noqa: E731
+    fn = lambda s, k: loss_fn(params, spec, stats, topology, index, noise_mask, pen_nodes, s, k)  # noqa
     loss, aux = jax.vmap(fn)(batch, keys)
     return jnp.mean(loss), dict(loss_data=jnp.mean(aux["loss_data"]), loss_pen=jnp.mean(aux["loss_pen"]),
                                 overflow=jnp.any(aux["overflow"]), contact_count=jnp.max(aux["contact_count"]))
 
 
 @functools.partial(jax.jit, static_argnames=("spec",))
-def train_chunk(spec: TrainSpec, state, stats, topology, index, noise_mask, batches, seed_key):
+def train_chunk(spec: TrainSpec, state, stats, topology, index, noise_mask, pen_nodes, batches, seed_key):
     """K optimiser steps in one dispatch. batches: dict of (K, B, N, d); returns (state, metrics (K,))."""
     tx = make_optimizer(spec)
 
     def one(state, batch):
         key = jax.random.fold_in(seed_key, state["step"])
         (loss, aux), grads = jax.value_and_grad(_batch_loss, has_aux=True)(
-            state["params"], spec, stats, topology, index, noise_mask, batch, key)
+            state["params"], spec, stats, topology, index, noise_mask, pen_nodes, batch, key)
         updates, opt_state = tx.update(grads, state["opt_state"], state["params"])
         params = optax.apply_updates(state["params"], updates)
         new = dict(step=state["step"] + 1, params=params, opt_state=opt_state)
@@ -395,7 +415,7 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
     every = lambda n: K * max(1, math.ceil(n / K))  # noqa: E731
     log_every, ckpt_every, val_every = every(cfg.log_every), every(cfg.ckpt_every), every(cfg.val_every)
     seed_key = jax.random.PRNGKey(cfg.seed + 1)
-    stats, topo, nmask = setup.stats, setup.topology, jnp.asarray(setup.noise_mask)
+    stats, topo, nmask = setup.stats, setup.topology, setup.noise_mask
     step = int(state["step"])
     total = setup.total_steps
     end = total if stop_after is None else min(total, step + stop_after)
@@ -410,7 +430,8 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
         while step < end:
             ids = sample_ids(cfg.seed, step, K, B, setup.n_pairs)
             batch = gather(train_trajs, table, ids, target=cfg.target, dt=setup.spec.sim.dt)
-            new_state, m = train_chunk(setup.spec, state, stats, topo, setup.index, nmask, batch, seed_key)
+            new_state, m = train_chunk(setup.spec, state, stats, topo, setup.index, nmask,
+                                       setup.pen_nodes, batch, seed_key)
             m = jax.device_get(m)
             if np.any(m["overflow"]):
                 need = int(np.max(m["contact_count"]))
@@ -490,11 +511,9 @@ def prepare_from_meta(cfg: TrainConfig, ref, meta: dict) -> Setup:
                                  capacity=meta["contact_capacity"])
     sim = Spec(model=make_model(cfg), target=cfg.target, dt=float(meta["dt"]))
     steps = int(meta["total_steps"])
-    spec = TrainSpec(sim=sim, learning_rate=cfg.learning_rate, lr_decay_rate=cfg.lr_decay_rate,
-                     lr_decay_steps=cfg.lr_decay_steps or steps, lambda_pen=cfg.lambda_pen,
-                     noise_std=cfg.noise_std)
-    return Setup(spec, topology, index, Stats.from_json(meta["stats"]), np.zeros(ref.n_nodes, bool), scene,
-                 0, steps)
+    spec, pen_nodes = _train_spec(cfg, sim, steps, ref, panel_part)
+    return Setup(spec, topology, index, Stats.from_json(meta["stats"]), np.zeros(ref.n_nodes, bool),
+                 pen_nodes, scene, 0, steps)
 
 
 __all__ = ["TrainSpec", "Setup", "TrainingDiverged", "prepare", "init_state", "train_chunk", "train",

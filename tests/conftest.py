@@ -80,3 +80,50 @@ def make_synthetic_trajectory(design: float = 1.0, n_frames: int = 12) -> Trajec
 def tiny_trajs():
     """Four synthetic trajectories of one topology (designs 0.8..1.2)."""
     return [make_synthetic_trajectory(d) for d in (0.8, 0.93, 1.07, 1.2)]
+
+
+class CompileCounter:
+    """Counts XLA compilations (jax.log_compiles records) of functions whose name contains ``name``."""
+
+    def __init__(self, name: str):
+        import logging
+        self.name, self.count = name, 0
+        outer = self
+
+        class _H(logging.Handler):
+            def emit(self, record):
+                msg = record.getMessage()
+                if msg.startswith("Finished XLA compilation of") and outer.name in msg:
+                    outer.count += 1
+        self._handler = _H()
+
+    def __enter__(self):
+        import logging
+
+        import jax
+        self._ctx = jax.log_compiles(True)
+        self._ctx.__enter__()
+        logging.getLogger("jax").addHandler(self._handler)
+        return self
+
+    def __exit__(self, *exc):
+        import logging
+        logging.getLogger("jax").removeHandler(self._handler)
+        self._ctx.__exit__(*exc)
+
+
+def tiny_config(**kw):
+    from pcmgn_jax.config import TrainConfig
+    base = dict(num_steps=160, steps_per_dispatch=20, log_every=20, ckpt_every=40, val_every=80,
+                contact_radius=20e-6, progress=False, latent_size=32, message_passing_steps=2)
+    return TrainConfig.from_preset("tiny", **{**base, **kw})
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tiny_trajs, tmp_path_factory):
+    """A short tiny training run: (cfg, workdir, summary). Shared by the training and rollout tests."""
+    from pcmgn_jax import training
+    cfg = tiny_config()
+    workdir = tmp_path_factory.mktemp("tiny_run")
+    summary = training.train(cfg, workdir, train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:])
+    return cfg, workdir, summary
