@@ -233,6 +233,19 @@ def test_boundary_nodes_unstructured_ball_uses_downward_boundary_edges():
     assert set(bn2.ball.tolist()) <= set(outer.tolist())
 
 
+def test_boundary_nodes_on_project_mesh():
+    """On the project's own O-grid ball + columnar panel ROI mesh, 'auto' finds exactly the mesh's
+    ball surface (by downward boundary edges) and panel top (by columns)."""
+    mesh_mod = pytest.importorskip("pcmgn_jax.mesh")
+    from pcmgn_jax.scene import default_scene
+
+    sub, _ = mesh_mod.roi(mesh_mod.build_mesh(default_scene(), "tiny"), "tiny")
+    bn = boundary_nodes(sub.points, sub.node_part, cells=sub.cells, cell_part=sub.cell_part)
+    assert (bn.ball_rule, bn.panel_rule) == ("edges", "columns")
+    assert np.array_equal(np.sort(bn.ball), np.sort(sub.ball_surface))
+    assert np.array_equal(np.sort(bn.panel), np.sort(sub.panel_top))
+
+
 # ------------------------------------------------------------------------------------------------------
 # penetration depth and loss
 # ------------------------------------------------------------------------------------------------------
