@@ -519,3 +519,17 @@ def prepare_from_meta(cfg: TrainConfig, ref, meta: dict) -> Setup:
 __all__ = ["TrainSpec", "Setup", "TrainingDiverged", "prepare", "init_state", "train_chunk", "train",
            "loss_fn", "make_optimizer", "sample_ids", "save_checkpoint", "restore_checkpoint",
            "load_for_inference", "check_supported", "compute_stats", "rollout_position_mae_um"]
+
+
+def load_data(cfg: TrainConfig):
+    """(train, val, test) trajectories of the preset's dataset, generating it first when missing."""
+    from pcmgn_jax.cache import load_split
+    from pcmgn_jax.dataset import ensure_dataset
+    root = ensure_dataset(cfg.resolved_dataset_dir, preset=cfg.data_preset, n_train=cfg.n_train + cfg.n_val,
+                          n_test=cfg.n_test, seed=cfg.data_seed)
+    train = load_split(root, "train")
+    test = load_split(root, "test")
+    need = cfg.n_train + cfg.n_val
+    if len(train) < need:
+        raise ValueError(f"{root}/train holds {len(train)} trajectories, the config needs n_train + n_val = {need}")
+    return train[:cfg.n_train], train[cfg.n_train:need], test[:cfg.n_test]

@@ -49,3 +49,18 @@ def test_rollout_no_recompilation(tiny_run, tiny_trajs):
         for t in tiny_trajs:
             jax.block_until_ready(rl.rollout(s.spec.sim, 4, params, s.stats, s.topology, s.index, *_args(t)))
     assert c.count == 0
+
+
+def test_evaluate_writes_metrics_and_plots(tiny_run, tiny_trajs):
+    import json
+
+    from pcmgn_jax import evaluation
+    cfg, workdir, _ = tiny_run
+    m = evaluation.evaluate(workdir, test_trajs=tiny_trajs[2:], cfg=cfg, plot=True)
+    saved = json.loads((workdir / "eval" / "metrics.json").read_text())
+    for k in ("position_mae_um", "position_rmse_um", "stress_mae_mpa", "stress_rmse_mpa", "penetration_max_um",
+              "rollout_seconds_per_trajectory", "per_frame_position_mae_um_mean", "per_frame_stress_mae_mpa_std"):
+        assert k in saved and np.all(np.isfinite(saved[k]))
+    assert len(m["per_frame_position_mae_um_mean"]) == tiny_trajs[0].n_frames
+    for png in ("deformed_mesh_pred", "pred_truth_error", "contact_zoom", "mae_vs_frame"):
+        assert (workdir / "eval" / f"{png}.png").stat().st_size > 1000
