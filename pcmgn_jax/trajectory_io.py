@@ -101,25 +101,31 @@ def content_hash(traj: Trajectory) -> str:
     return h.hexdigest()
 
 
-def to_jsonable(obj: Any, where: str = "meta") -> Any:
-    """Convert numpy scalars/arrays, tuples and Paths to plain JSON types; reject NaN/inf and objects."""
+def to_jsonable(obj: Any, where: str = "meta", *, nonfinite: str = "null") -> Any:
+    """Convert numpy scalars/arrays, tuples and Paths to plain JSON types; reject other objects.
+
+    Non-finite floats (e.g. a contact phase that did not occur, NaN) become ``null`` with
+    ``nonfinite='null'`` (strict JSON has no NaN) or raise ValueError with ``nonfinite='error'``.
+    """
     if isinstance(obj, Mapping):
         out = {}
         for k, v in obj.items():
             if not isinstance(k, str):
                 raise ValueError(f"{where}: keys must be strings, got {k!r}")
-            out[k] = to_jsonable(v, f"{where}.{k}")
+            out[k] = to_jsonable(v, f"{where}.{k}", nonfinite=nonfinite)
         return out
     if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v, f"{where}[{i}]") for i, v in enumerate(obj)]
+        return [to_jsonable(v, f"{where}[{i}]", nonfinite=nonfinite) for i, v in enumerate(obj)]
     if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist(), where)
+        return to_jsonable(obj.tolist(), where, nonfinite=nonfinite)
     if isinstance(obj, (bool, np.bool_)):
         return bool(obj)
     if isinstance(obj, (int, np.integer)):
         return int(obj)
     if isinstance(obj, (float, np.floating)):
         if not math.isfinite(float(obj)):
+            if nonfinite == "null":
+                return None
             raise ValueError(f"{where}: non-finite number {obj!r} cannot be stored in JSON")
         return float(obj)
     if obj is None or isinstance(obj, str):

@@ -129,7 +129,13 @@ def test_invalid_input_writes_nothing(tmp_path):
     traj = synthetic_trajectory(meta={"sha256": "x"})
     with pytest.raises(ValueError, match="reserved"):
         tio.write_trajectory(traj, tmp_path / "a")
-    traj = synthetic_trajectory(meta={"energy": {"drift": float("inf")}})
-    with pytest.raises(ValueError, match="energy.drift"):
+    traj = synthetic_trajectory(meta={"energy": {"drift": object()}})
+    with pytest.raises(ValueError, match="energy.drift: value of type object"):
         tio.write_trajectory(traj, tmp_path / "a")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_nonfinite_meta_becomes_null(tmp_path):
+    traj = synthetic_trajectory(meta={"phases": {"separation_s": float("nan")}, "n": np.int64(3)})
+    tio.write_trajectory(traj, tmp_path / "a")
+    assert tio.read_trajectory(tmp_path / "a").meta["phases"] == {"separation_s": None}
