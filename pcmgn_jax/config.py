@@ -180,6 +180,11 @@ def _convert(key: str, value: str | bool, typ) -> Any:
             raise ValueError(value)
         if isinstance(value, bool):
             raise ValueError("a value is required")
+        if typ is int and not value.lstrip("-").isdigit():
+            f = float(value)  # accept 4e3
+            if not f.is_integer():
+                raise ValueError(value)
+            return int(f)
         return typ(value)
     except ValueError:
         raise ValueError(f"flag --{key}: cannot read {value!r} as {typ.__name__}") from None

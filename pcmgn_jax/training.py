@@ -425,9 +425,10 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
     if cfg.progress:
         from tqdm import tqdm
         bar = tqdm(total=total, initial=step, desc="train", dynamic_ncols=True)
-    t_start, n_done = time.perf_counter(), 0
+    t_start, rate = time.perf_counter(), float("nan")
     with open(workdir / "metrics.jsonl", mode) as log:
         while step < end:
+            t_chunk = time.perf_counter()
             ids = sample_ids(cfg.seed, step, K, B, setup.n_pairs)
             batch = gather(train_trajs, table, ids, target=cfg.target, dt=setup.spec.sim.dt)
             new_state, m = train_chunk(setup.spec, state, stats, topo, setup.index, nmask,
@@ -448,8 +449,8 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
                 raise TrainingDiverged(msg)
             state = new_state
             step += K
-            n_done += K
-            rate = n_done / (time.perf_counter() - t_start)
+            chunk_rate = K / (time.perf_counter() - t_chunk)  # first chunk includes compilation
+            rate = chunk_rate if not np.isfinite(rate) or step <= K else 0.8 * rate + 0.2 * chunk_rate
             if bar is not None:
                 bar.update(K)
                 bar.set_postfix(loss=f"{float(m['loss'][-1]):.4g}", steps_s=f"{rate:.1f}")
