@@ -1,0 +1,329 @@
+"""Structured 2D quad meshes of the half model (ball + bonded panel layers), and ROI cropping.
+
+Coordinates [m]: x >= 0 is the radius (axisymmetric) or the half width (plane strain), the
+symmetry axis is x = 0, y is the height with the plate bottom at y = 0. The ball is a half
+disk meshed with the elliptical square-to-disk map, so its bottom pole (the contact point)
+sits in the middle of a well-shaped, graded patch. Element counts per layer are fixed by the
+:class:`MeshSpec`, so every design (OCA thicknesses) of a scene has the same topology.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from pcmgn_jax.scene import Scene
+
+
+@dataclass(frozen=True)
+class MeshSpec:
+    """Mesh resolution. Lengths in metres.
+
+    h_contact:    element size at the contact (ball pole, cover-glass top near the axis)
+    fine_radius:  radial extent of the uniform fine zone around the axis
+    fine_depth:   depth of the uniform fine zone inside the ball below its surface
+    growth:       geometric growth ratio of element sizes outside the fine zone
+    layer_elems:  elements through the thickness of each layer (by name); fixed per preset
+                  so all designs share one topology. Missing names: ceil(t / h_layer), and
+                  for the bottom layer uniform h_layer to fine_depth then growth.
+    h_layer:      target through-thickness size for layers not listed in layer_elems
+    bottom_growth: growth ratio (downwards) of the bottom (thick) layer's element sizes
+    roi_x:        region-of-interest radius for the graph (panel and ball nodes x <= roi_x)
+    roi_ball_height: ball nodes with y <= (ball bottom + this) are kept in the ROI
+    """
+
+    h_contact: float = 10e-6
+    fine_radius: float = 0.6e-3
+    fine_depth: float = 0.1e-3
+    growth: float = 1.15
+    layer_elems: Mapping[str, int] = field(default_factory=lambda: {
+        "CG": 10, "OCA1": 6, "POL": 5, "OCA2": 6, "OLED": 3, "PLATE": 12})
+    h_layer: float = 10e-6
+    bottom_growth: float = 1.3
+    roi_x: float = 1.5e-3
+    roi_ball_height: float = 0.8e-3
+
+
+MESH_PRESETS: dict[str, MeshSpec] = {
+    # tests and smoke checks: a few hundred nodes
+    "tiny": MeshSpec(h_contact=50e-6, fine_radius=0.4e-3, fine_depth=0.1e-3, growth=1.4,
+                     layer_elems={"CG": 2, "OCA1": 2, "POL": 1, "OCA2": 2, "OLED": 1, "PLATE": 3},
+                     h_layer=50e-6, bottom_growth=1.6, roi_x=1.0e-3, roi_ball_height=0.5e-3),
+    # the 2-core default: ~25 um at the contact
+    "cpu": MeshSpec(h_contact=25e-6, fine_radius=0.5e-3, fine_depth=0.1e-3, growth=1.2,
+                    layer_elems={"CG": 4, "OCA1": 3, "POL": 2, "OCA2": 3, "OLED": 2, "PLATE": 6},
+                    h_layer=25e-6, bottom_growth=1.4, roi_x=1.5e-3, roi_ball_height=0.6e-3),
+    # the paper's resolution (<= 10 um at the contact), for a GPU
+    "paper": MeshSpec(),
+}
+
+
+def mesh_spec(preset: str | MeshSpec) -> MeshSpec:
+    if isinstance(preset, MeshSpec):
+        return preset
+    if preset not in MESH_PRESETS:
+        raise ValueError(f"unknown mesh preset {preset!r}; choose one of {sorted(MESH_PRESETS)}")
+    return MESH_PRESETS[preset]
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """A quad mesh with part ids and node sets.
+
+    points (N,2) float64 [m]; cells (E,4) int64 counter-clockwise; cell_part (E,) int32;
+    node_part (N,) int32 (interface nodes take the stiffer layer's part); node_type (N,) int32
+    (= node_part, or n_parts for fixed nodes); fixed (N,2) bool per-dof Dirichlet mask
+    (plate bottom: both; symmetry axis: x); ball_surface / panel_top: node indices sorted
+    by x; part_names indexed by part id.
+    """
+
+    points: np.ndarray
+    cells: np.ndarray
+    cell_part: np.ndarray
+    node_part: np.ndarray
+    node_type: np.ndarray
+    fixed: np.ndarray
+    ball_surface: np.ndarray
+    panel_top: np.ndarray
+    part_names: tuple[str, ...]
+
+    @property
+    def n_nodes(self) -> int:
+        return int(self.points.shape[0])
+
+
+def graded_coords(length: float, h: float, fine: float, growth: float) -> np.ndarray:
+    """Monotone 1D node coordinates on [0, length] [m]: uniform size ``h`` up to ``fine``,
+    then sizes growing by ``growth`` per element; the last element is merged if it would be
+    shorter than half its predecessor."""
+    if length <= 0 or h <= 0:
+        raise ValueError(f"graded_coords: length and h must be > 0, got {length}, {h}")
+    xs = [0.0]
+    size = h
+    while xs[-1] < length - 1e-12 * length:
+        if xs[-1] + 1e-12 >= fine:
+            size *= growth
+        xs.append(xs[-1] + size)
+    xs = np.asarray(xs)
+    xs[-1] = length
+    if len(xs) > 2 and (xs[-1] - xs[-2]) < 0.5 * (xs[-2] - xs[-3]):
+        xs = np.delete(xs, -2)
+    # stretch uniformly-graded tail so the end lands on length exactly
+    return xs
+
+
+def _layer_counts(scene: Scene, spec: MeshSpec) -> list[int]:
+    counts = []
+    for li, layer in enumerate(scene.layers):
+        n = spec.layer_elems.get(layer.name)
+        if n is None and li == len(scene.layers) - 1:
+            counts.append(0)  # graded automatically in _panel_y
+            continue
+        if n is None:
+            if layer.name in scene.design_layers:
+                raise ValueError(
+                    f"mesh: design layer {layer.name!r} needs a fixed element count in "
+                    "MeshSpec.layer_elems (the topology must not depend on the design)")
+            n = max(1, math.ceil(layer.thickness / spec.h_layer - 1e-9))
+        if n < 1:
+            raise ValueError(f"mesh: layer_elems[{layer.name!r}] must be >= 1, got {n}")
+        counts.append(int(n))
+    return counts
+
+
+def _panel_y(scene: Scene, spec: MeshSpec) -> tuple[np.ndarray, np.ndarray]:
+    """Node heights [m] of the panel and the layer index of each element row (0 = top layer)."""
+    counts = _layer_counts(scene, spec)
+    ys: list[float] = []
+    row_layer: list[int] = []
+    top = scene.panel_thickness
+    y = top
+    ys.append(y)
+    n_layers = len(scene.layers)
+    for li, (layer, n) in enumerate(zip(scene.layers, counts)):
+        t = layer.thickness
+        if li == n_layers - 1 and layer.name not in spec.layer_elems:
+            # thick bottom block: uniform h_layer near its top, then geometric growth
+            sizes = np.diff(graded_coords(t, spec.h_layer, spec.fine_depth, spec.growth))
+        elif li == n_layers - 1 and n > 1 and spec.bottom_growth != 1.0:
+            g = spec.bottom_growth
+            sizes = g ** np.arange(n)
+            sizes = sizes / sizes.sum() * t
+        else:
+            sizes = np.full(n, t / n)
+        for s in sizes:
+            y -= s
+            ys.append(y)
+            row_layer.append(li)
+    ys = np.asarray(ys)
+    ys[-1] = 0.0
+    return ys[::-1].copy(), np.asarray(row_layer[::-1])
+
+
+def _stretched(depth: float, h: float, n: int) -> np.ndarray:
+    """Distances [m] from the outer surface of n+1 nodes across ``depth``: the first element
+    is ``h`` and sizes grow geometrically (ratio found by bisection; < 1 if depth < n h)."""
+    lo, hi = 0.5, 3.0
+    for _ in range(200):
+        r = 0.5 * (lo + hi)
+        total = h * n if abs(r - 1) < 1e-12 else h * (r**n - 1) / (r - 1)
+        lo, hi = (r, hi) if total < depth else (lo, r)
+    d = np.concatenate([[0.0], np.cumsum(h * r ** np.arange(n))])
+    return d * (depth / d[-1])
+
+
+def _patch(c_pts: np.ndarray, a_pts: np.ndarray, h: float, n_rad: int):
+    """Structured patch between an inner curve C (n_t,2) and an outer arc A (n_t,2) with
+    n_rad elements along each C->A line, the one at the arc of size h. Returns points
+    (n_rad+1, n_t, 2) flattened, and CCW cells; row n_rad is the arc."""
+    depth = np.linalg.norm(a_pts - c_pts, axis=1)
+    frac = np.stack([1.0 - _stretched(d, h, n_rad)[::-1] / d for d in depth], axis=1)  # (n_r, n_t)
+    pts = c_pts[None] + frac[..., None] * (a_pts - c_pts)[None]
+    n_r, n_t = n_rad + 1, c_pts.shape[0]
+    idx = np.arange(n_r * n_t).reshape(n_r, n_t)
+    cells = np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]], axis=-1).reshape(-1, 4)
+    return pts.reshape(-1, 2), cells
+
+
+def _ccw(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    xy = points[cells]
+    area = 0.5 * np.sum(xy[..., 0] * np.roll(xy[..., 1], -1, 1) - np.roll(xy[..., 0], -1, 1) * xy[..., 1], 1)
+    return np.where((area < 0)[:, None], cells[:, ::-1], cells)
+
+
+def _ball_mesh(scene: Scene, spec: MeshSpec, y_bottom: float):
+    """Half-disk O-grid: a core rectangle [0, 0.7R] x [-0.3R, 0.3R] and three patches (bottom,
+    right, top) between the core and the arc. The bottom patch carries the contact: graded
+    tangentially from the pole (size h_contact over fine_radius) and radially from the arc
+    (h_contact over fine_depth). Corner angles stay near 90-135 degrees (a single mapped
+    patch would put 180-degree corners on the arc and wreck the stable time step).
+    Returns points (relative to nothing: absolute [m]), cells, surface node ids sorted by x."""
+    from scipy.spatial import cKDTree
+
+    R = scene.ball.radius
+    s, y1, y2 = 0.7 * R, -0.3 * R, 0.3 * R
+    quarter = 0.25 * math.pi * R  # arc length of a 45-degree arc
+    tau = graded_coords(1.0, spec.h_contact / quarter, spec.fine_radius / quarter, spec.growth)
+    depth = R + y1  # radial extent of the bottom patch on the axis
+    n_rad = len(graded_coords(depth, spec.h_contact, spec.fine_depth, spec.growth)) - 1
+    h = spec.h_contact
+    last = (tau[-1] - tau[-2]) * quarter
+    n_side = max(2, math.ceil(2 * quarter / last))
+    sig = np.linspace(0.0, 1.0, n_side + 1)
+    # bottom patch: core bottom edge -> arc from -90 to -45 degrees
+    ang = tau * math.pi / 4
+    pb, cb = _patch(np.stack([s * tau, np.full_like(tau, y1)], 1),
+                    np.stack([R * np.sin(ang), -R * np.cos(ang)], 1), h, n_rad)
+    # right patch: core right edge -> arc from -45 to +45 degrees
+    ang_r = -math.pi / 4 + sig * math.pi / 2
+    pr, cr = _patch(np.stack([np.full_like(sig, s), y1 + (y2 - y1) * sig], 1),
+                    np.stack([R * np.cos(ang_r), R * np.sin(ang_r)], 1), h, n_rad)
+    # top patch: core top edge -> arc from +90 to +45 degrees
+    pt, ct = _patch(np.stack([s * tau, np.full_like(tau, y2)], 1),
+                    np.stack([R * np.sin(ang), R * np.cos(ang)], 1), h, n_rad)
+    # core
+    cx, cy = np.meshgrid(s * tau, y1 + (y2 - y1) * sig, indexing="xy")
+    pc = np.stack([cx.ravel(), cy.ravel()], 1)
+    idx = np.arange(cx.size).reshape(cx.shape)
+    cc = np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]], axis=-1).reshape(-1, 4)
+    parts = [(pb, cb), (pr, cr), (pt, ct), (pc, cc)]
+    pts = np.concatenate([p for p, _ in parts])
+    offs = np.cumsum([0] + [len(p) for p, _ in parts[:-1]])
+    cells = np.concatenate([c + o for (_, c), o in zip(parts, offs)])
+    # merge coincident nodes on patch interfaces
+    tree = cKDTree(pts)
+    rep = np.arange(len(pts))
+    for i, j in sorted(tree.query_pairs(1e-9 * R)):
+        rep[j] = rep[i] if rep[i] < rep[j] else rep[j]
+    for k in range(len(rep)):
+        rep[k] = rep[rep[k]]
+    uniq, inverse = np.unique(rep, return_inverse=True)
+    pts = pts[uniq]
+    cells = _ccw(pts, inverse[cells])
+    surface_bottom = inverse[n_rad * len(tau) + np.arange(len(tau))]
+    pts[:, 1] += y_bottom + R
+    pts[np.abs(pts[:, 0]) < 1e-12 * R, 0] = 0.0
+    return pts, cells, surface_bottom
+
+
+def build_mesh(scene: Scene, preset: str | MeshSpec = "paper") -> Mesh:
+    """Quad mesh of ball + panel for ``scene`` at the resolution of ``preset``."""
+    spec = mesh_spec(preset)
+    xs = graded_coords(scene.half_width, spec.h_contact, spec.fine_radius, spec.growth)
+    ys, row_layer = _panel_y(scene, spec)
+    nx, ny = len(xs), len(ys)
+    PX, PY = np.meshgrid(xs, ys, indexing="xy")  # (ny, nx)
+    panel_pts = np.stack([PX.ravel(), PY.ravel()], axis=1)
+    pidx = np.arange(ny * nx).reshape(ny, nx)
+    panel_cells = np.stack([pidx[:-1, :-1], pidx[:-1, 1:], pidx[1:, 1:], pidx[1:, :-1]],
+                           axis=-1).reshape(-1, 4)
+    panel_cell_part = np.repeat(row_layer + 1, nx - 1)  # part ids 1..n
+
+    top = scene.panel_thickness
+    ball_pts, ball_cells, ball_surface = _ball_mesh(scene, spec, top + scene.ball.gap)
+    off = panel_pts.shape[0]
+    points = np.concatenate([panel_pts, ball_pts], axis=0)
+    cells = np.concatenate([panel_cells, ball_cells + off], axis=0).astype(np.int64)
+    cell_part = np.concatenate([panel_cell_part, np.zeros(len(ball_cells), int)]).astype(np.int32)
+
+    n_parts = len(scene.layers) + 1
+    youngs = np.array([scene.ball.youngs] + [layer.youngs for layer in scene.layers])
+    node_part = np.full(points.shape[0], -1, np.int32)
+    best_e = np.full(points.shape[0], -np.inf)
+    for c, p in zip(cells, cell_part):
+        upd = youngs[p] > best_e[c]
+        node_part[c[upd]] = p
+        best_e[c[upd]] = youngs[p]
+    fixed = np.zeros((points.shape[0], 2), bool)
+    bottom = pidx[0, :]
+    fixed[bottom, :] = True
+    fixed[np.abs(points[:, 0]) < 1e-15, 0] = True
+    node_type = node_part.copy()
+    node_type[fixed.all(axis=1)] = n_parts
+    panel_top = pidx[-1, :]
+    return Mesh(points=points, cells=cells, cell_part=cell_part, node_part=node_part,
+                node_type=node_type.astype(np.int32), fixed=fixed,
+                ball_surface=(ball_surface + off).astype(np.int64),
+                panel_top=panel_top.astype(np.int64), part_names=scene.part_names)
+
+
+def crop_roi(mesh: Mesh, *, roi_x: float, roi_ball_height: float) -> tuple[Mesh, np.ndarray]:
+    """Region-of-interest submesh: cells whose nodes all lie at x <= roi_x and, for ball
+    cells, at y <= ball bottom + roi_ball_height. Returns (submesh, node_map) where
+    ``node_map[i]`` is the full-mesh index of submesh node i."""
+    p = mesh.points
+    ball_bottom = p[mesh.ball_surface, 1].min()
+    keep_node = p[:, 0] <= roi_x * (1 + 1e-9)
+    is_ball = mesh.node_part == 0
+    keep_node &= ~is_ball | (p[:, 1] <= ball_bottom + roi_ball_height * (1 + 1e-9))
+    keep_cell = keep_node[mesh.cells].all(axis=1)
+    if not keep_cell.any():
+        raise ValueError(f"crop_roi: no cell inside roi_x={roi_x}, roi_ball_height={roi_ball_height}")
+    cells = mesh.cells[keep_cell]
+    node_map = np.unique(cells)
+    inverse = np.full(mesh.n_nodes, -1, np.int64)
+    inverse[node_map] = np.arange(len(node_map))
+
+    def remap_sorted(ids: np.ndarray) -> np.ndarray:
+        ids = ids[inverse[ids] >= 0]
+        return inverse[ids]
+
+    sub = Mesh(points=p[node_map], cells=inverse[cells], cell_part=mesh.cell_part[keep_cell],
+               node_part=mesh.node_part[node_map], node_type=mesh.node_type[node_map],
+               fixed=mesh.fixed[node_map], ball_surface=remap_sorted(mesh.ball_surface),
+               panel_top=remap_sorted(mesh.panel_top), part_names=mesh.part_names)
+    return sub, node_map
+
+
+def roi(mesh: Mesh, preset: str | MeshSpec) -> tuple[Mesh, np.ndarray]:
+    """The preset's region of interest of ``mesh`` (see :func:`crop_roi`)."""
+    spec = mesh_spec(preset)
+    return crop_roi(mesh, roi_x=spec.roi_x, roi_ball_height=spec.roi_ball_height)
+
+
+def with_spec(preset: str | MeshSpec, **changes) -> MeshSpec:
+    """A copy of a preset's MeshSpec with fields replaced."""
+    return dataclasses.replace(mesh_spec(preset), **changes)

@@ -1,0 +1,441 @@
+"""Explicit central-difference dynamics in JAX: the built-in ground truth.
+
+Small-strain linear elasticity on Q4 elements (plane strain or axisymmetric with the hoop
+term), row-sum lumped mass, a node-to-segment penalty contact between the ball's lower
+surface (slaves) and the top layer's upper surface (masters), clamped plate bottom and a
+symmetry axis (u_x = 0 at x = 0). Units SI.
+
+Numerics (DESIGN §3):
+- the state is the displacement u (not absolute coordinates), so float32 keeps the ~1e-9 m
+  per-step increments next to mm coordinates; world positions are formed only in the contact
+  gap, relative to reference coordinates of the same magnitude;
+- contact forces are minus the gradient (jax.grad) of the penalty energy
+  0.5 * k_s * min(g, 0)^2 with the gap g measured in the deformed configuration, so the
+  contact is conservative by construction (no radial/vertical mismatch);
+- the stable step includes the contact springs: dt = safety * 2 / sqrt(w_mesh^2 + w_c^2),
+  w_mesh^2 the largest eigenvalue of M^-1/2 K M^-1/2 (scipy Lanczos), w_c^2 a bound of k/m;
+- energy (kinetic + internal + contact; no external work: the supports are fixed) is
+  checked at every frame; a drift above ``energy_tol`` of the initial kinetic energy, or a
+  non-finite value, raises :class:`SolverError` naming the frame, and nothing is returned.
+
+The whole run is one jitted ``lax.scan`` (frames) over a ``lax.scan`` (substeps); a batch of
+designs with the same topology runs in one call through ``jax.vmap``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass
+from functools import partial
+from typing import Any, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse.linalg as spla
+
+from pcmgn_jax import fem
+from pcmgn_jax.mesh import Mesh, MeshSpec, build_mesh, mesh_spec, roi
+from pcmgn_jax.scene import Scene
+from pcmgn_jax.trajectory import Trajectory
+
+
+class SolverError(RuntimeError):
+    """The explicit run became unstable (energy drift or non-finite values)."""
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """safety: fraction of the stable time step; penalty_factor: k_p = factor * E'/h [N/m^3]
+    with E' the plane-strain modulus of the softer contact body and h the master element size;
+    energy_tol: allowed |E(t) - E(0)| / KE(0); dtype: 'float32' or 'float64' (float64 needs
+    ``jax.enable_x64``)."""
+
+    safety: float = 0.9
+    penalty_factor: float = 1.0
+    energy_tol: float = 0.01
+    dtype: str = "float32"
+
+
+@dataclass
+class Prepared:
+    """Host-side arrays for a batch of B designs sharing one topology (leading axis B)."""
+
+    mesh: Mesh                # mesh of the first design (topology shared)
+    points: np.ndarray        # (B,N,2) reference coordinates [m]
+    ke: np.ndarray            # (B,E,8,8) element stiffness [N/m]
+    db: np.ndarray            # (B,E,4,8) centroid stress operator [Pa/m]
+    mass: np.ndarray          # (B,N) lumped nodal mass [kg]
+    k_slave: np.ndarray       # (B,S) penalty stiffness per slave node [N/m]
+    slaves: np.ndarray        # (S,) ball surface node ids
+    masters: np.ndarray       # (M,) top-surface node ids, sorted by x
+    node_slots: np.ndarray    # (N,4) indices into the flattened (E*4 + 1) element-node slots
+    avg_weight: np.ndarray    # (N,4) nodal-averaging weights of those slots (own part only)
+    free: np.ndarray          # (N,2) 1.0 where the dof is free
+    omega2_mesh: np.ndarray   # (B,) largest eigenvalue of M^-1 K [1/s^2]
+    omega2_contact: np.ndarray  # (B,) contact bound [1/s^2]
+    dt_stable: float          # [s] min over the batch, safety applied
+
+
+def _node_slots(cells: np.ndarray, n_nodes: int, cell_part: np.ndarray, node_part: np.ndarray):
+    """For each node, up to 4 (element, corner) slots; padding points at the zero slot E*4."""
+    n_el = cells.shape[0]
+    slots = np.full((n_nodes, 4), 4 * n_el, np.int64)
+    weight = np.zeros((n_nodes, 4))
+    fill = np.zeros(n_nodes, np.int64)
+    for e in range(n_el):
+        for k in range(4):
+            node = cells[e, k]
+            if fill[node] >= 4:
+                raise ValueError(f"solver: node {node} belongs to more than 4 quads")
+            slots[node, fill[node]] = 4 * e + k
+            weight[node, fill[node]] = 1.0 if cell_part[e] == node_part[node] else 0.0
+            fill[node] += 1
+    weight /= np.maximum(weight.sum(axis=1, keepdims=True), 1.0)
+    return slots, weight
+
+
+def _tributary(x: np.ndarray, axisymmetric: bool) -> np.ndarray:
+    """Tributary area [m^2] (axisymmetric ring) or length [m] (plane strain) of sorted x."""
+    mid = 0.5 * (x[1:] + x[:-1])
+    left = np.concatenate([[max(x[0] - (mid[0] - x[0]), 0.0)], mid])
+    right = np.concatenate([mid, [x[-1] + (x[-1] - mid[-1])]])
+    left = np.maximum(left, 0.0)
+    if axisymmetric:
+        return np.pi * (right**2 - left**2)
+    return right - left
+
+
+def _material_arrays(scene: Scene, cell_part: np.ndarray):
+    ball = scene.ball
+    props = np.array([[ball.youngs, ball.poisson, ball.density]] +
+                     [[layer.youngs, layer.poisson, layer.density] for layer in scene.layers])
+    return props[cell_part, 0], props[cell_part, 1], props[cell_part, 2]
+
+
+def prepare(scenes: Sequence[Scene], preset: str | MeshSpec,
+            settings: SolverSettings = SolverSettings()) -> Prepared:
+    """Mesh, element matrices, masses, penalty and stable step for designs of one topology."""
+    spec = mesh_spec(preset)
+    meshes = [build_mesh(s, spec) for s in scenes]
+    m0 = meshes[0]
+    for i, m in enumerate(meshes[1:], 1):
+        if m.cells.shape != m0.cells.shape or not np.array_equal(m.cells, m0.cells):
+            raise ValueError(f"solver: design {i} has a different mesh topology than design 0")
+    axi = scenes[0].analysis == "axisymmetric"
+    n = m0.n_nodes
+    slots, avg_w = _node_slots(m0.cells, n, m0.cell_part, m0.node_part)
+    free = (~m0.fixed).astype(float)
+    free_dofs = np.flatnonzero(free.ravel() > 0)
+    slaves = m0.ball_surface
+    masters = m0.panel_top[np.argsort(m0.points[m0.panel_top, 0])]
+    top = scenes[0].layers[0]
+    ball = scenes[0].ball
+    e_soft = min(top.youngs / (1 - top.poisson**2), ball.youngs / (1 - ball.poisson**2))
+    out = {k: [] for k in ("points", "ke", "db", "mass", "k_slave", "w2m", "w2c")}
+    for scene, m in zip(scenes, meshes):
+        youngs, poisson, density = _material_arrays(scene, m.cell_part)
+        ke, me, db = fem.element_matrices(m.points, m.cells, youngs, poisson, density,
+                                          analysis=scene.analysis)
+        mass = np.zeros(n)
+        np.add.at(mass, m.cells, me)
+        k_glob = fem.assemble_csr(m.cells, ke, n)
+        minv = 1.0 / np.sqrt(np.repeat(mass, 2)[free_dofs])
+        kff = k_glob[free_dofs][:, free_dofs]
+        op = spla.LinearOperator(kff.shape, matvec=lambda x, kff=kff, minv=minv: minv * (kff @ (minv * x)),
+                                 dtype=float)
+        w2m = float(spla.eigsh(op, k=1, which="LA", return_eigenvectors=False, tol=1e-4)[0])
+        xm = m.points[masters, 0]
+        h = float(xm[1] - xm[0])
+        k_p = settings.penalty_factor * e_soft / h
+        k_s = k_p * _tributary(m.points[slaves, 0], axi)
+        # contact bound: each slave spring on its own node, and the springs a master can see
+        ksum = np.zeros(len(masters))
+        xs = m.points[slaves, 0]
+        j = np.clip(np.searchsorted(xm, xs) - 1, 0, len(masters) - 2)
+        t = np.clip((xs - xm[j]) / (xm[j + 1] - xm[j]), 0.0, 1.0)
+        np.add.at(ksum, j, k_s * (1 - t))
+        np.add.at(ksum, j + 1, k_s * t)
+        # Gershgorin bound of M^-1 K_contact (rows of slaves and of masters); Weyl's inequality
+        # then bounds the coupled system by w_mesh^2 + w_c^2.
+        w2c = 2.0 * max(float(np.max(k_s / mass[slaves])), float(np.max(ksum / mass[masters])))
+        for key, val in (("points", m.points), ("ke", ke), ("db", db), ("mass", mass),
+                         ("k_slave", k_s), ("w2m", w2m), ("w2c", w2c)):
+            out[key].append(val)
+    w2m, w2c = np.asarray(out["w2m"]), np.asarray(out["w2c"])
+    dt = settings.safety * 2.0 / float(np.sqrt(np.max(w2m + w2c)))
+    return Prepared(mesh=m0, points=np.stack(out["points"]), ke=np.stack(out["ke"]),
+                    db=np.stack(out["db"]), mass=np.stack(out["mass"]),
+                    k_slave=np.stack(out["k_slave"]), slaves=slaves, masters=masters,
+                    node_slots=slots, avg_weight=avg_w, free=free, omega2_mesh=w2m,
+                    omega2_contact=w2c, dt_stable=dt)
+
+
+# ---------------------------------------------------------------------------------------------
+# jittable physics
+# ---------------------------------------------------------------------------------------------
+def _element_dofs(u, cells, rigid_x: bool):
+    """Element displacement vectors (E,8) with the element's mean vertical displacement (and
+    mean horizontal one if ``rigid_x``, i.e. plane strain) removed. Ke annihilates rigid
+    translations, so this changes nothing in exact arithmetic, but in float32 the ball's
+    ~1e-5 m rigid motion times stiffness entries ~1e11 would otherwise leave round-off forces
+    of the order of the contact forces themselves."""
+    ue = u[cells]  # (E,4,2)
+    mean = ue.mean(axis=1, keepdims=True)
+    shift = mean * jnp.asarray([1.0 if rigid_x else 0.0, 1.0], u.dtype)
+    return (ue - shift).reshape(cells.shape[0], 8)
+
+
+def internal_force(u, ke, cells, node_slots, *, rigid_x: bool = False):
+    """K u assembled by gathering element forces (gathers are cheaper than scatters on CPU).
+    u (N,2) [m] -> forces (N,2) [N], and the element strain energies (E,) [J]."""
+    ue = _element_dofs(u, cells, rigid_x)
+    fe = jnp.einsum("eij,ej->ei", ke, ue)
+    energy = 0.5 * jnp.sum(fe * ue, axis=1)
+    fe = jnp.concatenate([fe.reshape(-1, 2), jnp.zeros((1, 2), fe.dtype)], axis=0)
+    return fe[node_slots].sum(axis=1), energy
+
+
+def contact_energy(u, points, slaves, masters, k_slave):
+    """Penalty energy [J] 0.5 * sum k_s min(g_s, 0)^2, g_s = vertical gap of slave s above the
+    deformed master polyline at the slave's deformed x. Differences of reference coordinates
+    are taken before adding displacements, so float32 keeps sub-um gaps."""
+    ref_s, ref_m = points[slaves], points[masters]
+    us, um = u[slaves], u[masters]
+    # master x positions relative to the first master (monotone in the deformed state)
+    xm = (ref_m[:, 0] - ref_m[0, 0]) + um[:, 0]
+    xs = (ref_s[:, 0] - ref_m[0, 0]) + us[:, 0]
+    j = jnp.clip(jnp.searchsorted(xm, xs) - 1, 0, xm.shape[0] - 2)
+    x0, x1 = xm[j], xm[j + 1]
+    t = (xs - x0) / (x1 - x0)
+    ybase = ref_m[0, 1]
+    y0 = (ref_m[j, 1] - ybase) + um[j, 1]
+    y1 = (ref_m[j + 1, 1] - ybase) + um[j + 1, 1]
+    ys = (ref_s[:, 1] - ybase) + us[:, 1]
+    gap = ys - (y0 + t * (y1 - y0))
+    pen = jnp.minimum(gap, 0.0)
+    return 0.5 * jnp.sum(k_slave * pen * pen)
+
+
+def _frame_stress(u, db, cells, node_slots, avg_weight, rigid_x: bool):
+    """Nodal von Mises [Pa] (N,) from centroid stresses averaged over the node's own part."""
+    ue = _element_dofs(u, cells, rigid_x)
+    sig = jnp.einsum("ekj,ej->ek", db, ue)
+    vm = fem.von_mises(sig)
+    slots = jnp.concatenate([jnp.repeat(vm, 4), jnp.zeros((1,), vm.dtype)])
+    return (slots[node_slots] * avg_weight).sum(axis=1)
+
+
+@partial(jax.jit, static_argnames=("n_frames", "n_sub", "rigid_x"))
+def _run(arrays: dict[str, Any], u0, v0, dt, *, n_frames: int, n_sub: int, rigid_x: bool):
+    """One design: returns frames (u, v, energy parts) and per-substep histories."""
+    cells, slots = arrays["cells"], arrays["node_slots"]
+    mass, free = arrays["mass"], arrays["free"]
+    ball_w = arrays["ball_weight"]
+    energy_fn = partial(contact_energy, points=arrays["points"], slaves=arrays["slaves"],
+                        masters=arrays["masters"], k_slave=arrays["k_slave"])
+    grad_c = jax.value_and_grad(energy_fn)
+
+    def accel(u):
+        fint, ie = internal_force(u, arrays["ke"], cells, slots, rigid_x=rigid_x)
+        ec, gc = grad_c(u)
+        a = (-fint - gc) / mass[:, None] * free
+        return a, ie, ec, gc
+
+    def substep(carry, _):
+        u, vh = carry
+        a, _, ec, gc = accel(u)
+        vh1 = vh + dt * a
+        u1 = u + dt * vh1
+        force = -jnp.sum(gc[arrays["slaves"], 1])  # contact force on the ball, +y [N]
+        approach = jnp.sum(ball_w * u[:, 1])      # mass-weighted ball displacement [m]
+        return (u1, vh1), (force, approach)
+
+    def record(u, vh):
+        a, ie, ec, _ = accel(u)
+        v = vh + 0.5 * dt * a
+        # leapfrog's discrete kinetic energy 0.5 v_{n-1/2} M v_{n+1/2}: with the potential
+        # energy at u_n it is conserved exactly for linear forces (the average-velocity
+        # kinetic energy is not, by O(w^2 dt^2) of the high-frequency content)
+        ke_ = 0.5 * jnp.sum(mass[:, None] * vh * (vh + dt * a))
+        return v, jnp.stack([ke_, jnp.sum(ie), ec])
+
+    def frame(carry, _):
+        u, vh = carry
+        v, energy = record(u, vh)
+        carry, hist = jax.lax.scan(substep, carry, None, length=n_sub)
+        return carry, (u, v, energy, hist)
+
+    a0, _, _, _ = accel(u0)
+    vh0 = v0 - 0.5 * dt * a0
+    carry, (us, vs, es, hist) = jax.lax.scan(frame, (u0, vh0), None, length=n_frames)
+    v_last, e_last = record(*carry)
+    us = jnp.concatenate([us, carry[0][None]], axis=0)
+    vs = jnp.concatenate([vs, v_last[None]], axis=0)
+    es = jnp.concatenate([es, e_last[None]], axis=0)
+    vm = jax.vmap(lambda u: _frame_stress(u, arrays["db"], cells, slots, arrays["avg_weight"],
+                                          rigid_x))(us)
+    return us, vs, vm, es, hist
+
+
+_BATCH_AXES = ({"cells": None, "node_slots": None, "mass": 0, "free": None, "ball_weight": 0,
+                "points": 0, "slaves": None, "masters": None, "k_slave": 0, "ke": 0, "db": 0,
+                "avg_weight": None}, 0, 0, 0)
+
+
+@partial(jax.jit, static_argnames=("n_frames", "n_sub", "rigid_x"))
+def _run_batch(arrays, u0, v0, dt, *, n_frames: int, n_sub: int, rigid_x: bool):
+    """``_run`` vmapped over a leading design axis (shared topology arrays unbatched)."""
+    return jax.vmap(partial(_run, n_frames=n_frames, n_sub=n_sub, rigid_x=rigid_x),
+                    in_axes=_BATCH_AXES)(
+        arrays, u0, v0, dt)
+
+
+@dataclass
+class RunResult:
+    """Full-mesh result of a batch: u, v (B,T,N,2); von_mises (B,T,N) [Pa]; energy (B,T,3)
+    [J] (kinetic, internal, contact); force (B,T-1,n_sub) contact force on the ball [N];
+    approach (B,T-1,n_sub) mass-weighted mean ball displacement [m]; dt [s]; n_sub."""
+
+    prepared: Prepared
+    u: np.ndarray
+    v: np.ndarray
+    von_mises: np.ndarray
+    energy: np.ndarray
+    force: np.ndarray
+    approach: np.ndarray
+    dt: float
+    n_sub: int
+    wall_time_s: float
+    energy_error: np.ndarray  # (B,)
+
+
+def simulate(scenes: Sequence[Scene], preset: str | MeshSpec = "cpu", *,
+             settings: SolverSettings = SolverSettings(), n_frames: int | None = None,
+             output_dt: float | None = None) -> RunResult:
+    """Run a batch of designs (same topology) and check energy; raises SolverError."""
+    if not scenes:
+        raise ValueError("simulate: no scenes given")
+    base = scenes[0]
+    n_frames = base.n_frames if n_frames is None else n_frames
+    output_dt = base.output_dt if output_dt is None else output_dt
+    prep = prepare(scenes, preset, settings)
+    n_sub = max(1, math.ceil(output_dt / prep.dt_stable))
+    dt = output_dt / n_sub
+    dtype = jnp.dtype(settings.dtype)
+    if dtype == jnp.float64 and not jax.config.read("jax_enable_x64"):
+        raise ValueError("simulate: dtype float64 needs `with jax.enable_x64(True):`")
+    m0 = prep.mesh
+    b = len(scenes)
+    is_ball = (m0.node_part == 0).astype(float)
+    ball_w = prep.mass * is_ball[None] / np.sum(prep.mass * is_ball[None], axis=1, keepdims=True)
+    arrays = {"cells": m0.cells.astype(np.int32), "node_slots": prep.node_slots.astype(np.int32),
+              "mass": prep.mass, "free": prep.free, "ball_weight": ball_w, "points": prep.points,
+              "slaves": prep.slaves.astype(np.int32), "masters": prep.masters.astype(np.int32),
+              "k_slave": prep.k_slave, "ke": prep.ke, "db": prep.db, "avg_weight": prep.avg_weight}
+    arrays = {k: jnp.asarray(v, dtype=dtype if np.asarray(v).dtype.kind == "f" else jnp.int32)
+              for k, v in arrays.items()}
+    u0 = jnp.zeros((b, m0.n_nodes, 2), dtype)
+    v0 = np.zeros((b, m0.n_nodes, 2))
+    v0[:, m0.node_part == 0, 1] = -np.array([s.ball.velocity for s in scenes])[:, None]
+    t0 = time.perf_counter()
+    us, vs, vm, es, (force, approach) = jax.block_until_ready(
+        _run_batch(arrays, u0, jnp.asarray(v0, dtype), jnp.full((b,), dt, dtype),
+                   n_frames=n_frames, n_sub=n_sub, rigid_x=base.analysis == "plane_strain"))
+    wall = time.perf_counter() - t0
+    us, vs, vm, es = (np.asarray(x, np.float64) for x in (us, vs, vm, es))
+    ke0 = es[:, 0, 0]
+    total = es.sum(axis=2)
+    err = np.abs(total - total[:, :1]) / ke0[:, None]
+    for i in range(b):
+        bad = ~np.isfinite(us[i]).all(axis=(1, 2)) | ~np.isfinite(vs[i]).all(axis=(1, 2)) | \
+            ~np.isfinite(err[i])
+        if bad.any():
+            raise SolverError(f"design {i} {scenes[i].design}: non-finite values at frame "
+                              f"{int(np.argmax(bad))} (t = {np.argmax(bad) * output_dt:.3e} s)")
+        over = err[i] > settings.energy_tol
+        if over.any():
+            f = int(np.argmax(over))
+            raise SolverError(
+                f"design {i} {scenes[i].design}: energy error {err[i, f]:.3%} of the initial "
+                f"kinetic energy exceeds {settings.energy_tol:.1%} at frame {f} "
+                f"(t = {f * output_dt:.3e} s); dt = {dt:.3e} s")
+    return RunResult(prepared=prep, u=us, v=vs, von_mises=vm, energy=es,
+                     force=np.asarray(force, np.float64), approach=np.asarray(approach, np.float64),
+                     dt=dt, n_sub=n_sub, wall_time_s=wall, energy_error=err.max(axis=1))
+
+
+def contact_phases(force: np.ndarray, dt: float, threshold: float = 1e-3) -> dict[str, float]:
+    """Contact start/end and peak times [s] from a per-substep force history (flattened)
+    where the force exceeds ``threshold`` times its peak. NaN where a phase does not occur."""
+    f = np.asarray(force).ravel()
+    peak = f.max()
+    t = (np.arange(f.size) + 1) * dt
+    on = f > threshold * max(peak, 1e-30)
+    if peak <= 0 or not on.any():
+        return {"contact_start_s": math.nan, "peak_force_time_s": math.nan,
+                "separation_s": math.nan, "peak_force_N": 0.0}
+    first = int(np.argmax(on))
+    last_on = first + int(np.argmin(on[first:])) - 1 if not on[first:].all() else -1
+    return {"contact_start_s": float(t[first]), "peak_force_time_s": float(t[np.argmax(f)]),
+            "separation_s": float(t[last_on]) if last_on >= 0 else math.nan,
+            "peak_force_N": float(peak)}
+
+
+def to_trajectories(result: RunResult, scenes: Sequence[Scene], preset: str | MeshSpec, *,
+                    settings: SolverSettings = SolverSettings(), crop: bool = True) -> list[Trajectory]:
+    """Turn a batch result into Trajectories (cropped to the preset's region of interest)."""
+    prep = result.prepared
+    full = prep.mesh
+    if crop:
+        sub, node_map = roi(full, preset)
+    else:
+        sub, node_map = full, np.arange(full.n_nodes)
+    preset_name = preset if isinstance(preset, str) else "custom"
+    t = np.arange(result.u.shape[1]) * scenes[0].output_dt
+    out = []
+    for i, scene in enumerate(scenes):
+        phases = contact_phases(result.force[i], result.dt)
+        meta = {
+            "units": {"length": "m", "time": "s", "velocity": "m/s", "stress": "Pa"},
+            "analysis": scene.analysis,
+            "scene": scene.to_dict(),
+            "design": {name: val for name, val in zip(scene.design_layers, scene.design)},
+            "output_dt": scene.output_dt,
+            "source": "solver",
+            "part_names": list(scene.part_names),
+            "solver": {"preset": preset_name, "mesh_spec": _spec_dict(mesh_spec(preset)),
+                       "settings": dataclasses.asdict(settings), "dt_s": result.dt,
+                       "n_substeps_per_frame": result.n_sub, "full_mesh_nodes": full.n_nodes,
+                       "full_mesh_cells": int(full.cells.shape[0]), "roi_nodes": sub.n_nodes,
+                       "omega2_mesh": float(prep.omega2_mesh[i]),
+                       "omega2_contact": float(prep.omega2_contact[i]),
+                       "batch_size": len(scenes), "wall_time_s": result.wall_time_s / len(scenes)},
+            "energy": {"max_relative_error": float(result.energy_error[i]),
+                       "initial_kinetic_J": float(result.energy[i, 0, 0])},
+            "phases": phases,
+            "wall_time_s": result.wall_time_s / len(scenes),
+        }
+        out.append(Trajectory(
+            points=prep.points[i][node_map], cells=sub.cells, cell_part=sub.cell_part,
+            node_part=sub.node_part, node_type=sub.node_type, times=t,
+            displacement=result.u[i][:, node_map], velocity=result.v[i][:, node_map],
+            von_mises=result.von_mises[i][:, node_map], meta=meta))
+    return out
+
+
+def _spec_dict(spec: MeshSpec) -> dict[str, Any]:
+    d = dataclasses.asdict(spec)
+    d["layer_elems"] = dict(spec.layer_elems)
+    return d
+
+
+def solve_designs(scene: Scene, designs: np.ndarray, *, preset: str | MeshSpec = "cpu",
+                  settings: SolverSettings = SolverSettings()) -> list[Trajectory]:
+    """Simulate designs (B, n_design) [m] of ``scene`` in one batched call; ROI-cropped
+    Trajectories with meta (source 'solver', design, solver settings, energy, wall time)."""
+    designs = np.atleast_2d(np.asarray(designs, float))
+    scenes = [scene.with_design(*d) for d in designs]
+    result = simulate(scenes, preset, settings=settings)
+    return to_trajectories(result, scenes, preset, settings=settings)
