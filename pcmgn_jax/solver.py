@@ -367,8 +367,9 @@ def simulate(scenes: Sequence[Scene], preset: str | MeshSpec = "cpu", *,
 
 
 def contact_phases(force: np.ndarray, dt: float, threshold: float = 1e-3) -> dict[str, float]:
-    """Contact start/end and peak times [s] from a per-substep force history (flattened)
-    where the force exceeds ``threshold`` times its peak. NaN where a phase does not occur."""
+    """Contact start (first substep with force above ``threshold`` x peak), peak-force time,
+    and separation (last such substep) [s] from a per-substep force history (flattened).
+    NaN where a phase does not occur within the history (e.g. still in contact at the end)."""
     f = np.asarray(force).ravel()
     peak = f.max()
     t = (np.arange(f.size) + 1) * dt
@@ -377,9 +378,10 @@ def contact_phases(force: np.ndarray, dt: float, threshold: float = 1e-3) -> dic
         return {"contact_start_s": math.nan, "peak_force_time_s": math.nan,
                 "separation_s": math.nan, "peak_force_N": 0.0}
     first = int(np.argmax(on))
-    last_on = first + int(np.argmin(on[first:])) - 1 if not on[first:].all() else -1
+    last = int(f.size - 1 - np.argmax(on[::-1]))
+    separated = last < f.size - 1
     return {"contact_start_s": float(t[first]), "peak_force_time_s": float(t[np.argmax(f)]),
-            "separation_s": float(t[last_on]) if last_on >= 0 else math.nan,
+            "separation_s": float(t[last]) if separated else math.nan,
             "peak_force_N": float(peak)}
 
 
