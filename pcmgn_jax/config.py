@@ -137,11 +137,13 @@ PRESETS: dict[str, dict[str, Any]] = {
     # the README's main job on a 2-core CPU (~20 min train + evaluate after data generation)
     "cpu": dict(data_preset="cpu", n_train=12, n_val=2, n_test=6, latent_size=64,
                 message_passing_steps=8, epochs=1, num_steps=4000, steps_per_dispatch=25,
-                log_every=100, ckpt_every=1000, val_every=1000),
+                log_every=100, ckpt_every=1000, val_every=1000,
+                lambda_pen=10.0, noise_std=3e-7, noise_parts="all"),  # paper's best: B.6/P.5, λ=10
     # the paper: 15 x 128, 100 epochs, 100 training / 50 test trajectories (a GPU job)
     "paper": dict(data_preset="paper", n_train=100, n_val=5, n_test=50, latent_size=128,
                   message_passing_steps=15, epochs=100, num_steps=0, steps_per_dispatch=50,
-                  log_every=500, ckpt_every=10000, val_every=10000),
+                  log_every=500, ckpt_every=10000, val_every=10000,
+                  lambda_pen=10.0, noise_std=3e-7, noise_parts="all"),
 }
 
 
