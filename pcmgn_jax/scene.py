@@ -224,3 +224,6 @@ class Scene:
 def default_scene(*, t_oca1: float = 100e-6, t_oca2: float = 100e-6, **overrides: Any) -> Scene:
     """The paper's scene with the given OCA thicknesses [m]."""
     return dataclasses.replace(Scene(layers=paper_layers(t_oca1, t_oca2)), **overrides)
+
+
+PAPER_SCENE_FILE = Path(__file__).parent / "scenes" / "paper_panel.toml"
