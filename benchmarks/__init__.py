@@ -1,0 +1,10 @@
+"""Benchmarks (issue 6): ``python -m benchmarks.NAME``; each writes JSON + a Markdown table.
+
+- ``mgn_vs_torch``     JAX MeshGraphNet against a plain-PyTorch reference on the same graph
+- ``rollout_throughput``  100-frame rollouts, batched over designs (designs/s)
+- ``solver_speed``     the built-in explicit solver: substeps/s, wall time per trajectory
+- ``speed_vs_error``   trained surrogates against solver presets: wall time vs error (Pareto plot)
+
+Benchmarks are not tests: tests only run them at tiny sizes. Ratios measured in the same run carry
+the claims; absolute times depend on the machine recorded in each JSON's ``machine`` block.
+"""

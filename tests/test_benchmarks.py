@@ -1,0 +1,153 @@
+"""The benchmarks run end to end at tiny sizes and write valid JSON / Markdown (no timing assertions)."""
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import json
+
+import numpy as np
+import pytest
+
+HAVE_TORCH = importlib.util.find_spec("torch") is not None
+
+
+def _load(path):
+    data = json.loads(path.read_text())  # strict JSON (no NaN) is enforced by the writer
+    return data
+
+
+def test_bench_graph_and_flops():
+    from benchmarks.common import bench_graph, mgn_flops
+    g = bench_graph(80)
+    info = g["info"]
+    assert abs(info["n_nodes"] - 80) < 40
+    assert info["n_contact_edges_active"] > 0
+    assert g["mesh_senders"].max() < info["n_nodes"] and g["nodes"].shape[0] == info["n_nodes"]
+    assert np.isfinite(g["nodes"]).all() and np.isfinite(g["mesh_features"]).all()
+    f = mgn_flops(100, {"mesh": 400, "contact": 10}, {"node": 12, "mesh": 6, "contact": 3},
+                  latent=8, mlp_layers=2, steps=1)
+    assert 0 < f["forward"] < f["forward_concat_variant"]
+
+
+@pytest.mark.parametrize("with_torch", [False, pytest.param(True, marks=pytest.mark.skipif(
+    not HAVE_TORCH, reason="torch not installed (pip install torch==2.13.0)"))])
+def test_mgn_vs_torch_tiny(tmp_path, with_torch):
+    from benchmarks import mgn_vs_torch
+    out = tmp_path / "m.json"
+    argv = ["--nodes", "60", "--layers", "1", "--latent", "8", "--repeats", "2", "--warmup", "1",
+            "--scan", "2", "--compile", "off", "--no-torch-1thread", "--json", str(out)]
+    if not with_torch:
+        argv.append("--no-torch")
+    mgn_vs_torch.main(argv)
+    r = _load(out)
+    assert r["jax"]["forward_ms"] > 0 and r["jax"]["train_step_ms"] > 0
+    assert r["config"]["layers"] == 1 and r["machine"]["matmul_1024_gflops_jax"] > 0
+    assert out.with_suffix(".md").exists()
+    if with_torch:
+        assert r["torch"]["forward_ms"] > 0 and r["torch"]["train_step_ms"] > 0
+        assert r["ratios"]["forward_torch_over_jax"] > 0
+    else:
+        assert r["torch"] is None
+
+
+@pytest.mark.skipif(not HAVE_TORCH, reason="torch not installed")
+def test_torch_reference_matches_architecture():
+    """Same parameter count as the Flax model (both first-layer variants describe the same MLPs)."""
+    import jax
+
+    from benchmarks.common import bench_graph, jraph_graph
+    from benchmarks.torch_mgn import TorchMGN, torch_graph
+    from pcmgn_jax.model import EncodeProcessDecode
+    g = bench_graph(60)
+    model = EncodeProcessDecode(output_size=3, latent_size=8, mlp_layers=2, message_passing_steps=2)
+    n_jax = sum(x.size for x in jax.tree.leaves(model.init(jax.random.PRNGKey(0), jraph_graph(g))))
+    for trick in (False, True):
+        m = TorchMGN(g["nodes"].shape[1], {"mesh": 6, "contact": 3}, latent=8, mlp_layers=2, steps=2,
+                     concat_trick=trick)
+        n_torch = sum(p.numel() for p in m.parameters())
+        # the concat variant has one bias per edge MLP first layer, the trick variant too (edge_proj)
+        assert n_torch == n_jax
+        assert tuple(m(torch_graph(g)).shape) == (g["nodes"].shape[0], 3)
+
+
+def test_rollout_throughput_tiny(tmp_path):
+    from benchmarks import rollout_throughput
+    out = tmp_path / "r.json"
+    rollout_throughput.main(["--preset", "tiny", "--latent", "8", "--layers", "1", "--frames", "3",
+                             "--batches", "1,2", "--repeats", "1", "--json", str(out)])
+    r = _load(out)
+    assert r["single"]["rollout_ms"] > 0 and r["python_loop"]["rollout_ms"] > 0
+    assert set(r["batched"]) == {"1", "2"} and r["batched"]["2"]["designs_per_s"] > 0
+    assert r["config"]["params"].startswith("random")
+
+
+def test_solver_speed_tiny(tmp_path):
+    from benchmarks import solver_speed
+    out = tmp_path / "s.json"
+    solver_speed.main(["--presets", "tiny", "--batch", "2", "--frames", "2", "--probe-frames", "1",
+                       "--json", str(out)])
+    r = _load(out)
+    t = r["solver"]["tiny"]
+    assert t["1"]["substeps_per_s"] > 0 and t["2"]["wall_s_per_design"] > 0
+    assert t["batch_throughput_ratio"] > 0
+    # extrapolation path: a budget of 0 s skips the full run
+    out2 = tmp_path / "s2.json"
+    solver_speed.main(["--presets", "tiny", "--batch", "1", "--frames", "3", "--probe-frames", "1",
+                       "--budget", "0", "--json", str(out2)])
+    assert _load(out2)["solver"]["tiny"]["1"]["extrapolated"] is True
+
+
+def test_transfer_reproduces_linear_field():
+    from benchmarks.speed_vs_error import transfer
+    xs, ys = np.meshgrid(np.linspace(0, 1e-3, 5), np.linspace(0, 1e-4, 3))
+    pts = np.stack([xs.ravel(), ys.ravel()], axis=1)
+    cells = np.array([[j * 5 + i, j * 5 + i + 1, (j + 1) * 5 + i + 1, (j + 1) * 5 + i]
+                      for j in range(2) for i in range(4)])
+    field = np.stack([pts * 2.0, pts * -1.0])                     # (T=2, N, 2), linear
+    dst = np.array([[0.33e-3, 0.5e-4], [0.9e-3, 0.2e-4], [1.2e-3, 0.5e-4]])  # last one outside
+    out = transfer(pts, cells, np.zeros(8, int), field, dst, np.zeros(3, int))
+    np.testing.assert_allclose(out[:, :2], np.stack([dst[:2] * 2.0, dst[:2] * -1.0]), rtol=1e-9, atol=1e-15)
+    assert np.isfinite(out).all()                                  # nearest-node fallback outside
+
+
+def test_pareto_and_verdicts():
+    from benchmarks.speed_vs_error import pareto, verdicts
+    pts = [dict(kind="solver", label="ref", seconds_per_design=10.0, position_mae_um=0.0),
+           dict(kind="solver", label="coarse", seconds_per_design=1.0, position_mae_um=2.0),
+           dict(kind="surrogate", label="mgn", seconds_per_design=0.1, position_mae_um=1.0),
+           dict(kind="surrogate", label="bad", seconds_per_design=5.0, position_mae_um=3.0)]
+    assert [pts[i]["label"] for i in pareto(pts)] == ["mgn", "ref"]
+    v = {x["surrogate"]: x for x in verdicts(pts)}
+    assert v["mgn"]["fastest_solver_as_accurate"] == "ref" and v["mgn"]["speedup"] == pytest.approx(100)
+    assert v["bad"]["dominated_by"] == ["coarse"]
+
+
+def test_speed_vs_error_surrogate_and_report(tiny_run, tiny_trajs, tmp_path):
+    """Surrogate point from a trained tiny run (synthetic data) + stub solver points -> JSON/MD/PNG."""
+    from benchmarks.speed_vs_error import report, surrogate_point
+    _, workdir, _ = tiny_run
+    p = surrogate_point(workdir, tiny_trajs[3:])
+    assert p["kind"] == "surrogate" and p["finite"] and p["seconds_per_design"] > 0
+    stubs = [dict(kind="solver", label="solver ref", seconds_per_design=2.0, position_mae_um=0.0,
+                  stress_mae_mpa=0.0, n_designs=1),
+             dict(kind="solver", label="solver coarse", seconds_per_design=0.5,
+                  position_mae_um=p["position_mae_um"] * 2, stress_mae_mpa=p["stress_mae_mpa"] * 2 + 1,
+                  n_designs=1)]
+    out = tmp_path / "sve.json"
+    report([p] + stubs, command="test", json_path=out, md_path=tmp_path / "sve.md", png_path=tmp_path / "sve.png")
+    r = _load(out)
+    assert len(r["points"]) == 3 and r["verdicts_position"][0]["surrogate"] == p["label"]
+    assert (tmp_path / "sve.png").stat().st_size > 1000
+
+
+def test_speed_vs_error_solver_points():
+    """Solver at the reference mesh reproduces it (error ~0); a coarser mesh is interpolated."""
+    from benchmarks.speed_vs_error import solver_point
+    from pcmgn_jax import solver
+    from pcmgn_jax.scene import default_scene
+    scene = dataclasses.replace(default_scene(), n_frames=2)
+    trajs = solver.solve_designs(scene, np.array([[80e-6, 120e-6]]), preset="tiny")
+    same = solver_point("tiny", trajs)
+    assert same["same_mesh_as_reference"] and same["position_mae_um"] < 1e-3
+    coarse = solver_point("tiny@2", trajs)
+    assert not coarse["same_mesh_as_reference"] and coarse["finite"]
