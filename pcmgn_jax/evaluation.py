@@ -33,8 +33,9 @@ def boundary(ref, panel_part: int):
     """(ball bottom nodes, CG top nodes sorted by x) from the reference mesh."""
     try:
         from pcmgn_jax.penetration import boundary_nodes
+        # x_max inside the region of interest (its far edge leaves cut edges, not surfaces)
         bn = boundary_nodes(ref.points, ref.node_part, ball_part=0, panel_part=panel_part, cells=ref.cells,
-                            cell_part=ref.cell_part)
+                            cell_part=ref.cell_part, x_max=0.8 * float(np.max(ref.points[:, 0])))
         return np.asarray(bn.ball), np.asarray(bn.panel)
     except ImportError:  # pragma: no cover - penetration module missing
         from pcmgn_jax.contact import surface_nodes

@@ -106,7 +106,23 @@ def _surface_by_edges(points: np.ndarray, cells: np.ndarray, side: str, normal_t
     flip = np.einsum("ij,ij->i", n, 0.5 * (pa + pb) - centroid) < 0
     n[flip] *= -1
     sel = n[:, 1] < -normal_tol if side == "bottom" else n[:, 1] > normal_tol
-    return np.unique(np.concatenate([a[sel], b[sel]]))
+    nodes = np.unique(np.concatenate([a[sel], b[sel]]))
+    # Keep only nodes visible from outside (below for 'bottom', above for 'top'): a down-facing
+    # edge hidden above another part of the same surface (e.g. the staircase a region-of-interest
+    # crop leaves inside the ball) is not the boundary the fit needs.
+    ea, eb = points[a[sel]], points[b[sel]]
+    left = np.where((ea[:, 0] <= eb[:, 0])[:, None], ea, eb)
+    right = np.where((ea[:, 0] <= eb[:, 0])[:, None], eb, ea)
+    width = right[:, 0] - left[:, 0]
+    scale = max(float(np.ptp(points[:, 1])), 1e-300)
+    keep = []
+    for node in nodes:
+        x, y = points[node]
+        over = (left[:, 0] <= x) & (x <= right[:, 0]) & (width > 0)
+        y_edge = left[over, 1] + (x - left[over, 0]) / width[over] * (right[over, 1] - left[over, 1])
+        hidden = (y_edge < y - 1e-9 * scale) if side == "bottom" else (y_edge > y + 1e-9 * scale)
+        keep.append(not hidden.any())
+    return nodes[np.asarray(keep, bool)]
 
 
 def _surface_nodes(points, idx, side, *, tol, cells, rule, normal_tol):

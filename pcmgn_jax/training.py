@@ -93,7 +93,9 @@ def check_supported(cfg: TrainConfig) -> None:
 def penetration_boundary(cfg: TrainConfig, ref, panel_part: int):
     """Ball-bottom / CG-top node sets and fit interval (pcmgn_jax.penetration.boundary_nodes)."""
     from pcmgn_jax.penetration import boundary_nodes
-    x_max = cfg.pen_x_max if cfg.pen_x_max < float(np.max(ref.points[:, 0])) else None
+    # stay inside the region of interest: at its far edge the crop leaves cut edges that are not
+    # the ball's or the glass's surface
+    x_max = min(cfg.pen_x_max, 0.8 * float(np.max(ref.points[:, 0])))
     return boundary_nodes(ref.points, ref.node_part, ball_part=0, panel_part=panel_part, x_max=x_max,
                           cells=ref.cells, cell_part=ref.cell_part)
 
