@@ -1,7 +1,7 @@
 """Export ground truth, prediction and error of one trajectory to ParaView (XDMF).
 
   python -m experiments.export --trajectory data/paper/test/test_0003 --pred pred.npz --out out/cmp
-  python -m experiments.export --workdir runs/x --trajectory data/paper/test/test_0003   # needs the model hook
+  python -m experiments.export --workdir runs/cpu --trajectory data/cpu/test/test_0003   # trained model
 
 ``--pred FILE.npz`` holds ``displacement`` (T, N, 2) [m] (or ``positions`` (T, N, 2) [m]) and
 ``von_mises`` (T, N) [Pa]. Open the written .xdmf in ParaView and apply "Warp By Vector" with
@@ -20,19 +20,18 @@ from pcmgn_jax.trajectory_io import read_trajectory
 
 
 def predict_with_model(workdir: Path, truth):
-    """HOOK (model path): return (displacement (T,N,2) [m], von_mises (T,N) [Pa]) for ``truth``.
+    """(displacement (T,N,2) [m], von_mises (T,N) [Pa]) of the trained model in ``workdir``
+    rolled out from frame 0 of ``truth`` (best checkpoint)."""
+    from pcmgn_jax.evaluation import predict_trajectories
 
-    To be wired to pcmgn_jax.rollout once trained checkpoints exist: load the run's config and orbax
-    checkpoint from ``workdir``, build the graph for ``truth``'s mesh, roll out from frame 0.
-    """
-    raise NotImplementedError(
-        f"predicting with the trained model in {workdir} is not wired up yet; pass --pred FILE.npz")
+    disp, vm, _, _ = predict_trajectories(workdir, [truth])
+    return disp[0], vm[0]
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--trajectory", required=True, help="trajectory path stem (dir/NAME) of the ground truth")
-    ap.add_argument("--workdir", default=None, help="training run directory (model path; see hook)")
+    ap.add_argument("--workdir", default=None, help="training run directory: predict with its model")
     ap.add_argument("--pred", default=None, help="predicted arrays (.npz: displacement|positions, von_mises)")
     ap.add_argument("--out", default=None, help="output path stem (default: WORKDIR/export/NAME or NAME_compare)")
     args = ap.parse_args(argv)
@@ -51,11 +50,11 @@ def main(argv: list[str] | None = None) -> int:
             kind = "displacement"
             pred, vm = predict_with_model(Path(args.workdir), truth)
         else:
-            ap.error("give --pred FILE.npz (or --workdir RUN once the model hook is wired)")
+            ap.error("give --workdir RUN (trained model) or --pred FILE.npz (predicted arrays)")
         out = Path(args.out) if args.out else (
             Path(args.workdir) / "export" / name if args.workdir else Path(f"{name}_compare"))
         path = export_comparison(truth, pred, vm, out, pred_kind=kind)
-    except (ValueError, NotImplementedError) as err:
+    except (ValueError, OSError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     print(f"wrote {path}")

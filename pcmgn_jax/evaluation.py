@@ -15,7 +15,6 @@ vertical velocity turns upward; separated after the last contact frame.
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Sequence
@@ -27,6 +26,7 @@ from pcmgn_jax import plots
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.rollout import rollout_checked
 from pcmgn_jax.training import contact_parts, load_for_inference
+from pcmgn_jax.trajectory_io import atomic_write_json
 
 
 def boundary(ref, panel_part: int):
@@ -84,20 +84,23 @@ def impact_phases(traj, ball_nodes, panel_nodes, *, contact_tol: float = 0.25e-6
     return out
 
 
-def evaluate(workdir: str | Path, *, test_trajs: Sequence, cfg: TrainConfig | None = None,
-             which: str = "best", batch: int = 4, plot: bool = True) -> dict:
-    """Roll out every test trajectory; write WORKDIR/eval/metrics.json and PNGs; return the metrics."""
+def predict_trajectories(workdir: str | Path, trajs: Sequence, *, cfg: TrainConfig | None = None,
+                         which: str = "best", batch: int = 4):
+    """Roll the trained model of ``workdir`` out from frame 0 of each trajectory (same topology).
+
+    Returns (displacement (B,T,N,2) [m], von_mises (B,T,N) [Pa], rollout seconds summed over the
+    trajectories (compilation excluded), setup). Used by evaluation and the ParaView export."""
     workdir = Path(workdir)
     cfg = cfg or TrainConfig.load(workdir / "config.json")
-    ref = test_trajs[0]
+    ref = trajs[0]
     setup, params, meta = load_for_inference(workdir, cfg, ref, which=which)
     s = setup
     T = ref.n_frames
     index = s.index
     preds = {"displacement": [], "von_mises": []}
     seconds = 0.0
-    for i in range(0, len(test_trajs), batch):
-        chunk = test_trajs[i:i + batch]
+    for i in range(0, len(trajs), batch):
+        chunk = trajs[i:i + batch]
         args = [np.stack([getattr(t, f)[0] if f != "points" else t.points for t in chunk]).astype(np.float32)
                 for f in ("points", "displacement", "velocity", "von_mises")]
         if i == 0:  # compile (and size the contact buffer) outside the timing
@@ -108,8 +111,18 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, cfg: TrainConfig | No
         seconds += time.perf_counter() - t0
         preds["displacement"].append(np.asarray(res.displacement, np.float64))
         preds["von_mises"].append(np.asarray(res.von_mises, np.float64))
-    pu = np.concatenate(preds["displacement"])
-    ps = np.concatenate(preds["von_mises"])
+    setup = setup._replace(index=index)
+    return (np.concatenate(preds["displacement"]), np.concatenate(preds["von_mises"]), seconds, setup)
+
+
+def evaluate(workdir: str | Path, *, test_trajs: Sequence, cfg: TrainConfig | None = None,
+             which: str = "best", batch: int = 4, plot: bool = True) -> dict:
+    """Roll out every test trajectory; write WORKDIR/eval/metrics.json and PNGs; return the metrics."""
+    workdir = Path(workdir)
+    ref = test_trajs[0]
+    T = ref.n_frames
+    pu, ps, seconds, s = predict_trajectories(workdir, test_trajs, cfg=cfg, which=which, batch=batch)
+    index = s.index
     tu = np.stack([np.asarray(t.displacement, np.float64) for t in test_trajs])
     ts = np.stack([np.asarray(t.von_mises, np.float64) for t in test_trajs])
     pos_err = np.abs(pu - tu)[:, 1:] * 1e6        # (B, T-1, N, 2) µm
@@ -142,7 +155,7 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, cfg: TrainConfig | No
         window_has_all_phases=all(v[0] is not None for v in phases.values()),
     )
     out = plots.ensure_dir(workdir / "eval")
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
+    atomic_write_json(out / "metrics.json", metrics)
     if plot:
         _plots(out, ref, test_trajs[0], pu[0], ps[0], bnodes, pnodes, pf_pos, pf_s, phases)
     return metrics

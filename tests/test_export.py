@@ -48,5 +48,21 @@ def test_export_cli(tmp_path, capsys):
     assert main(["--trajectory", str(tmp_path / "traj"), "--pred", str(tmp_path / "pred.npz"),
                  "--out", str(tmp_path / "o" / "cmp")]) == 0
     assert (tmp_path / "o" / "cmp.xdmf").exists()
-    assert main(["--trajectory", str(tmp_path / "traj"), "--workdir", str(tmp_path)]) == 2
-    assert "not wired up yet" in capsys.readouterr().err
+    assert main(["--trajectory", str(tmp_path / "traj"), "--workdir", str(tmp_path / "no_run")]) == 2
+    assert "config.json" in capsys.readouterr().err
+
+
+def test_export_cli_with_trained_model(tiny_run, tiny_trajs, tmp_path):
+    """--workdir rolls the trained model out and writes truth, prediction and error side by side."""
+    import meshio
+
+    from experiments.export import main
+
+    _, workdir, _ = tiny_run
+    write_trajectory(tiny_trajs[-1], tmp_path / "traj")
+    assert main(["--trajectory", str(tmp_path / "traj"), "--workdir", str(workdir),
+                 "--out", str(tmp_path / "cmp")]) == 0
+    with meshio.xdmf.TimeSeriesReader(str(tmp_path / "cmp.xdmf")) as reader:
+        reader.read_points_cells()
+        _, point_data, _ = reader.read_data(1)
+    assert {"displacement_true", "displacement_pred"} <= set(point_data)
