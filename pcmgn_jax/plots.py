@@ -29,7 +29,7 @@ def _mesh(ax, points, cells, displacement, nodal, *, scale, vmin=None, vmax=None
     return pc
 
 
-def deformed_mesh(path, points, cells, displacement, von_mises, *, title, scale=50.0):
+def deformed_mesh(path, points, cells, displacement, von_mises, *, title, scale=1.0):
     """One frame's deformed mesh (displacement x ``scale``) coloured by von Mises [MPa]."""
     fig, ax = plt.subplots(figsize=(8, 5))
     pc = _mesh(ax, points, cells, displacement, von_mises * 1e-6, scale=scale)
@@ -40,8 +40,10 @@ def deformed_mesh(path, points, cells, displacement, von_mises, *, title, scale=
     plt.close(fig)
 
 
-def compare_frames(path, points, cells, pred_u, true_u, pred_s, true_s, frames, *, scale=50.0, times_us=None):
-    """Rows: prediction, ground truth, |error| of von Mises [MPa]; columns: frames."""
+def compare_frames(path, points, cells, pred_u, true_u, pred_s, true_s, frames, *, scale=1.0, times_us=None):
+    """Rows: prediction, ground truth, |error| of von Mises [MPa]; columns: frames. True scale by
+    default (a magnified displacement would mostly show the ball's rigid drop); every row uses the
+    ground truth's axis limits, so a diverging prediction cannot rescale the picture."""
     fig, axes = plt.subplots(3, len(frames), figsize=(4 * len(frames), 8), squeeze=False)
     for j, f in enumerate(frames):
         vmax = float(max(np.max(true_s[f]), np.max(pred_s[f]), 1.0)) * 1e-6
@@ -54,9 +56,13 @@ def compare_frames(path, points, cells, pred_u, true_u, pred_s, true_s, frames, 
                        cmap="magma" if i == 2 else "viridis")
             t = f" t={times_us[f]:.0f} µs" if times_us is not None else ""
             ax.set_title(f"{lab}, frame {f}{t}", fontsize=9)
+        lims = axes[1, j].get_xlim(), axes[1, j].get_ylim()
+        for i in (0, 2):
+            axes[i, j].set_xlim(*lims[0])
+            axes[i, j].set_ylim(*lims[1])
             ax.tick_params(labelsize=7)
             fig.colorbar(pc, ax=ax, fraction=0.04).ax.tick_params(labelsize=7)
-    fig.suptitle(f"von Mises [MPa] (displacement x{scale:g})")
+    fig.suptitle(f"von Mises [MPa] on the deformed mesh (displacement x{scale:g})")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
