@@ -56,12 +56,12 @@ def compare_frames(path, points, cells, pred_u, true_u, pred_s, true_s, frames, 
                        cmap="magma" if i == 2 else "viridis")
             t = f" t={times_us[f]:.0f} µs" if times_us is not None else ""
             ax.set_title(f"{lab}, frame {f}{t}", fontsize=9)
+            ax.tick_params(labelsize=7)
+            fig.colorbar(pc, ax=ax, fraction=0.04).ax.tick_params(labelsize=7)
         lims = axes[1, j].get_xlim(), axes[1, j].get_ylim()
         for i in (0, 2):
             axes[i, j].set_xlim(*lims[0])
             axes[i, j].set_ylim(*lims[1])
-            ax.tick_params(labelsize=7)
-            fig.colorbar(pc, ax=ax, fraction=0.04).ax.tick_params(labelsize=7)
     fig.suptitle(f"von Mises [MPa] on the deformed mesh (displacement x{scale:g})")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
