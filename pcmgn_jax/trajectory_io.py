@@ -153,6 +153,7 @@ def atomic_write_json(path: str | os.PathLike, data: Any) -> None:
             f.write(text)
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600; a results file should be readable like any other
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
