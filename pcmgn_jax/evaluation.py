@@ -115,6 +115,23 @@ def predict_trajectories(workdir: str | Path, trajs: Sequence, *, cfg: TrainConf
     return (np.concatenate(preds["displacement"]), np.concatenate(preds["von_mises"]), seconds, setup)
 
 
+def oled_objective(scene, ref, pred_u, pred_vm, trajs, *, layer: str = "OLED", x_max: float = 3e-3) -> dict:
+    """The design objective of DESIGN §8 on truth and prediction: mean von Mises [MPa] of the
+    ``layer`` nodes with reference x < ``x_max`` [m], averaged over all frames, per trajectory,
+    and the surrogate's relative error on it [%]. Empty dict if the scene has no such layer."""
+    if layer not in scene.part_names:
+        return {}
+    sel = (np.asarray(ref.node_part) == scene.part_names.index(layer)) & (np.asarray(ref.points)[:, 0] < x_max)
+    if not sel.any():
+        return {}
+    truth = np.array([np.asarray(t.von_mises, np.float64)[:, sel].mean() for t in trajs]) * 1e-6
+    pred = np.asarray(pred_vm, np.float64)[:, :, sel].mean(axis=(1, 2)) * 1e-6
+    rel = np.abs(pred - truth) / np.maximum(np.abs(truth), 1e-12) * 100.0
+    return dict(oled_objective_true_mpa=truth.tolist(), oled_objective_pred_mpa=pred.tolist(),
+                oled_objective_rel_error_pct_mean=float(rel.mean()),
+                oled_objective_rel_error_pct_max=float(rel.max()))
+
+
 def evaluate(workdir: str | Path, *, test_trajs: Sequence, cfg: TrainConfig | None = None,
              which: str = "best", batch: int = 4, plot: bool = True) -> dict:
     """Roll out every test trajectory; write WORKDIR/eval/metrics.json and PNGs; return the metrics."""
@@ -138,6 +155,7 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, cfg: TrainConfig | No
         xyt = test_trajs[b].positions
         pen_true.append(penetration(xyt[:, bnodes], xyt[:, pnodes]))
     phases = impact_phases(ref, bnodes, pnodes)
+    objective = oled_objective(s.scene, ref, pu, ps, test_trajs)
     metrics = dict(
         position_mae_um=float(pos_err.mean()), position_rmse_um=float(np.sqrt(np.mean(pos_err ** 2))),
         stress_mae_mpa=float(s_err.mean()), stress_rmse_mpa=float(np.sqrt(np.mean(s_err ** 2))),
@@ -153,6 +171,7 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, cfg: TrainConfig | No
         per_frame_stress_mae_mpa_mean=pf_s.mean(0).tolist(), per_frame_stress_mae_mpa_std=pf_s.std(0).tolist(),
         phases={k: list(v) for k, v in phases.items()},
         window_has_all_phases=all(v[0] is not None for v in phases.values()),
+        **objective,
     )
     out = plots.ensure_dir(workdir / "eval")
     atomic_write_json(out / "metrics.json", metrics)
