@@ -251,17 +251,24 @@ def _fortran_widths(fmt: str, where: str) -> tuple[int, int, int, int]:
     return int(mi.group(1)), int(mi.group(2)), (int(mf.group(1)) if mf else 0), (int(mf.group(2)) if mf else 0)
 
 
-def _fixed_ints(line: str, width: int, where: str) -> list[int]:
+def _fixed_fields(line: str, width: int, where: str, *, convert=int, what: str = "{field!r} is not an integer",
+                  start: int = 0) -> list:
+    """Non-blank fixed-width fields of ``line`` from ``start``, converted; a bad field raises
+    InputFileError naming ``where`` and the field (``what`` is the message template)."""
     line = line.rstrip("\r\n")
     out = []
-    for a in range(0, len(line), width):
+    for a in range(start, len(line), width):
         field = line[a:a + width].strip()
         if field:
             try:
-                out.append(int(field))
+                out.append(convert(field))
             except ValueError:
-                raise InputFileError(f"{where}: {field!r} is not an integer") from None
+                raise InputFileError(f"{where}: " + what.format(field=field)) from None
     return out
+
+
+def _fixed_ints(line: str, width: int, where: str) -> list[int]:
+    return _fixed_fields(line, width, where)
 
 
 def read_cdb(path: str | os.PathLike, *, scene: Scene | Mapping | None = None,
@@ -307,14 +314,8 @@ def read_cdb(path: str | os.PathLike, *, scene: Scene | Mapping | None = None,
                     break
                 where = f"{path}:{i + 1}"
                 ints = _fixed_ints(raw[: n_int * wi], wi, where)
-                vals = []
-                for a in range(n_int * wi, len(raw), wf):
-                    fld = raw[a:a + wf].strip()
-                    if fld:
-                        try:
-                            vals.append(float(fld))
-                        except ValueError:
-                            raise InputFileError(f"{where}: node coordinate {fld!r} is not a number") from None
+                vals = _fixed_fields(raw, wf, where, convert=float, start=n_int * wi,
+                                     what="node coordinate {field!r} is not a number")
                 vals += [0.0] * (3 - len(vals))
                 if not ints:
                     raise InputFileError(f"{where}: NBLOCK line has no node number")
