@@ -6,7 +6,6 @@ Writes OUT.json, OUT.md (table) and OUT.png (contact force and peak OLED stress 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from pathlib import Path
 

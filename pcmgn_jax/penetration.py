@@ -21,7 +21,6 @@ the ball sits above the panel. All public inputs and outputs are SI metres excep
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -300,10 +299,9 @@ def poly_fit(x, y, degree: int, *, interval, weights=None, ridge: float = DEFAUL
     # gradients for all-equal x or too few weighted points) and stays an orthogonal-factorisation solve.
     mu = jnp.asarray(ridge, dtype) * wsafe
     a_aug = jnp.concatenate([a, jnp.sqrt(mu) * jnp.eye(n, dtype=dtype)], axis=0)
-    b_aug = jnp.concatenate([b, jnp.zeros((n,), dtype)])
     q, r = jnp.linalg.qr(a_aug, mode="reduced")
     q_top, q_bot = q[:m], q[m:]
-    qtb = q_top.T @ b
+    qtb = q_top.T @ b  # = Q^T [b; 0]: the ridge rows' right-hand side is zero
     coef = solve_triangular(r, qtb, lower=False)
     # Iterated Tikhonov with the same factorisation: c <- argmin |A c - b|^2 + mu |c - c_prev|^2, i.e.
     # rhs [b; sqrt(mu) c_prev]. Each pass shrinks the ridge bias in a direction with singular value s by
