@@ -12,9 +12,9 @@ import time
 
 import numpy as np
 
-from pcmgn_jax.cache import ensure_cache, load_split
-from pcmgn_jax.training import gather, pair_table, sample_ids
-from pcmgn_jax.trajectory_io import atomic_write_json
+from pcmgn_jax.data.cache import ensure_cache, load_split
+from pcmgn_jax.train.loop import gather, pair_table, sample_ids
+from pcmgn_jax.data.trajectory_io import atomic_write_json
 
 
 def main(argv=None) -> int:

@@ -139,7 +139,7 @@ PRESET_ORDER = ("tiny", "cpu", "paper")
 
 
 def _crop(full, spec, roi_x: float):
-    from pcmgn_jax.mesh import crop_roi
+    from pcmgn_jax.sim.mesh import crop_roi
     h = spec.roi_ball_height * min(max(roi_x / spec.roi_x, 0.25), 4.0)
     return crop_roi(full, roi_x=roi_x, roi_ball_height=h)
 
@@ -151,7 +151,7 @@ def roi_mesh(n_nodes: int, preset: str = "auto"):
     (else 'paper'); the ROI radius (and ball height) is then bisected to get closest to n_nodes.
     Returns (submesh, info dict).
     """
-    from pcmgn_jax.mesh import build_mesh, mesh_spec, roi
+    from pcmgn_jax.sim.mesh import build_mesh, mesh_spec, roi
     from pcmgn_jax.scene import default_scene
     scene = default_scene()
     if preset == "auto":
@@ -190,8 +190,8 @@ def bench_graph(n_nodes: int, preset: str = "auto", seed: int = 0) -> dict:
     """
     import jax.numpy as jnp
 
-    from pcmgn_jax import contact as contact_lib
-    from pcmgn_jax.graphs import build_graph, make_topology
+    from pcmgn_jax.mgn import contact as contact_lib
+    from pcmgn_jax.mgn.graphs import build_graph, make_topology
 
     mesh, info = roi_mesh(n_nodes, preset)
     scene = info.pop("scene")
@@ -246,7 +246,7 @@ def jraph_graph(g: dict):
     import jax.numpy as jnp
     import jraph
 
-    from pcmgn_jax.graphs import EdgeSet
+    from pcmgn_jax.mgn.graphs import EdgeSet
     mesh = EdgeSet(jnp.asarray(g["mesh_features"]), jnp.asarray(g["mesh_senders"]),
                    jnp.asarray(g["mesh_receivers"]), jnp.ones(g["mesh_senders"].shape, bool))
     cont = EdgeSet(jnp.asarray(g["contact_features"]), jnp.asarray(g["contact_senders"]),
@@ -261,7 +261,7 @@ def jraph_graph(g: dict):
 def mgn_flops(n_nodes: int, n_edges: Mapping[str, int], in_dims: Mapping[str, int], *, latent: int,
               mlp_layers: int, steps: int, out: int = 3) -> dict:
     """Analytic multiply-add FLOPs (2 per MAC) of the MLP matmuls of one forward pass of
-    EncodeProcessDecode with the concat trick (what pcmgn_jax.model computes). ``in_dims``: 'node',
+    EncodeProcessDecode with the concat trick (what pcmgn_jax.mgn.model computes). ``in_dims``: 'node',
     and one entry per edge set. Aggregation, LayerNorm and gathers are not counted."""
     L, H = latent, mlp_layers
 

@@ -1,4 +1,4 @@
-"""JAX MeshGraphNet (pcmgn_jax.model) against a plain-PyTorch reference on the same graph, same run.
+"""JAX MeshGraphNet (pcmgn_jax.mgn.model) against a plain-PyTorch reference on the same graph, same run.
 
     python -m benchmarks.mgn_vs_torch --nodes 800 --layers 8 --latent 64 [--json PATH] [--md PATH]
     python -m benchmarks.mgn_vs_torch --nodes 3000 --layers 15 --latent 128
@@ -10,7 +10,7 @@ XLA's CPU client uses all of them, torch.set_num_threads is set to match).
 
 Timed (after warm-up, interleaved round-robin, median of ``--repeats``):
 - JAX: jitted ``model.apply`` (forward); jitted Adam train step (value_and_grad + optax.adam, MSE),
-  one step per dispatch and ``--scan`` steps per dispatch (lax.scan, as pcmgn_jax.training does).
+  one step per dispatch and ``--scan`` steps per dispatch (lax.scan, as pcmgn_jax.train.loop does).
 - PyTorch eager, edge MLP first layer as concat (MeshGraphNets/PyG style) and with the concat trick;
   forward under torch.inference_mode; train step = zero_grad + forward + MSE + backward + Adam.step.
 - PyTorch ``torch.compile`` (inductor) of the concat variant, when ``--compile`` and it works offline.
@@ -55,7 +55,7 @@ def prepare_jax(g: dict, a) -> tuple[dict, dict]:
     import optax
 
     from benchmarks.common import jraph_graph
-    from pcmgn_jax.model import EncodeProcessDecode
+    from pcmgn_jax.mgn.model import EncodeProcessDecode
 
     graph = jraph_graph(g)
     target = jnp.asarray(g["target"])

@@ -6,7 +6,7 @@
 Model: EncodeProcessDecode at the ``cpu`` training preset size (latent 64, 8 steps) with RANDOM
 parameters (timing only: shapes, not values, set the cost; the contact buffer has a fixed capacity,
 so wild random predictions cannot change the work). Graph: the preset's region-of-interest mesh of
-the default scene (``pcmgn_jax.mesh.roi``); designs: OCA1/OCA2 thicknesses on a grid, same topology.
+the default scene (``pcmgn_jax.sim.mesh.roi``); designs: OCA1/OCA2 thicknesses on a grid, same topology.
 
 Timed after compilation (AOT ``lower().compile()``, so compile time is reported separately):
 - ``rollout`` (one jitted lax.scan over all frames) for one design, median of ``--repeats``;
@@ -47,12 +47,12 @@ def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2,
     import jax
     import jax.numpy as jnp
 
-    from pcmgn_jax import contact as contact_lib
-    from pcmgn_jax.graphs import build_graph, make_topology
-    from pcmgn_jax.mesh import build_mesh, roi
-    from pcmgn_jax.model import EncodeProcessDecode
-    from pcmgn_jax.normalization import Stats, normalize_graph
-    from pcmgn_jax.rollout import Spec
+    from pcmgn_jax.mgn import contact as contact_lib
+    from pcmgn_jax.mgn.graphs import build_graph, make_topology
+    from pcmgn_jax.sim.mesh import build_mesh, roi
+    from pcmgn_jax.mgn.model import EncodeProcessDecode
+    from pcmgn_jax.mgn.normalization import Stats, normalize_graph
+    from pcmgn_jax.mgn.rollout import Spec
     from pcmgn_jax.scene import default_scene
 
     base = default_scene()
@@ -116,7 +116,7 @@ def main(argv=None) -> dict:
     import jax
 
     from benchmarks import common
-    from pcmgn_jax.rollout import jitted_step, rollout, rollout_batch
+    from pcmgn_jax.mgn.rollout import jitted_step, rollout, rollout_batch
 
     batches = [int(b) for b in a.batches.split(",") if b.strip()]
     s = rollout_setup(a.preset, latent=a.latent, layers=a.layers, mlp_layers=a.mlp_layers)

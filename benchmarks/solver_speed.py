@@ -43,7 +43,7 @@ def designs(n: int) -> list[tuple[float, float]]:
 
 def timed_simulate(scenes, preset, n_frames: int) -> dict:
     """Compile run + timed run; returns timing dict for the batch."""
-    from pcmgn_jax import solver
+    from pcmgn_jax.sim import solver
     t0 = time.perf_counter()
     first = solver.simulate(scenes, preset, n_frames=n_frames)
     first_total = time.perf_counter() - t0

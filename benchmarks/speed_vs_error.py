@@ -17,7 +17,7 @@ training mesh (all runs must share one dataset). Points:
   the part's nodes, nearest node outside it). The training-mesh preset reproduces the ground truth
   (error ~0: a check of the pipeline) and gives the reference cost.
 
-Errors as pcmgn_jax.evaluation: position MAE [µm] and von Mises MAE [MPa] over frames 1..T, ROI nodes
+Errors as pcmgn_jax.eval.evaluate: position MAE [µm] and von Mises MAE [MPa] over frames 1..T, ROI nodes
 (and components), test designs. Output: table, JSON, a two-panel speed-vs-error PNG with the Pareto
 front, and for every surrogate the fastest solver at least as accurate (the speed-up it buys).
 """
@@ -65,8 +65,8 @@ def surrogate_point(workdir, test_trajs, *, which: str = "best", label: str | No
     import jax
 
     from pcmgn_jax.config import TrainConfig
-    from pcmgn_jax.rollout import rollout_checked
-    from pcmgn_jax.training import load_for_inference
+    from pcmgn_jax.mgn.rollout import rollout_checked
+    from pcmgn_jax.train.loop import load_for_inference
 
     workdir = Path(workdir)
     cfg = TrainConfig.load(workdir / "config.json")
@@ -106,7 +106,7 @@ def _mesh_build_s(ref) -> float:
     meta = ref.meta
     if meta.get("source") != "solver" or "solver" not in meta:
         return 0.0
-    from pcmgn_jax.mesh import build_mesh, roi
+    from pcmgn_jax.sim.mesh import build_mesh, roi
     from pcmgn_jax.scene import Scene
     spec = _spec_from_meta(meta)
     scene = Scene.from_dict(meta["scene"])
@@ -119,7 +119,7 @@ def _mesh_build_s(ref) -> float:
 
 def solver_spec(name: str):
     """'cpu' -> MESH_PRESETS['cpu']; 'cpu@2' -> element sizes x2, through-thickness counts / 2."""
-    from pcmgn_jax.mesh import mesh_spec, with_spec
+    from pcmgn_jax.sim.mesh import mesh_spec, with_spec
     if "@" not in name:
         return mesh_spec(name)
     base, f = name.split("@", 1)
@@ -130,7 +130,7 @@ def solver_spec(name: str):
 
 
 def _spec_from_meta(meta):
-    from pcmgn_jax.mesh import MeshSpec
+    from pcmgn_jax.sim.mesh import MeshSpec
     d = dict(meta["solver"]["mesh_spec"])
     return MeshSpec(**d)
 
@@ -162,8 +162,8 @@ def transfer(src_points, src_cells, src_cell_part, field, dst_points, dst_node_p
 
 
 def solver_point(preset_name: str, test_trajs, *, label: str | None = None) -> dict:
-    from pcmgn_jax import solver
-    from pcmgn_jax.mesh import roi
+    from pcmgn_jax.sim import solver
+    from pcmgn_jax.sim.mesh import roi
     from pcmgn_jax.scene import Scene
 
     spec = solver_spec(preset_name)
@@ -296,7 +296,7 @@ def report(points, *, command: str, json_path, md_path, png_path, extra: dict | 
 def main(argv=None) -> dict:
     a = _args(sys.argv[1:] if argv is None else argv)
     from benchmarks import common
-    from pcmgn_jax.cache import load_split
+    from pcmgn_jax.data.cache import load_split
     from pcmgn_jax.config import TrainConfig
 
     runs = [r for r in a.runs.split(",") if r]

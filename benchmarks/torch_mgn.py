@@ -1,4 +1,4 @@
-"""Plain-PyTorch reference of pcmgn_jax.model.EncodeProcessDecode (for benchmarks only).
+"""Plain-PyTorch reference of pcmgn_jax.mgn.model.EncodeProcessDecode (for benchmarks only).
 
 Same architecture, written the way a PyTorch/PyG MeshGraphNet author writes it:
 
@@ -9,7 +9,7 @@ Same architecture, written the way a PyTorch/PyG MeshGraphNet author writes it:
   residuals on nodes and edges, no weight sharing between blocks.
 - Edge MLP first layer: ``concat_trick=False`` (default, what MeshGraphNets/PyG code does):
   Linear(3L -> L) on torch.cat([v[s], v[r], e]); ``concat_trick=True``: W_s v and W_r v per node, gathered,
-  plus W_e e (what pcmgn_jax.model does). Both are benchmarked; the faster one is the reference.
+  plus W_e e (what pcmgn_jax.mgn.model does). Both are benchmarked; the faster one is the reference.
 
 Inputs are plain tensors (a dict), so the model can be torch.compile-d.
 """

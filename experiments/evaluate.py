@@ -1,6 +1,6 @@
 """Evaluate a run: ``python -m experiments.evaluate --workdir RUN [--which best|periodic]``.
 
-Writes RUN/eval/metrics.json and PNG plots (see pcmgn_jax.evaluation).
+Writes RUN/eval/metrics.json and PNG plots (see pcmgn_jax.eval.evaluate).
 """
 import json
 import sys
@@ -15,7 +15,8 @@ def main(argv):
     if workdir is None or flags:
         raise SystemExit(f"usage: python -m experiments.evaluate --workdir RUN [--which best|periodic]"
                          f"{'; unknown flags ' + str(sorted(flags)) if flags else ''}")
-    from pcmgn_jax import evaluation, training
+    from pcmgn_jax.eval import evaluate as evaluation
+    from pcmgn_jax.train import loop as training
     from pcmgn_jax.config import TrainConfig
     cfg = TrainConfig.load(f"{workdir}/config.json")
     _, _, test = training.load_data(cfg)

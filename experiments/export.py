@@ -15,14 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
-from pcmgn_jax.export import export_comparison
-from pcmgn_jax.trajectory_io import read_trajectory
+from pcmgn_jax.data.export import export_comparison
+from pcmgn_jax.data.trajectory_io import read_trajectory
 
 
 def predict_with_model(workdir: Path, truth):
     """(displacement (T,N,2) [m], von_mises (T,N) [Pa]) of the trained model in ``workdir``
     rolled out from frame 0 of ``truth`` (best checkpoint)."""
-    from pcmgn_jax.evaluation import predict_trajectories
+    from pcmgn_jax.eval.evaluate import predict_trajectories
 
     disp, vm, _, _ = predict_trajectories(workdir, [truth])
     return disp[0], vm[0]

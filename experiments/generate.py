@@ -4,14 +4,14 @@
   python -m experiments.generate --out data/paper --preset paper --designs "40,40;40,160;160,40;160,160" --split extrap
 
 Designs are OCA thicknesses in µm on the command line, metres in files. Rerunning skips finished,
-valid trajectories. See pcmgn_jax/dataset.py for the directory layout and manifest.
+valid trajectories. See pcmgn_jax/data/dataset.py for the directory layout and manifest.
 """
 from __future__ import annotations
 
 import argparse
 import sys
 
-from pcmgn_jax.dataset import PRESETS, DatasetError, ensure_dataset, parse_designs
+from pcmgn_jax.data.dataset import PRESETS, DatasetError, ensure_dataset, parse_designs
 from pcmgn_jax.scene import Scene, default_scene
 
 

@@ -7,8 +7,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from pcmgn_jax.hertz import TARGETS, hertz_check
-from pcmgn_jax.trajectory_io import atomic_write_json
+from pcmgn_jax.sim.hertz import TARGETS, hertz_check
+from pcmgn_jax.data.trajectory_io import atomic_write_json
 
 
 def main(argv=None) -> int:

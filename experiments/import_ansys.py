@@ -3,7 +3,7 @@
   python -m experiments.import_ansys --mesh model.cdb --results exports/ --out data/ansys/run01 \\
       --scene scenes/paper.toml --parts "ball=1,CG=2,OCA1=3,POL=4,OCA2=5,OLED=6,PLATE=7" --output_dt 4e-6
 
-See pcmgn_jax/importers.py for the file-naming convention of the result tables and the part map.
+See pcmgn_jax/data/importers.py for the file-naming convention of the result tables and the part map.
 Nothing is written unless the whole import succeeds.
 """
 from __future__ import annotations
@@ -11,9 +11,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from pcmgn_jax.importers import import_ansys_text, parse_parts
+from pcmgn_jax.data.importers import import_ansys_text, parse_parts
 from pcmgn_jax.scene import Scene
-from pcmgn_jax.trajectory_io import write_trajectory
+from pcmgn_jax.data.trajectory_io import write_trajectory
 
 
 def main(argv: list[str] | None = None) -> int:

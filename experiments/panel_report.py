@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pcmgn_jax import solver
-from pcmgn_jax.dataset import parse_designs
+from pcmgn_jax.sim import solver
+from pcmgn_jax.data.dataset import parse_designs
 from pcmgn_jax.scene import default_scene
-from pcmgn_jax.trajectory_io import atomic_write_json
+from pcmgn_jax.data.trajectory_io import atomic_write_json
 
 
 def main(argv=None) -> int:

@@ -14,7 +14,7 @@ def main(argv):
     resume = bool(flags.pop("resume", False))
     cfg = TrainConfig.from_flags([f"--{k}={v}" for k, v in flags.items()])
     workdir = workdir or f"runs/{cfg.preset}"
-    from pcmgn_jax import training
+    from pcmgn_jax.train import loop as training
     training.check_supported(cfg)
     train, val, _ = training.load_data(cfg)
     res = training.train(cfg, workdir, train_trajs=train, val_trajs=val, resume=resume)

@@ -122,7 +122,7 @@ def tiny_config(**kw):
 @pytest.fixture(scope="session")
 def tiny_run(tiny_trajs, tmp_path_factory):
     """A short tiny training run: (cfg, workdir, summary). Shared by the training and rollout tests."""
-    from pcmgn_jax import training
+    from pcmgn_jax.train import loop as training
     cfg = tiny_config()
     workdir = tmp_path_factory.mktemp("tiny_run")
     summary = training.train(cfg, workdir, train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:])

@@ -57,7 +57,7 @@ def test_torch_reference_matches_architecture():
 
     from benchmarks.common import bench_graph, jraph_graph
     from benchmarks.torch_mgn import TorchMGN, torch_graph
-    from pcmgn_jax.model import EncodeProcessDecode
+    from pcmgn_jax.mgn.model import EncodeProcessDecode
     g = bench_graph(60)
     model = EncodeProcessDecode(output_size=3, latent_size=8, mlp_layers=2, message_passing_steps=2)
     n_jax = sum(x.size for x in jax.tree.leaves(model.init(jax.random.PRNGKey(0), jraph_graph(g))))
@@ -143,7 +143,7 @@ def test_speed_vs_error_surrogate_and_report(tiny_run, tiny_trajs, tmp_path):
 def test_speed_vs_error_solver_points():
     """Solver at the reference mesh reproduces it (error ~0); a coarser mesh is interpolated."""
     from benchmarks.speed_vs_error import solver_point
-    from pcmgn_jax import solver
+    from pcmgn_jax.sim import solver
     from pcmgn_jax.scene import default_scene
     scene = dataclasses.replace(default_scene(), n_frames=2)
     trajs = solver.solve_designs(scene, np.array([[80e-6, 120e-6]]), preset="tiny")

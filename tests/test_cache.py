@@ -6,9 +6,9 @@ import time
 import numpy as np
 
 from fixtures.synthetic import assert_same, synthetic_trajectory
-from pcmgn_jax import cache
-from pcmgn_jax.dataset import split_stems
-from pcmgn_jax.trajectory_io import read_trajectory, write_trajectory
+from pcmgn_jax.data import cache
+from pcmgn_jax.data.dataset import split_stems
+from pcmgn_jax.data.trajectory_io import read_trajectory, write_trajectory
 
 
 def _make(root, n=3, dtype=np.float64):

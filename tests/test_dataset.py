@@ -11,18 +11,18 @@ import numpy as np
 import pytest
 
 from fixtures.synthetic import synthetic_trajectory
-from pcmgn_jax import dataset as ds
-from pcmgn_jax.trajectory_io import read_trajectory
+from pcmgn_jax.data import dataset as ds
+from pcmgn_jax.data.trajectory_io import read_trajectory
 
 
 class FakeSolver(types.ModuleType):
-    """Stand-in for pcmgn_jax.solver (contract: solve_designs(scene, designs, *, preset))."""
+    """Stand-in for pcmgn_jax.sim.solver (contract: solve_designs(scene, designs, *, preset))."""
 
     class SolverError(RuntimeError):
         pass
 
     def __init__(self, fail_above=None):
-        super().__init__("pcmgn_jax.solver")
+        super().__init__("pcmgn_jax.sim.solver")
         self.calls = []
         self.fail_above = fail_above
 
@@ -42,7 +42,7 @@ class FakeSolver(types.ModuleType):
 @pytest.fixture
 def fake(monkeypatch):
     mod = FakeSolver()
-    monkeypatch.setitem(sys.modules, "pcmgn_jax.solver", mod)
+    monkeypatch.setitem(sys.modules, "pcmgn_jax.sim.solver", mod)
     return mod
 
 
@@ -115,7 +115,7 @@ def test_extra_split_and_conflicts(tmp_path, fake):
 
 def test_solver_error_isolated(tmp_path, monkeypatch):
     mod = FakeSolver(fail_above=100e-6)
-    monkeypatch.setitem(sys.modules, "pcmgn_jax.solver", mod)
+    monkeypatch.setitem(sys.modules, "pcmgn_jax.sim.solver", mod)
     out = tmp_path / "d"
     with pytest.raises(ds.DatasetError, match=r"(?s)1 design\(s\) failed.*extrap_0001"):
         ds.ensure_dataset(out, preset="tiny", designs=ds.parse_designs("60,60;120,60;70,70"),

@@ -4,9 +4,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pcmgn_jax import contact, graphs
-
-# Two unit-ish quads side by side (6 nodes), ball = left cell (part 0), CG = right cell (part 1):
+from pcmgn_jax.mgn import contact
+from pcmgn_jax.mgn import graphs
 #   3 --- 4 --- 5          y = 1e-5
 #   |  0  |  1  |
 #   0 --- 1 --- 2          y = 0

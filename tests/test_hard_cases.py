@@ -23,13 +23,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pcmgn_jax import contact as contact_lib
-from pcmgn_jax import evaluation, training
+from pcmgn_jax.mgn import contact as contact_lib
+from pcmgn_jax.eval import evaluate as evaluation
+from pcmgn_jax.train import loop as training
 from pcmgn_jax.config import TrainConfig
-from pcmgn_jax.penetration import penetration_stats
-from pcmgn_jax.rollout import rollout_checked
+from pcmgn_jax.train.penetration import penetration_stats
+from pcmgn_jax.mgn.rollout import rollout_checked
 from pcmgn_jax.scene import default_scene
-from pcmgn_jax.solver import solve_designs
+from pcmgn_jax.sim.solver import solve_designs
 
 N_FRAMES = 16  # frames after the initial one (4 µs each): contact starts at ~16 µs = frame 4
 TRAIN_DESIGNS = np.array([[60e-6, 140e-6], [120e-6, 80e-6], [100e-6, 100e-6]])  # [m] (OCA1, OCA2)

@@ -3,7 +3,7 @@ import math
 
 import pytest
 
-from pcmgn_jax.hertz import hertz_check, hertz_impact, hertz_scene
+from pcmgn_jax.sim.hertz import hertz_check, hertz_impact, hertz_scene
 
 
 def test_theory_matches_design_figures():

@@ -7,8 +7,8 @@ import functools
 import numpy as np
 import pytest
 
-from pcmgn_jax import fem
-from pcmgn_jax import mesh as M
+from pcmgn_jax.sim import fem
+from pcmgn_jax.sim import mesh as M
 from pcmgn_jax.scene import default_scene
 
 PRESETS = ("tiny", "cpu", "paper")

@@ -1,10 +1,10 @@
-"""Tests for pcmgn_jax.noise: drawn statistics and the target correction for each target type."""
+"""Tests for pcmgn_jax.train.noise: drawn statistics and the target correction for each target type."""
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pcmgn_jax.noise import add_position_noise, correct_target, noise_node_mask, sample_position_noise
+from pcmgn_jax.train.noise import add_position_noise, correct_target, noise_node_mask, sample_position_noise
 
 N_BALL, N_PANEL = 4000, 6000
 SIGMA = 0.3e-6

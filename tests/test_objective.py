@@ -4,7 +4,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from pcmgn_jax.evaluation import oled_objective
+from pcmgn_jax.eval.evaluate import oled_objective
 from pcmgn_jax.scene import default_scene
 
 

@@ -1,10 +1,10 @@
-"""Tests for pcmgn_jax.penetration: float32 fit accuracy vs numpy float64, gradients, hard cases, metric."""
+"""Tests for pcmgn_jax.train.penetration: float32 fit accuracy vs numpy float64, gradients, hard cases, metric."""
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pcmgn_jax.penetration import (
+from pcmgn_jax.train.penetration import (
     boundary_nodes,
     penetration_depth,
     penetration_loss,
@@ -236,7 +236,7 @@ def test_boundary_nodes_unstructured_ball_uses_downward_boundary_edges():
 def test_boundary_nodes_on_project_mesh():
     """On the project's own O-grid ball + columnar panel ROI mesh, 'auto' finds exactly the mesh's
     ball surface (by downward boundary edges) and panel top (by columns)."""
-    mesh_mod = pytest.importorskip("pcmgn_jax.mesh")
+    mesh_mod = pytest.importorskip("pcmgn_jax.sim.mesh")
     from pcmgn_jax.scene import default_scene
 
     # x_max inside the crop, as training does: at the crop's far edge the cut leaves down-facing

@@ -3,9 +3,7 @@ import jax
 import numpy as np
 
 from conftest import CompileCounter
-from pcmgn_jax import rollout as rl
-
-
+from pcmgn_jax.mgn import rollout as rl
 def _args(t):
     return t.points, t.displacement[0], t.velocity[0], t.von_mises[0]
 
@@ -54,7 +52,7 @@ def test_rollout_no_recompilation(tiny_run, tiny_trajs):
 def test_evaluate_writes_metrics_and_plots(tiny_run, tiny_trajs):
     import json
 
-    from pcmgn_jax import evaluation
+    from pcmgn_jax.eval import evaluate as evaluation
     cfg, workdir, _ = tiny_run
     m = evaluation.evaluate(workdir, test_trajs=tiny_trajs[2:], cfg=cfg, plot=True)
     saved = json.loads((workdir / "eval" / "metrics.json").read_text())

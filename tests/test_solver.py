@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 import scipy.sparse.linalg as spla
 
-from pcmgn_jax import fem, solver
+from pcmgn_jax.sim import fem
+from pcmgn_jax.sim import solver
 from pcmgn_jax.scene import default_scene
-from pcmgn_jax.solver import SolverError, SolverSettings, simulate
+from pcmgn_jax.sim.solver import SolverError, SolverSettings, simulate
 
 N_FRAMES = 12  # 48 us: the ball touches at ~16 us, so 32 us of contact
 S1 = default_scene(t_oca1=50e-6, t_oca2=50e-6)
@@ -248,7 +249,7 @@ def test_no_recompilation_for_new_design_same_shapes(runs):
 
 
 def test_designs_with_different_topology_rejected():
-    from pcmgn_jax.mesh import with_spec
+    from pcmgn_jax.sim.mesh import with_spec
     # a scene whose CG thickness differs is fine (same counts), but a different half width is not
     wide = default_scene(half_width=9e-3)
     with pytest.raises(ValueError, match="topology"):

@@ -6,10 +6,8 @@ import numpy as np
 import pytest
 
 from conftest import CompileCounter, tiny_config
-from pcmgn_jax import rollout as rl
-from pcmgn_jax import training
-
-
+from pcmgn_jax.mgn import rollout as rl
+from pcmgn_jax.train import loop as training
 def test_loss_halves(tiny_run):
     _, workdir, _ = tiny_run
     recs = [json.loads(line) for line in (workdir / "metrics.jsonl").read_text().splitlines()]
@@ -77,7 +75,7 @@ def test_nan_loss_stops_clearly(tiny_trajs, tmp_path):
 def test_nonzero_lambda_pen_is_wired_or_refused(tiny_trajs, tmp_path):
     cfg = tiny_config(num_steps=20, lambda_pen=10.0, poly_ball=2, poly_panel=3)
     try:
-        import pcmgn_jax.penetration  # noqa: F401
+        import pcmgn_jax.train.penetration  # noqa: F401
     except ImportError:
         with pytest.raises(ValueError, match="lambda_pen"):
             training.train(cfg, tmp_path, train_trajs=tiny_trajs[:3])

@@ -15,7 +15,7 @@ explicit designs (``--designs``) go into a named split (default ``extrap``).
 
 manifest.json::
 
-    {"format": "pcmgn_jax.dataset", "format_version": 1, "preset": "cpu", "scene": {...},
+    {"format": "pcmgn_jax.data.dataset", "format_version": 1, "preset": "cpu", "scene": {...},
      "design_layers": ["OCA1", "OCA2"], "units": {"design_m": "m", "design_um": "µm", "wall_time_s": "s"},
      "splits": {"train": {"origin": {"kind": "lhs", "seed": 0, "n_total": 150, "rows": [0, 100],
                                      "low_m": 5e-05, "high_m": 0.00015},
@@ -42,14 +42,14 @@ import numpy as np
 
 from pcmgn_jax.scene import Scene, default_scene
 from pcmgn_jax.trajectory import Trajectory
-from pcmgn_jax.trajectory_io import (TrajectoryFileError, atomic_write_json, read_trajectory,
+from pcmgn_jax.data.trajectory_io import (TrajectoryFileError, atomic_write_json, read_trajectory,
                                      write_trajectory)
 
 __all__ = ["DatasetError", "MANIFEST", "PRESETS", "ensure_dataset", "lhs_designs", "load_manifest",
            "parse_designs", "split_stems"]
 
 MANIFEST = "manifest.json"
-DATASET_FORMAT = "pcmgn_jax.dataset"
+DATASET_FORMAT = "pcmgn_jax.data.dataset"
 PRESETS = ("tiny", "cpu", "paper")     # mesh resolution / frame count, interpreted by the solver
 DESIGN_LOW = 50e-6                     # default design range [m] (paper: 50-150 µm)
 DESIGN_HIGH = 150e-6
@@ -156,7 +156,7 @@ def _is_done(root: Path, entry: dict[str, Any], layers: Sequence[str]) -> bool:
         traj = read_trajectory(root / entry["path"], verify=True)
     except TrajectoryFileError:
         return False
-    from pcmgn_jax.trajectory_io import content_hash
+    from pcmgn_jax.data.trajectory_io import content_hash
 
     digest = content_hash(traj)
     if entry.get("sha256") not in (None, digest):
@@ -173,7 +173,7 @@ def _is_done(root: Path, entry: dict[str, Any], layers: Sequence[str]) -> bool:
 def _solver(solve_fn):
     """(solve_designs, SolverError classes) — the real solver module, imported lazily."""
     try:
-        mod = importlib.import_module("pcmgn_jax.solver")
+        mod = importlib.import_module("pcmgn_jax.sim.solver")
     except ImportError:
         if solve_fn is None:
             raise
@@ -194,7 +194,7 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     designs=(B, n_design) [m]: only the split ``split`` (default ``'extrap'``) with these designs.
     Resumable: valid trajectories (hash-verified, same design) are skipped. The solver is called as
     ``solve_fn(scene, designs (b, n_design) [m], preset=preset) -> list[Trajectory]`` in batches of
-    ``batch`` (default ``pcmgn_jax.solver.solve_designs``). Designs that raise ``SolverError`` are
+    ``batch`` (default ``pcmgn_jax.sim.solver.solve_designs``). Designs that raise ``SolverError`` are
     retried one by one, recorded in the manifest with their error, and reported in a DatasetError
     raised after everything else has been written.
     """

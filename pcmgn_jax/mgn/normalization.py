@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import jraph
 import numpy as np
 
-from pcmgn_jax.graphs import EdgeSet
+from pcmgn_jax.mgn.graphs import EdgeSet
 
 
 class Stats(NamedTuple):
@@ -97,7 +97,7 @@ def make_stats(*, node: Accumulator, mesh: Accumulator, contact: Accumulator, ta
 
 
 def normalize_graph(stats: Stats, graph: jraph.GraphsTuple, n_node_types: int) -> jraph.GraphsTuple:
-    """Normalised copy of a raw graph from :func:`pcmgn_jax.graphs.build_graph`."""
+    """Normalised copy of a raw graph from :func:`pcmgn_jax.mgn.graphs.build_graph`."""
     nodes = graph.nodes
     onehot, phys = nodes[..., :n_node_types], nodes[..., n_node_types:]
     nodes = jnp.concatenate([onehot, (phys - stats.node_mean) / stats.node_std], axis=-1)

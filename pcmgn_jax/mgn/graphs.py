@@ -19,8 +19,8 @@ How the two edge sets ride in the GraphsTuple (graphcast "typed graph" style, ke
         n_node    = (1,) int32 [N],  n_edge = (1,) int32 [E],  globals = None)
 
 The contact set has a fixed capacity C with a padding ``mask`` (padded slots point at node 0 and are
-ignored by the model); overflow is detected in :mod:`pcmgn_jax.contact`, never truncated silently.
-Features here are raw SI values; normalisation wraps the model (:mod:`pcmgn_jax.normalization`).
+ignored by the model); overflow is detected in :mod:`pcmgn_jax.mgn.contact`, never truncated silently.
+Features here are raw SI values; normalisation wraps the model (:mod:`pcmgn_jax.mgn.normalization`).
 Batches of designs with the same topology are *stacked* (leading axis, ``jax.vmap``), not
 ``jraph.batch``-ed.
 
@@ -163,7 +163,7 @@ def build_graph(topology: Topology, *, points, displacement, velocity, contact) 
     points:       (N, 2) reference coordinates [m]
     displacement: (N, 2) [m]   (world position = points + displacement)
     velocity:     (N, 2) [m/s] world velocity
-    contact:      a :class:`pcmgn_jax.contact.ContactEdges` (senders, receivers, mask) of capacity C
+    contact:      a :class:`pcmgn_jax.mgn.contact.ContactEdges` (senders, receivers, mask) of capacity C
     """
     n = topology.n_node
     mesh = EdgeSet(features=mesh_edge_features(topology, points, displacement),

@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from pcmgn_jax import solver
-from pcmgn_jax.mesh import MeshSpec
+from pcmgn_jax.sim import solver
+from pcmgn_jax.sim.mesh import MeshSpec
 from pcmgn_jax.scene import Ball, Layer, Scene
 
 TARGETS = {

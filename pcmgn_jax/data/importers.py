@@ -74,7 +74,7 @@ import numpy as np
 
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.trajectory import Trajectory
-from pcmgn_jax.trajectory_io import SI_UNITS
+from pcmgn_jax.data.trajectory_io import SI_UNITS
 
 __all__ = ["InputFileError", "Mesh", "import_ansys_text", "import_d3plot", "import_meshio_series",
            "read_ansys_table", "read_cdb", "read_mesh", "read_meshio_mesh"]
@@ -701,7 +701,7 @@ def _frame_files(results: Path) -> tuple[list[dict[str, Path]], np.ndarray | Non
     nums = sorted(found["deformation_x"])
     if not nums:
         raise InputFileError(f"{results}: no 'deformation_x_NNN.txt' files and no frames.json "
-                             "(see the naming convention in pcmgn_jax/importers.py)")
+                             "(see the naming convention in pcmgn_jax/data/importers.py)")
     if nums != list(range(len(nums))):
         gap = next(k for k, n in enumerate(nums) if n != k)
         raise InputFileError(f"{results}: frame numbers must be 0..{len(nums) - 1} without gaps; "

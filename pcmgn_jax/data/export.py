@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from pcmgn_jax.trajectory import Trajectory
-from pcmgn_jax.trajectory_io import to_jsonable, trajectory_paths, write_xdmf_series
+from pcmgn_jax.data.trajectory_io import to_jsonable, trajectory_paths, write_xdmf_series
 
 __all__ = ["comparison_summary", "export_comparison"]
 

@@ -26,16 +26,16 @@ from typing import Any
 
 import numpy as np
 
-from pcmgn_jax.dataset import split_stems
+from pcmgn_jax.data.dataset import split_stems
 from pcmgn_jax.trajectory import Trajectory
-from pcmgn_jax.trajectory_io import (ARRAY_FIELDS, RESERVED_KEYS, TrajectoryFileError, atomic_write_json,
+from pcmgn_jax.data.trajectory_io import (ARRAY_FIELDS, RESERVED_KEYS, TrajectoryFileError, atomic_write_json,
                                      read_sidecar, read_trajectory)
 
 __all__ = ["CACHE_DIR", "cache_dir", "ensure_cache", "load_split"]
 
 CACHE_DIR = ".cache"
 INDEX = "index.json"
-CACHE_FORMAT = "pcmgn_jax.cache"
+CACHE_FORMAT = "pcmgn_jax.data.cache"
 CACHE_VERSION = 1
 
 

@@ -35,8 +35,8 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from pcmgn_jax import fem
-from pcmgn_jax.mesh import Mesh, MeshSpec, build_mesh, mesh_spec, roi
+from pcmgn_jax.sim import fem
+from pcmgn_jax.sim.mesh import Mesh, MeshSpec, build_mesh, mesh_spec, roi
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.trajectory import Trajectory
 

@@ -11,7 +11,7 @@
   and validation happen at chunk boundaries (their intervals are rounded up to whole chunks).
 - Loss: MSE of normalised outputs vs normalised targets; velocity/displacement/position channels are
   masked on fixed nodes, stress is on all nodes. ``loss = loss_data + lambda_pen * loss_pen``; the
-  penetration term is a hook (``_penetration_loss``) until ``pcmgn_jax.penetration`` lands.
+  penetration term is a hook (``_penetration_loss``) until ``pcmgn_jax.train.penetration`` lands.
 - Noise (MeshGraphNets style): Gaussian ``noise_std`` [m] on the input displacement of the chosen parts'
   free nodes; targets corrected so the model learns to undo it (velocity: a -= n / dt; displacement:
   a -= n; position: unchanged).
@@ -32,14 +32,14 @@ import numpy as np
 import optax
 import orbax.checkpoint as ocp
 
-from pcmgn_jax import contact as contact_lib
+from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.config import TrainConfig
-from pcmgn_jax.graphs import Topology, build_graph, topology_from_trajectory
-from pcmgn_jax.model import EncodeProcessDecode
-from pcmgn_jax.noise import correct_target
-from pcmgn_jax.normalization import (Accumulator, Stats, denormalize_output, make_stats,
+from pcmgn_jax.mgn.graphs import Topology, build_graph, topology_from_trajectory
+from pcmgn_jax.mgn.model import EncodeProcessDecode
+from pcmgn_jax.train.noise import correct_target
+from pcmgn_jax.mgn.normalization import (Accumulator, Stats, denormalize_output, make_stats,
                                      normalize_target)
-from pcmgn_jax.rollout import Spec, input_velocity, integrate, make_target, predict, rollout_checked
+from pcmgn_jax.mgn.rollout import Spec, input_velocity, integrate, make_target, predict, rollout_checked
 from pcmgn_jax.scene import Scene
 
 
@@ -83,16 +83,16 @@ def check_supported(cfg: TrainConfig) -> None:
     """Refuse options whose implementation is missing (never accept and ignore)."""
     if cfg.lambda_pen > 0:
         try:
-            import pcmgn_jax.penetration  # noqa: F401
+            import pcmgn_jax.train.penetration  # noqa: F401
         except ImportError:
             raise ValueError(
-                f"--lambda_pen={cfg.lambda_pen} needs the penetration loss (pcmgn_jax.penetration, "
+                f"--lambda_pen={cfg.lambda_pen} needs the penetration loss (pcmgn_jax.train.penetration, "
                 "issue 5), which is not installed; use --lambda_pen=0 (vanilla MGN)") from None
 
 
 def penetration_boundary(cfg: TrainConfig, ref, panel_part: int):
-    """Ball-bottom / CG-top node sets and fit interval (pcmgn_jax.penetration.boundary_nodes)."""
-    from pcmgn_jax.penetration import boundary_nodes
+    """Ball-bottom / CG-top node sets and fit interval (pcmgn_jax.train.penetration.boundary_nodes)."""
+    from pcmgn_jax.train.penetration import boundary_nodes
     # stay inside the region of interest: at its far edge the crop leaves cut edges that are not
     # the ball's or the glass's surface
     x_max = min(cfg.pen_x_max, 0.8 * float(np.max(ref.points[:, 0])))
@@ -261,7 +261,7 @@ def _penetration_loss(spec: TrainSpec, pen_nodes, points, u_next):
     """Physics term (paper 2.3): L_pen of the predicted next world positions (d in pen_length_scale)."""
     if spec.lambda_pen == 0:
         return jnp.zeros((), jnp.float32)
-    from pcmgn_jax.penetration import penetration_depth, penetration_loss
+    from pcmgn_jax.train.penetration import penetration_depth, penetration_loss
     pos = points + u_next
     d, valid = penetration_depth(pos[pen_nodes["ball"]], pos[pen_nodes["panel"]], degree_ball=spec.poly_ball,
                                  degree_panel=spec.poly_panel, interval=spec.pen_interval)
@@ -318,7 +318,7 @@ def train_chunk(spec: TrainSpec, state, stats, topology, index, noise_mask, pen_
 
 
 def init_state(cfg: TrainConfig, setup: Setup, example_traj) -> dict:
-    from pcmgn_jax.normalization import normalize_graph
+    from pcmgn_jax.mgn.normalization import normalize_graph
     t0 = example_traj
     edges = contact_lib.update(setup.index, jnp.asarray(t0.points + t0.displacement[0], jnp.float32))
     g = build_graph(setup.topology, points=t0.points, displacement=t0.displacement[0],
@@ -526,8 +526,8 @@ __all__ = ["TrainSpec", "Setup", "TrainingDiverged", "prepare", "init_state", "t
 
 def load_data(cfg: TrainConfig):
     """(train, val, test) trajectories of the preset's dataset, generating it first when missing."""
-    from pcmgn_jax.cache import load_split
-    from pcmgn_jax.dataset import ensure_dataset
+    from pcmgn_jax.data.cache import load_split
+    from pcmgn_jax.data.dataset import ensure_dataset
     root = ensure_dataset(cfg.resolved_dataset_dir, preset=cfg.data_preset, n_train=cfg.n_train + cfg.n_val,
                           n_test=cfg.n_test, seed=cfg.data_seed)
     train = load_split(root, "train")

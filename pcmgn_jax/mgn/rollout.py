@@ -31,9 +31,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pcmgn_jax import contact as contact_lib
-from pcmgn_jax.graphs import Topology, build_graph
-from pcmgn_jax.normalization import Stats, denormalize_output, normalize_graph
+from pcmgn_jax.mgn import contact as contact_lib
+from pcmgn_jax.mgn.graphs import Topology, build_graph
+from pcmgn_jax.mgn.normalization import Stats, denormalize_output, normalize_graph
 
 TARGETS = ("velocity", "displacement", "position")
 

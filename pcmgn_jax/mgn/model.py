@@ -11,7 +11,7 @@
   W_s v_s + W_r v_r + W_e e; W_s v and W_r v are computed once per node and gathered by senders /
   receivers instead of projecting the concatenated (E, 3L) matrix.
 
-The model reads *normalised* graphs (see :mod:`pcmgn_jax.normalization`) and returns normalised
+The model reads *normalised* graphs (see :mod:`pcmgn_jax.mgn.normalization`) and returns normalised
 per-node outputs (N, output_size). Use it as a pure function: ``model.apply(params, graph)``.
 """
 from __future__ import annotations

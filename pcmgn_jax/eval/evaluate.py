@@ -5,7 +5,7 @@ Metrics (SI in, reports in µm and MPa), over frames 1..T-1 of full rollouts fro
   stress_mae_mpa / stress_rmse_mpa     von Mises
   per_frame_*_mean / *_std             per-frame MAE, mean and std across test trajectories
   penetration_*                        fit-free (ball boundary nodes below the CG top polyline,
-                                       pcmgn_jax.penetration.penetration_stats), prediction and truth
+                                       pcmgn_jax.train.penetration.penetration_stats), prediction and truth
   rollout_seconds_per_trajectory       wall time of the batched jitted rollout (compile excluded)
   phases                               frame ranges of drop / contact / rebound in contact / separated
 
@@ -22,23 +22,23 @@ from typing import Sequence
 import jax
 import numpy as np
 
-from pcmgn_jax import plots
+from pcmgn_jax.eval import plots
 from pcmgn_jax.config import TrainConfig
-from pcmgn_jax.rollout import rollout_checked
-from pcmgn_jax.training import contact_parts, load_for_inference
-from pcmgn_jax.trajectory_io import atomic_write_json
+from pcmgn_jax.mgn.rollout import rollout_checked
+from pcmgn_jax.train.loop import contact_parts, load_for_inference
+from pcmgn_jax.data.trajectory_io import atomic_write_json
 
 
 def boundary(ref, panel_part: int):
     """(ball bottom nodes, CG top nodes sorted by x) from the reference mesh."""
     try:
-        from pcmgn_jax.penetration import boundary_nodes
+        from pcmgn_jax.train.penetration import boundary_nodes
         # x_max inside the region of interest (its far edge leaves cut edges, not surfaces)
         bn = boundary_nodes(ref.points, ref.node_part, ball_part=0, panel_part=panel_part, cells=ref.cells,
                             cell_part=ref.cell_part, x_max=0.8 * float(np.max(ref.points[:, 0])))
         return np.asarray(bn.ball), np.asarray(bn.panel)
     except ImportError:  # pragma: no cover - penetration module missing
-        from pcmgn_jax.contact import surface_nodes
+        from pcmgn_jax.mgn.contact import surface_nodes
         b = surface_nodes(ref.points, ref.cells, ref.cell_part, 0, facing="down")
         p = surface_nodes(ref.points, ref.cells, ref.cell_part, panel_part, facing="up")
         return b[np.argsort(ref.points[b, 0])], p[np.argsort(ref.points[p, 0])]
@@ -47,7 +47,7 @@ def boundary(ref, panel_part: int):
 def penetration(ball_xy, panel_xy) -> dict:
     """Fit-free penetration stats [µm] of frames (T, Mb, 2), (T, Mp, 2)."""
     try:
-        from pcmgn_jax.penetration import penetration_stats
+        from pcmgn_jax.train.penetration import penetration_stats
         return penetration_stats(ball_xy, panel_xy)
     except ImportError:  # pragma: no cover  TODO: local fallback (vertical gap to the interpolated CG top)
         depth = np.stack([np.maximum(np.interp(b[:, 0], p[:, 0], p[:, 1]) - b[:, 1], 0)
