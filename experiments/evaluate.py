@@ -16,10 +16,10 @@ def main(argv):
         raise SystemExit(f"usage: python -m experiments.evaluate --workdir RUN [--which best|periodic]"
                          f"{'; unknown flags ' + str(sorted(flags)) if flags else ''}")
     from pcmgn_jax.eval import evaluate as evaluation
-    from pcmgn_jax.train import loop as training
     from pcmgn_jax.config import TrainConfig
+    from pcmgn_jax.data.dataset import load_splits
     cfg = TrainConfig.load(f"{workdir}/config.json")
-    _, _, test = training.load_data(cfg)
+    _, _, test = load_splits(cfg.resolved_dataset_dir, n_train=0, n_val=0, n_test=cfg.n_test)
     m = evaluation.evaluate(workdir, test_trajs=test, cfg=cfg, which=which)
     keys = ("position_mae_um", "position_rmse_um", "stress_mae_mpa", "stress_rmse_mpa", "penetration_max_um",
             "rollout_seconds_per_trajectory")

@@ -46,7 +46,7 @@ from pcmgn_jax.data.trajectory_io import (TrajectoryFileError, atomic_write_json
                                      write_trajectory)
 
 __all__ = ["DatasetError", "MANIFEST", "PRESETS", "ensure_dataset", "lhs_designs", "load_manifest",
-           "parse_designs", "split_stems"]
+           "load_splits", "parse_designs", "split_stems"]
 
 MANIFEST = "manifest.json"
 DATASET_FORMAT = "pcmgn_jax.data.dataset"
@@ -315,3 +315,25 @@ def _solve_checked(solve, scene: Scene, items, preset: str) -> list[Trajectory]:
     if len(trajs) != len(items):
         raise DatasetError(f"solver returned {len(trajs)} trajectories for {len(items)} designs")
     return trajs
+
+
+def load_splits(dataset_dir: str | os.PathLike, *, n_train: int, n_val: int, n_test: int):
+    """(train, val, test) trajectories of a generated dataset (never runs the solver).
+
+    ``train`` and ``val`` are the first ``n_train`` and next ``n_val`` trajectories of the split
+    ``train``; ``test`` the first ``n_test`` of ``test``. DatasetError naming the directory and the
+    generating command when the dataset is missing or too small.
+    """
+    from pcmgn_jax.data.cache import load_split
+
+    root = Path(dataset_dir)
+    if load_manifest(root) is None and not (root / "train").is_dir():
+        raise DatasetError(f"{root}: no dataset here; generate it with `python -m experiments.generate "
+                           f"--out {root} ...` (or `python -m experiments.train`, which generates its preset's data)")
+    train = load_split(root, "train") if n_train + n_val else []
+    test = load_split(root, "test") if n_test else []
+    need = n_train + n_val
+    if len(train) < need or len(test) < n_test:
+        raise DatasetError(f"{root}: holds {len(train)} train / {len(test)} test trajectories, the config needs "
+                           f"n_train + n_val = {need} and n_test = {n_test}")
+    return train[:n_train], train[n_train:need], test[:n_test]

@@ -79,17 +79,6 @@ class Setup(NamedTuple):
 
 # ---- setup -------------------------------------------------------------------------------------
 
-def check_supported(cfg: TrainConfig) -> None:
-    """Refuse options whose implementation is missing (never accept and ignore)."""
-    if cfg.lambda_pen > 0:
-        try:
-            import pcmgn_jax.train.penetration  # noqa: F401
-        except ImportError:
-            raise ValueError(
-                f"--lambda_pen={cfg.lambda_pen} needs the penetration loss (pcmgn_jax.train.penetration, "
-                "issue 5), which is not installed; use --lambda_pen=0 (vanilla MGN)") from None
-
-
 def penetration_boundary(cfg: TrainConfig, ref, panel_part: int):
     """Ball-bottom / CG-top node sets and fit interval (pcmgn_jax.train.penetration.boundary_nodes)."""
     from pcmgn_jax.train.penetration import boundary_nodes
@@ -389,7 +378,6 @@ def _meta(cfg: TrainConfig, setup: Setup, **extra) -> dict:
 def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_trajs: Sequence = (),
           resume: bool = False, stop_after: int | None = None) -> dict:
     """Train; returns a summary dict. ``stop_after``: stop (as if killed) after that many steps."""
-    check_supported(cfg)
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     cfg.save_json(workdir / "config.json")
@@ -521,18 +509,5 @@ def prepare_from_meta(cfg: TrainConfig, ref, meta: dict) -> Setup:
 
 __all__ = ["TrainSpec", "Setup", "TrainingDiverged", "prepare", "init_state", "train_chunk", "train",
            "loss_fn", "make_optimizer", "sample_ids", "save_checkpoint", "restore_checkpoint",
-           "load_for_inference", "check_supported", "compute_stats", "rollout_position_mae_um"]
+           "load_for_inference", "compute_stats", "rollout_position_mae_um"]
 
-
-def load_data(cfg: TrainConfig):
-    """(train, val, test) trajectories of the preset's dataset, generating it first when missing."""
-    from pcmgn_jax.data.cache import load_split
-    from pcmgn_jax.data.dataset import ensure_dataset
-    root = ensure_dataset(cfg.resolved_dataset_dir, preset=cfg.data_preset, n_train=cfg.n_train + cfg.n_val,
-                          n_test=cfg.n_test, seed=cfg.data_seed)
-    train = load_split(root, "train")
-    test = load_split(root, "test")
-    need = cfg.n_train + cfg.n_val
-    if len(train) < need:
-        raise ValueError(f"{root}/train holds {len(train)} trajectories, the config needs n_train + n_val = {need}")
-    return train[:cfg.n_train], train[cfg.n_train:need], test[:cfg.n_test]
