@@ -22,6 +22,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from pcmgn_jax import geometry
+
 
 @struct.dataclass
 class ContactIndex:
@@ -51,30 +53,9 @@ class ContactEdges(NamedTuple):
 
 def surface_nodes(points: np.ndarray, cells: np.ndarray, cell_part: np.ndarray, part: int,
                   *, facing: str) -> np.ndarray:
-    """Nodes of ``part`` on boundary sides whose outward normal points ``facing`` ('up'|'down').
-
-    A side is on the boundary of the part when only one cell of that part has it. Cell orientation is
-    taken from its signed area, so clockwise cells work too.
-    """
-    if facing not in ("up", "down"):
-        raise ValueError(f"facing must be 'up' or 'down', got {facing!r}")
-    points = np.asarray(points, np.float64)
-    sel = np.asarray(cells)[np.asarray(cell_part) == part]
-    if sel.size == 0:
-        raise ValueError(f"no cells with part id {part}")
-    p = points[sel]                                    # (e, 4, 2)
-    area2 = np.sum(p[:, :, 0] * np.roll(p[:, :, 1], -1, 1) - np.roll(p[:, :, 0], -1, 1) * p[:, :, 1], 1)
-    a, b = sel.reshape(-1), np.roll(sel, -1, axis=1).reshape(-1)
-    key = np.stack([np.minimum(a, b), np.maximum(a, b)], 1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    boundary = counts[inv.reshape(-1)] == 1
-    d = points[b] - points[a]
-    sign = np.repeat(np.sign(area2), 4)                 # +1 counter-clockwise
-    normal_y = -d[:, 0] * sign                           # outward normal = sign * (dy, -dx)
-    length = np.hypot(d[:, 0], d[:, 1])
-    want = normal_y > 0.5 * length if facing == "up" else normal_y < -0.5 * length
-    keep = boundary & want
-    return np.unique(np.concatenate([a[keep], b[keep]])).astype(np.int32)
+    """Nodes of ``part`` on boundary sides whose outward normal points ``facing`` ('up'|'down'),
+    within 60 degrees of vertical (:func:`pcmgn_jax.geometry.surface_nodes`)."""
+    return geometry.surface_nodes(points, cells, cell_part, part, facing=facing, min_normal_y=0.5)
 
 
 def count_pairs(index_nodes: tuple[np.ndarray, np.ndarray, np.ndarray], positions: np.ndarray,

@@ -79,13 +79,9 @@ def quad_edges(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Only the 4 sides of each quad (no diagonals), as in Algorithm 1 ("edge pairs from C_quad").
     Returns (senders, receivers) int32 arrays of length 2 * n_unique_sides.
     """
-    cells = np.asarray(cells, dtype=np.int64)
-    if cells.ndim != 2 or cells.shape[1] != 4:
-        raise ValueError(f"cells must have shape (E, 4), got {cells.shape}")
-    a = cells.reshape(-1)
-    b = np.roll(cells, -1, axis=1).reshape(-1)
-    und = np.unique(np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1), axis=0)
-    und = und[und[:, 0] != und[:, 1]]  # degenerate (collapsed) quads
+    from pcmgn_jax.geometry import quad_sides
+
+    und = quad_sides(cells)
     senders = np.concatenate([und[:, 0], und[:, 1]])
     receivers = np.concatenate([und[:, 1], und[:, 0]])
     order = np.lexsort((senders, receivers))

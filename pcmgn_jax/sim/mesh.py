@@ -15,6 +15,7 @@ from typing import Mapping
 
 import numpy as np
 
+from pcmgn_jax import geometry
 from pcmgn_jax.scene import Scene
 
 
@@ -281,12 +282,7 @@ def build_mesh(scene: Scene, preset: str | MeshSpec = "paper") -> Mesh:
 
     n_parts = len(scene.layers) + 1
     youngs = np.array([scene.ball.youngs] + [layer.youngs for layer in scene.layers])
-    node_part = np.full(points.shape[0], -1, np.int32)
-    best_e = np.full(points.shape[0], -np.inf)
-    for c, p in zip(cells, cell_part):
-        upd = youngs[p] > best_e[c]
-        node_part[c[upd]] = p
-        best_e[c[upd]] = youngs[p]
+    node_part = geometry.stiffest_adjacent_part(cells, cell_part, youngs, n_nodes=points.shape[0])
     fixed = np.zeros((points.shape[0], 2), bool)
     bottom = pidx[0, :]
     fixed[bottom, :] = True

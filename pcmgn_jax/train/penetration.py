@@ -27,6 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.linalg import solve_triangular
 
+from pcmgn_jax import geometry
+
 __all__ = [
     "BoundaryNodes",
     "boundary_nodes",
@@ -84,46 +86,6 @@ def _extreme_per_label(idx: np.ndarray, labels: np.ndarray, y: np.ndarray, side:
     return idx[order[first]]
 
 
-def _surface_by_edges(points: np.ndarray, cells: np.ndarray, side: str, normal_tol: float) -> np.ndarray:
-    """Nodes of boundary edges (edges used by exactly one of ``cells``) whose outward normal points down
-    ('bottom': n_y < -normal_tol) or up ('top': n_y > normal_tol). Orientation-independent: the outward
-    side is the one away from the owning cell's centroid."""
-    cells = np.asarray(cells, dtype=np.int64)
-    k = cells.shape[1]
-    a = cells.reshape(-1)
-    b = np.roll(cells, -1, axis=1).reshape(-1)
-    owner = np.repeat(np.arange(cells.shape[0]), k)
-    key = np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    boundary = counts[inv.reshape(-1)] == 1
-    a, b, owner = a[boundary], b[boundary], owner[boundary]
-    pa, pb = points[a], points[b]
-    t = pb - pa
-    n = np.stack([t[:, 1], -t[:, 0]], axis=1)
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    centroid = points[cells[owner]].mean(axis=1)
-    flip = np.einsum("ij,ij->i", n, 0.5 * (pa + pb) - centroid) < 0
-    n[flip] *= -1
-    sel = n[:, 1] < -normal_tol if side == "bottom" else n[:, 1] > normal_tol
-    nodes = np.unique(np.concatenate([a[sel], b[sel]]))
-    # Keep only nodes visible from outside (below for 'bottom', above for 'top'): a down-facing
-    # edge hidden above another part of the same surface (e.g. the staircase a region-of-interest
-    # crop leaves inside the ball) is not the boundary the fit needs.
-    ea, eb = points[a[sel]], points[b[sel]]
-    left = np.where((ea[:, 0] <= eb[:, 0])[:, None], ea, eb)
-    right = np.where((ea[:, 0] <= eb[:, 0])[:, None], eb, ea)
-    width = right[:, 0] - left[:, 0]
-    scale = max(float(np.ptp(points[:, 1])), 1e-300)
-    keep = []
-    for node in nodes:
-        x, y = points[node]
-        over = (left[:, 0] <= x) & (x <= right[:, 0]) & (width > 0)
-        y_edge = left[over, 1] + (x - left[over, 0]) / width[over] * (right[over, 1] - left[over, 1])
-        hidden = (y_edge < y - 1e-9 * scale) if side == "bottom" else (y_edge > y + 1e-9 * scale)
-        keep.append(not hidden.any())
-    return nodes[np.asarray(keep, bool)]
-
-
 def _surface_nodes(points, idx, side, *, tol, cells, rule, normal_tol):
     """Lower ('bottom') or upper ('top') surface nodes of one part; returns (indices, rule used)."""
     x, y = points[idx, 0], points[idx, 1]
@@ -137,7 +99,8 @@ def _surface_nodes(points, idx, side, *, tol, cells, rule, normal_tol):
     elif rule == "edges":
         if cells is None:
             raise ValueError("boundary_nodes: rule 'edges' needs the part's cells")
-        out = _surface_by_edges(points, cells, side, normal_tol)
+        out = geometry.surface_nodes(points, cells, None, 0, facing="down" if side == "bottom" else "up",
+                                     min_normal_y=normal_tol, visible_only=True)
         out = out[np.isin(out, idx)]
     elif rule == "bins":
         # bin x at the mesh spacing h (median nearest-neighbour distance of the part's nodes)
