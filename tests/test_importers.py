@@ -64,7 +64,8 @@ def test_cdb_components_contact_elements_and_frames_manifest(tmp_path):
     (res / "frames.json").write_text(json.dumps({"time_unit": "us", "frames": [
         {"time": float(t * 1e6), **{key: f"f{k}_{key}.tab" for key in imp.FRAME_KEYS}}
         for k, t in enumerate(truth.times)]}))
-    traj = imp.import_ansys_text(tmp_path / "m.cdb", res, scene=SCENE, fixed="BASE")   # parts by name
+    traj = imp.import_ansys_text(tmp_path / "m.cdb", res, scene=SCENE, fixed="BASE",   # parts by name
+                                 length_unit="m")
     assert_same(truth, traj, exact=False, rtol=1e-12, atol=1e-18)
 
 
