@@ -8,26 +8,20 @@ import numpy as np
 from pcmgn_jax.data.importers.errors import InputFileError
 from pcmgn_jax.data.importers.parts import ImportedMesh
 from pcmgn_jax.data.trajectory_io import SI_UNITS
+from pcmgn_jax.geometry import stiffest_adjacent_part
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.trajectory import Trajectory
 
 
 def node_part(mesh: ImportedMesh, scene: Scene | None) -> np.ndarray:
     """(N,) part of each node: an interface node takes the part of its stiffest adjacent cell
-    (largest Young's modulus in the scene; without a scene: the smallest part id)."""
-    n = len(mesh.points)
-    n_parts = len(mesh.part_names)
+    (largest Young's modulus in the scene; without a scene, or on ties: the smallest part id).
+    The rule is :func:`pcmgn_jax.geometry.stiffest_adjacent_part`, shared with the solver's mesh."""
     if scene is not None:
-        stiff = np.array([scene.ball.youngs] + [l.youngs for l in scene.layers])
-        rank = np.argsort(np.argsort(-stiff, kind="stable"), kind="stable")   # 0 = stiffest
+        stiffness = np.array([scene.ball.youngs] + [layer.youngs for layer in scene.layers], np.float64)
     else:
-        rank = np.arange(n_parts)
-    best = np.full(n, n_parts, dtype=np.int64)
-    cell_rank = rank[mesh.cell_part]
-    for c in range(4):
-        np.minimum.at(best, mesh.cells[:, c], cell_rank)
-    inv = np.argsort(rank)
-    return inv[best].astype(np.int32)
+        stiffness = np.zeros(len(mesh.part_names))
+    return stiffest_adjacent_part(mesh.cells, mesh.cell_part, stiffness, n_nodes=len(mesh.points))
 
 
 def fixed_mask(mesh: ImportedMesh, fixed: Any) -> np.ndarray:
