@@ -1,45 +1,67 @@
-"""Import ANSYS Mechanical text exports (+ a .cdb or meshio-readable mesh) into a trajectory file.
+"""Import ANSYS Mechanical text exports (+ a .cdb / Workbench .dat / meshio-readable mesh) into a trajectory file.
 
   python -m experiments.import_ansys --mesh model.cdb --results exports/ --out data/ansys/run01 \\
-      --scene scenes/paper.toml --parts "ball=1,CG=2,OCA1=3,POL=4,OCA2=5,OLED=6,PLATE=7" --output_dt 4e-6
+      --scene scenes/paper.toml --parts "ball=1,CG=2,OCA1=3,POL=4,OCA2=5,OLED=6,PLATE=7" \\
+      --length_unit mm --output_dt 4e-6
 
-See pcmgn_jax/data/importers.py for the file-naming convention of the result tables and the part map.
-Nothing is written unless the whole import succeeds.
+See pcmgn_jax/data/importers/__init__.py for the file-naming convention of the result tables and the part
+map. MAPDL archives carry no /UNITS line unless one was set: give --length_unit. Nothing is written unless
+the whole import succeeds (the trajectory is written atomically).
 """
 from __future__ import annotations
 
-import argparse
 import sys
+from dataclasses import dataclass
+from typing import Optional
 
-from pcmgn_jax.data.importers import import_ansys_text, parse_parts
-from pcmgn_jax.scene import Scene
+import tyro
+
+from pcmgn_jax.data.importers import import_ansys_text, parse_parts, read_mesh
 from pcmgn_jax.data.trajectory_io import write_trajectory
+from pcmgn_jax.scene import Scene
+
+
+@dataclass
+class Args:
+    """Import ANSYS Mechanical text exports and a mesh into one trajectory file (OUT.xdmf/.h5/.json)."""
+
+    mesh: str
+    """.cdb archive, Workbench input file (.dat with an NBLOCK) or meshio-readable mesh with part groups"""
+    results: str
+    """folder of exported tables (deformation_x_000.txt, ...)"""
+    out: str
+    """output path stem: writes OUT.xdmf, OUT.h5, OUT.json"""
+    scene: Optional[str] = None
+    """scene file (.toml/.json): part names, materials, analysis, design"""
+    part_names: Optional[str] = None
+    """comma list of part names by id if no --scene"""
+    parts: Optional[str] = None
+    """part map "ball=1,CG=2+8,OCA1=OCA_1" (int: material number, str: component / cell set); default: by name"""
+    output_dt: Optional[float] = None
+    """frame interval [s] if no times.txt"""
+    length_unit: Optional[str] = None
+    """mesh length unit (m, mm, um, ...); required for archives without /UNITS; meshio meshes: default m"""
+    fixed: str = "bottom"
+    """fixed nodes: bottom | none | node component name"""
+    location_tol: Optional[float] = None
+    """max |location - mesh| [m]"""
+    ignore_unmapped: bool = False
+    """drop cells that belong to no part"""
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--mesh", required=True, help=".cdb archive or meshio-readable mesh with part groups")
-    ap.add_argument("--results", required=True, help="folder of exported tables (deformation_x_000.txt, ...)")
-    ap.add_argument("--out", required=True, help="output path stem: writes OUT.xdmf, OUT.h5, OUT.json")
-    ap.add_argument("--scene", default=None, help="scene file (.toml/.json): part names, materials, design")
-    ap.add_argument("--part_names", default=None, help="comma list of part names by id if no --scene")
-    ap.add_argument("--parts", default=None, help='part map "ball=1,CG=2+8,OCA1=OCA_1" (int: material '
-                                                  'number, str: component / cell set); default: by name')
-    ap.add_argument("--output_dt", type=float, default=None, help="frame interval [s] if no times.txt")
-    ap.add_argument("--length_unit", default=None, help="mesh length unit (cdb default: /UNITS or m)")
-    ap.add_argument("--fixed", default="bottom", help="fixed nodes: bottom | none | node component name")
-    ap.add_argument("--location_tol", type=float, default=None, help="max |location - mesh| [m]")
-    ap.add_argument("--ignore_unmapped", action="store_true", help="drop cells that belong to no part")
-    args = ap.parse_args(argv)
+    args = tyro.cli(Args, args=argv, use_underscores=True, description=__doc__)
     try:
         scene = Scene.load(args.scene) if args.scene else None
         names = [s.strip() for s in args.part_names.split(",")] if args.part_names else None
-        mesh_kw = {"length_unit": args.length_unit} if args.length_unit else {}
+        parts = parse_parts(args.parts) if args.parts else None
+        mesh = read_mesh(args.mesh, scene=scene, part_names=None if scene else names, parts=parts,
+                         length_unit=args.length_unit, ignore_unmapped=args.ignore_unmapped)
+        for note in mesh.notes:
+            print(f"note: {note}", file=sys.stderr)
         traj = import_ansys_text(
-            args.mesh, args.results, scene=scene, part_names=names,
-            parts=parse_parts(args.parts) if args.parts else None, output_dt=args.output_dt,
-            fixed=None if args.fixed == "none" else args.fixed, location_tol=args.location_tol,
-            ignore_unmapped=args.ignore_unmapped, **mesh_kw)
+            mesh, args.results, scene=scene, part_names=names, output_dt=args.output_dt,
+            fixed=None if args.fixed == "none" else args.fixed, location_tol=args.location_tol)
         digest = write_trajectory(traj, args.out)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -102,6 +102,8 @@ def is_mapdl_file(path: str | os.PathLike) -> bool:
 def read_mesh(path: str | os.PathLike, **kwargs) -> ImportedMesh:
     """``read_cdb`` for MAPDL archives / input files (see :func:`is_mapdl_file`), else ``read_meshio_mesh``
     (keyword arguments passed on; ``length_unit=None`` means m for meshio files)."""
+    if not Path(path).is_file():
+        raise InputFileError(f"{path}: mesh file not found")
     if is_mapdl_file(path):
         kwargs.pop("part_field", None)
         kwargs.pop("node_id_field", None)
