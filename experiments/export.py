@@ -9,14 +9,23 @@ displacement_true or displacement_pred.
 """
 from __future__ import annotations
 
-import argparse
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from pcmgn_jax.data.export import export_comparison
+from pcmgn_jax import cli
+from pcmgn_jax.eval.export import export_comparison
 from pcmgn_jax.data.trajectory_io import read_trajectory
+
+
+@dataclass(frozen=True)
+class ExportArgs:
+    trajectory: str                 # trajectory path stem (dir/NAME) of the ground truth
+    workdir: str | None = None      # training run directory: predict with its model (best checkpoint)
+    pred: str | None = None         # predicted arrays (.npz: displacement|positions, von_mises)
+    out: str | None = None          # output path stem (default: WORKDIR/export/NAME or NAME_compare)
 
 
 def predict_with_model(workdir: Path, truth):
@@ -29,13 +38,10 @@ def predict_with_model(workdir: Path, truth):
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--trajectory", required=True, help="trajectory path stem (dir/NAME) of the ground truth")
-    ap.add_argument("--workdir", default=None, help="training run directory: predict with its model")
-    ap.add_argument("--pred", default=None, help="predicted arrays (.npz: displacement|positions, von_mises)")
-    ap.add_argument("--out", default=None, help="output path stem (default: WORKDIR/export/NAME or NAME_compare)")
-    args = ap.parse_args(argv)
     try:
+        args = cli.parse(ExportArgs, argv, description=__doc__, prog="python -m experiments.export")
+        if not (args.pred or args.workdir):
+            raise ValueError("give --workdir RUN (trained model) or --pred FILE.npz (predicted arrays)")
         truth = read_trajectory(args.trajectory)
         name = Path(args.trajectory).with_suffix("").name if Path(args.trajectory).suffix in (
             ".xdmf", ".json", ".h5") else Path(args.trajectory).name
@@ -46,11 +52,9 @@ def main(argv: list[str] | None = None) -> int:
                     raise ValueError(f"{args.pred}: needs arrays 'displacement' (or 'positions') and "
                                      f"'von_mises', has {z.files}")
                 pred, vm = z[kind], z["von_mises"]
-        elif args.workdir:
+        else:
             kind = "displacement"
             pred, vm = predict_with_model(Path(args.workdir), truth)
-        else:
-            ap.error("give --workdir RUN (trained model) or --pred FILE.npz (predicted arrays)")
         out = Path(args.out) if args.out else (
             Path(args.workdir) / "export" / name if args.workdir else Path(f"{name}_compare"))
         path = export_comparison(truth, pred, vm, out, pred_kind=kind)

@@ -1,5 +1,6 @@
 """Generate (or resume) a trajectory dataset with the built-in solver.
 
+  python -m experiments.generate --preset cpu --out data/cpu          # the designs experiments.train uses
   python -m experiments.generate --n_train 100 --n_test 50 --out data/paper --preset paper --seed 0
   python -m experiments.generate --out data/paper --preset paper --designs "40,40;40,160;160,40;160,160" --split extrap
 
@@ -8,36 +9,51 @@ valid trajectories. See pcmgn_jax/data/dataset.py for the directory layout and m
 """
 from __future__ import annotations
 
-import argparse
 import sys
+from dataclasses import dataclass
+from typing import Literal
 
-from pcmgn_jax.data.dataset import PRESETS, DatasetError, ensure_dataset, parse_designs
+from pcmgn_jax import cli
+from pcmgn_jax.config import PRESETS as TRAIN_PRESETS
+from pcmgn_jax.data.dataset import DESIGN_HIGH, DESIGN_LOW, PRESETS, DatasetError, ensure_dataset, parse_designs
 from pcmgn_jax.scene import Scene, default_scene
 
 
+@dataclass(frozen=True)
+class GenerateArgs:
+    out: str                                   # dataset directory
+    preset: Literal[PRESETS] = "cpu"           # mesh resolution / frame count (sim.mesh.MESH_PRESETS)
+    n_train: int | None = None                 # LHS training designs; None: experiments.train's for --preset (n_train + n_val: tiny 4, cpu 14, paper 105)
+    n_test: int | None = None                  # LHS test designs; None: experiments.train's for --preset (tiny 2, cpu 6, paper 50)
+    seed: int = 0                              # LHS seed
+    low_um: float = DESIGN_LOW * 1e6           # LHS lower bound [µm]
+    high_um: float = DESIGN_HIGH * 1e6         # LHS upper bound [µm]
+    designs: str | None = None                 # explicit designs in µm, e.g. "40,40;40,160" (instead of LHS)
+    split: str | None = None                   # split name for --designs (None: extrap)
+    scene: str | None = None                   # scene file (.toml/.json); default: the paper's scene
+    batch: int = 8                             # designs per solver call
+    progress: bool = True                      # progress bar (--no_progress: off)
+
+
+def preset_sizes(preset: str) -> tuple[int, int]:
+    """(training designs, test designs) that ``experiments.train --preset PRESET`` asks for."""
+    p = TRAIN_PRESETS[preset]
+    return p["n_train"] + p["n_val"], p["n_test"]
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", required=True, help="dataset directory")
-    ap.add_argument("--preset", default="cpu", choices=PRESETS, help="mesh resolution / frame count")
-    ap.add_argument("--n_train", type=int, default=100, help="LHS training designs")
-    ap.add_argument("--n_test", type=int, default=50, help="LHS test designs")
-    ap.add_argument("--seed", type=int, default=0, help="LHS seed")
-    ap.add_argument("--low_um", type=float, default=50.0, help="LHS lower bound [µm]")
-    ap.add_argument("--high_um", type=float, default=150.0, help="LHS upper bound [µm]")
-    ap.add_argument("--designs", default=None, help='explicit designs in µm, e.g. "40,40;40,160"')
-    ap.add_argument("--split", default=None, help="split name for --designs (default: extrap)")
-    ap.add_argument("--scene", default=None, help="scene file (.toml/.json); default: the paper's scene")
-    ap.add_argument("--batch", type=int, default=8, help="designs per solver call")
-    ap.add_argument("--no_progress", action="store_true", help="disable the progress bar")
-    args = ap.parse_args(argv)
     try:
+        args = cli.parse(GenerateArgs, argv, description=__doc__, prog="python -m experiments.generate")
         scene = Scene.load(args.scene) if args.scene else default_scene()
         designs = parse_designs(args.designs, dim=len(scene.design_layers)) if args.designs else None
         if args.split and designs is None:
-            ap.error("--split needs --designs")
-        out = ensure_dataset(args.out, preset=args.preset, n_train=args.n_train, n_test=args.n_test,
+            raise ValueError("--split needs --designs")
+        n_train, n_test = preset_sizes(args.preset)
+        out = ensure_dataset(args.out, preset=args.preset,
+                             n_train=n_train if args.n_train is None else args.n_train,
+                             n_test=n_test if args.n_test is None else args.n_test,
                              seed=args.seed, designs=designs, split=args.split, scene=scene,
-                             batch=args.batch, progress=not args.no_progress,
+                             batch=args.batch, progress=args.progress,
                              low=args.low_um * 1e-6, high=args.high_um * 1e-6)
     except (DatasetError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)

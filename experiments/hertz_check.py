@@ -4,23 +4,28 @@ python -m experiments.hertz_check --radius-mm 5 --velocity 0.62631 --target glas
 """
 from __future__ import annotations
 
-import argparse
 import json
+import sys
+from dataclasses import dataclass
+from typing import Literal
 
-from pcmgn_jax.sim.hertz import TARGETS, hertz_check
+from pcmgn_jax import cli
 from pcmgn_jax.data.trajectory_io import atomic_write_json
+from pcmgn_jax.sim.hertz import ELEMS_PER_RADIUS, TARGETS, hertz_check
+
+
+@dataclass(frozen=True)
+class HertzArgs:
+    radius_mm: float = 5.0                          # ball radius [mm]
+    velocity: float = 0.62631                       # impact speed [m/s]
+    target: Literal[tuple(TARGETS)] = "glass"       # block material
+    elems_per_radius: float = ELEMS_PER_RADIUS      # elements across the Hertz contact radius
+    penalty_factor: float = 2.0                     # contact penalty k_p = factor x E'/h (solver.SolverSettings)
+    json: str | None = None                         # write the result here (JSON)
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--radius-mm", "--radius_mm", type=float, default=5.0, help="ball radius [mm]")
-    p.add_argument("--velocity", type=float, default=0.62631, help="impact speed [m/s]")
-    p.add_argument("--target", choices=sorted(TARGETS), default="glass")
-    p.add_argument("--elems-per-radius", "--elems_per_radius", type=float, default=12.0,
-                   help="elements across the Hertz contact radius")
-    p.add_argument("--penalty-factor", "--penalty_factor", type=float, default=2.0)
-    p.add_argument("--json", default=None, help="write the result here")
-    args = p.parse_args(argv)
+    args = cli.parse(HertzArgs, argv, description=__doc__, prog="python -m experiments.hertz_check")
     result = hertz_check(radius=args.radius_mm * 1e-3, velocity=args.velocity, target=args.target,
                          elems_per_radius=args.elems_per_radius, penalty_factor=args.penalty_factor)
     if args.json:
@@ -35,4 +40,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(cli.run(main))

@@ -5,25 +5,32 @@ Writes OUT.json, OUT.md (table) and OUT.png (contact force and peak OLED stress 
 """
 from __future__ import annotations
 
-import argparse
 import math
+import sys
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
+from pcmgn_jax import cli
+from pcmgn_jax.data.dataset import PRESETS, parse_designs
 from pcmgn_jax.sim import solver
-from pcmgn_jax.data.dataset import parse_designs
 from pcmgn_jax.scene import default_scene
 from pcmgn_jax.data.trajectory_io import atomic_write_json
 
 
+@dataclass(frozen=True)
+class PanelReportArgs:
+    preset: Literal[PRESETS] = "cpu"              # mesh preset
+    designs: str = "50,50;100,100;150,150"       # T_OCA1,T_OCA2 [µm]; designs separated by ';'
+    frames: int = 150                            # frames of 4 µs to simulate
+    out: str = "results/panel_report"            # output path stem: OUT.json, OUT.md, OUT.png
+
+
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--preset", default="cpu", help="mesh preset: tiny | cpu | paper")
-    p.add_argument("--designs", default="50,50;100,100;150,150", help="T_OCA1,T_OCA2 [um]; ...")
-    p.add_argument("--frames", type=int, default=150, help="frames of 4 us to simulate")
-    p.add_argument("--out", default="results/panel_report")
-    args = p.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = cli.parse(PanelReportArgs, argv, description=__doc__, prog="python -m experiments.panel_report")
     base = default_scene()
     designs = parse_designs(args.designs)
     scenes = [base.with_design(*d) for d in designs]
@@ -49,7 +56,7 @@ def main(argv=None) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     summary = {"preset": args.preset, "default_window_us": window * 1e6, "frames_simulated": args.frames,
                "dt_s": res.dt, "wall_time_s": res.wall_time_s, "designs": rows,
-               "command": "python -m experiments.panel_report " + " ".join(argv or [])}
+               "command": "python -m experiments.panel_report " + " ".join(argv)}
     atomic_write_json(out.with_suffix(".json"), summary)
     lines = ["| T_OCA1 / T_OCA2 [µm] | contact start [µs] | peak force [N] at [µs] | separation [µs] | "
              "peak OLED von Mises [MPa] at [µs] | all 4 phases in 400 µs? |", "|---|---|---|---|---|---|"]
@@ -63,7 +70,7 @@ def main(argv=None) -> int:
     print("\n".join(lines))
 
     import matplotlib
-    matplotlib.use("Agg")
+    matplotlib.use("Agg")  # files only; set here, in the entry point, not in the library
     import matplotlib.pyplot as plt
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
     t_sub = (np.arange(res.force[0].size) + 1) * res.dt * 1e6
@@ -85,4 +92,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(cli.run(main))

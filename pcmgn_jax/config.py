@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import typing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -93,16 +92,10 @@ class TrainConfig:
 
     @classmethod
     def from_flags(cls, argv: Sequence[str]) -> "TrainConfig":
-        """Parse ``--key=value`` / ``--key value`` / ``--flag`` (bool True) / ``--no-flag``."""
-        raw = parse_flags(argv)
-        preset = raw.pop("preset", "cpu")
-        types = {f.name: f.type for f in dataclasses.fields(cls)}
-        hints = typing.get_type_hints(cls)
-        unknown = sorted(set(raw) - set(types))
-        if unknown:
-            raise ValueError(f"unknown flag(s) {['--' + k for k in unknown]}; known: "
-                             f"{sorted('--' + k for k in types)}")
-        return cls.from_preset(preset, **{k: _convert(k, v, hints[k]) for k, v in raw.items()})
+        """Parse ``--key=value`` flags, one per field; ``--preset`` fills the defaults (pcmgn_jax.cli)."""
+        from pcmgn_jax.cli import parse_config
+
+        return parse_config(argv)
 
     @classmethod
     def from_json(cls, data: dict) -> "TrainConfig":
@@ -145,48 +138,3 @@ PRESETS: dict[str, dict[str, Any]] = {
                   log_every=500, ckpt_every=10000, val_every=10000,
                   lambda_pen=10.0, noise_std=3e-7, noise_parts="all"),
 }
-
-
-def parse_flags(argv: Sequence[str]) -> dict[str, str | bool]:
-    out: dict[str, str | bool] = {}
-    argv = list(argv)
-    i = 0
-    while i < len(argv):
-        arg = argv[i]
-        if not arg.startswith("--"):
-            raise ValueError(f"unexpected argument {arg!r}; flags look like --key=value")
-        body = arg[2:].replace("-", "_")
-        if "=" in body:
-            key, val = body.split("=", 1)
-        elif i + 1 < len(argv) and not argv[i + 1].startswith("--"):
-            key, val = body, argv[i + 1]
-            i += 1
-        elif body.startswith("no_"):
-            key, val = body[3:], False
-        else:
-            key, val = body, True
-        out[key] = val
-        i += 1
-    return out
-
-
-def _convert(key: str, value: str | bool, typ) -> Any:
-    try:
-        if typ is bool:
-            if isinstance(value, bool):
-                return value
-            if value.lower() in ("1", "true", "yes"):
-                return True
-            if value.lower() in ("0", "false", "no"):
-                return False
-            raise ValueError(value)
-        if isinstance(value, bool):
-            raise ValueError("a value is required")
-        if typ is int and not value.lstrip("-").isdigit():
-            f = float(value)  # accept 4e3
-            if not f.is_integer():
-                raise ValueError(value)
-            return int(f)
-        return typ(value)
-    except ValueError:
-        raise ValueError(f"flag --{key}: cannot read {value!r} as {typ.__name__}") from None

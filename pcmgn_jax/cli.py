@@ -1,0 +1,188 @@
+"""Command lines of the entry points in ``experiments/``: tyro on frozen dataclasses, one flag per field.
+
+Every entry point declares a frozen dataclass whose fields (one line each, with a comment that becomes the
+``--help`` text) are its flags, and calls :func:`parse`:
+
+    args = cli.parse(GenerateArgs, argv, description=__doc__)
+
+Flags are written ``--key=value`` or ``--key value`` with underscores (the paper's style,
+``--lambda_pen=10``); hyphens in a flag name are accepted too (``--radius-mm``), never changed in values
+(``--noise_std=3e-7``). Booleans: ``--flag`` / ``--no_flag`` / ``--flag=true|false``. An unknown flag
+raises ``ValueError`` naming it (entry points print it and exit with status 2).
+
+Training: :func:`parse_train` reads ``--preset tiny|cpu|paper`` first, fills every default from
+``pcmgn_jax.config.PRESETS``, then parses every :class:`TrainConfig` field as a flag, plus ``--workdir``
+and ``--resume``. With ``--resume`` the defaults come from the run's ``config.json`` instead, and a flag
+that changes a saved value is refused (:func:`check_resume`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import sys
+import typing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Sequence, TypeVar
+
+import tyro
+
+from pcmgn_jax.config import PRESETS, TrainConfig
+
+__all__ = ["TrainArgs", "check_resume", "config_diff", "normalize_argv", "parse", "parse_config",
+           "parse_train", "preset_of"]
+
+T = TypeVar("T")
+_TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
+
+
+def _flags(cls) -> tuple[set[str], set[str]]:
+    """(flag names, boolean flag names) of dataclass ``cls``; nested dataclass fields are flattened
+    (their prefix is omitted, see :class:`TrainArgs`)."""
+    names: set[str] = set()
+    bools: set[str] = set()
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        typ = hints[f.name]
+        if dataclasses.is_dataclass(typ):
+            n, b = _flags(typ)
+            names |= n
+            bools |= b
+        else:
+            names.add(f.name)
+            if typ is bool:
+                bools.add(f.name)
+    return names, bools
+
+
+def normalize_argv(cls, argv: Sequence[str]) -> list[str]:
+    """``argv`` with flag names in underscore form and ``--flag=true|false`` as ``--flag`` / ``--no_flag``.
+
+    Values are never changed. Raises ``ValueError`` naming unknown flags (with the closest known ones).
+    """
+    names, bools = _flags(cls)
+    known = names | {"no_" + b for b in bools} | {"help"}
+    out, unknown = [], []
+    for arg in argv:
+        if not arg.startswith("--") or arg == "--":
+            out.append(arg)
+            continue
+        key, eq, value = arg[2:].partition("=")
+        key = key.replace("-", "_")
+        if key not in known:
+            unknown.append(key)
+            continue
+        if eq and key in bools:
+            if value.lower() not in _TRUE + _FALSE:
+                raise ValueError(f"flag --{key}: cannot read {value!r} as a boolean (true | false)")
+            out.append(f"--{key}" if value.lower() in _TRUE else f"--no_{key}")
+        else:
+            out.append(f"--{key}{eq}{value}")
+    if unknown:
+        hints = []
+        for key in unknown:
+            close = difflib.get_close_matches(key, sorted(known), n=1)
+            hints.append(f"--{key}" + (f" (did you mean --{close[0]}?)" if close else ""))
+        raise ValueError(f"unknown flag(s): {', '.join(hints)}; run with --help for the list")
+    return out
+
+
+def parse(cls: type[T], argv: Sequence[str] | None = None, *, description: str | None = None,
+          default: T | None = None, prog: str | None = None) -> T:
+    """Parse ``argv`` (default ``sys.argv[1:]``) into frozen dataclass ``cls`` (tyro, underscore flags).
+
+    ``--help`` prints every field with its comment and exits. Raises ``ValueError`` for an unknown flag
+    or a value the dataclass rejects; tyro exits with status 2 on a value of the wrong type.
+    """
+    argv = sys.argv[1:] if argv is None else list(argv)
+    kw: dict[str, Any] = {} if default is None else {"default": default}
+    return tyro.cli(cls, args=normalize_argv(cls, argv), description=description, prog=prog,
+                    use_underscores=True, **kw)
+
+
+def run(main_fn, argv: Sequence[str] | None = None) -> int:
+    """Call ``main_fn(argv)``, turning a ``ValueError`` into ``error: ...`` on stderr and status 2."""
+    try:
+        return main_fn(argv)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+
+
+def preset_of(argv: Sequence[str], default: str = "cpu") -> str:
+    """The value of ``--preset`` in ``argv`` (``--preset X`` or ``--preset=X``), else ``default``."""
+    argv = list(argv)
+    found = default
+    for i, arg in enumerate(argv):
+        if arg.startswith("--preset="):
+            found = arg.split("=", 1)[1]
+        elif arg == "--preset" and i + 1 < len(argv):
+            found = argv[i + 1]
+    if found not in PRESETS:
+        raise ValueError(f"--preset: unknown preset {found!r}; choose one of {sorted(PRESETS)}")
+    return found
+
+
+@dataclass(frozen=True)
+class TrainArgs:
+    """``python -m experiments.train``: every TrainConfig field, then the run directory."""
+
+    config: Annotated[TrainConfig, tyro.conf.arg(name="")]   # the flags are its fields, no prefix
+    workdir: str = ""        # run directory (checkpoints, metrics.jsonl, config.json); "" -> runs/<preset>
+    resume: bool = False     # continue the run in --workdir from its last checkpoint (same config only)
+
+    @property
+    def run_dir(self) -> Path:
+        return Path(self.workdir or f"runs/{self.config.preset}")
+
+
+def config_diff(old: TrainConfig, new: TrainConfig) -> dict[str, tuple[Any, Any]]:
+    """Fields whose values differ: {name: (old value, new value)}, in field order."""
+    return {f.name: (getattr(old, f.name), getattr(new, f.name)) for f in dataclasses.fields(TrainConfig)
+            if getattr(old, f.name) != getattr(new, f.name)}
+
+
+def check_resume(cfg: TrainConfig, workdir: str | Path) -> None:
+    """Raise ``ValueError`` naming every field where ``cfg`` differs from ``workdir/config.json``."""
+    path = Path(workdir) / "config.json"
+    if not path.exists():
+        return
+    diff = config_diff(TrainConfig.load(path), cfg)
+    if diff:
+        lines = ", ".join(f"{k}: saved {a!r}, given {b!r}" for k, a, b in ((k, *v) for k, v in diff.items()))
+        raise ValueError(f"--resume: the config differs from the run's {path} in {sorted(diff)} ({lines}); "
+                         f"drop those flags to continue the run, or train in a new --workdir")
+
+
+def parse_train(argv: Sequence[str] | None = None, *, description: str | None = None,
+                prog: str | None = None) -> TrainArgs:
+    """Training flags: preset defaults (or, with ``--resume``, the saved config), then each flag.
+
+    With ``--resume`` and an existing ``WORKDIR/config.json``, a flag that changes a saved value raises
+    ``ValueError`` naming the fields.
+    """
+    argv = sys.argv[1:] if argv is None else list(argv)
+    preset = preset_of(argv)
+    probe = parse(TrainArgs, argv, description=description, prog=prog,
+                  default=TrainArgs(config=TrainConfig.from_preset(preset)))
+    saved = probe.run_dir / "config.json"
+    if not (probe.resume and saved.exists()):
+        return probe
+    base = TrainConfig.load(saved)
+    args = parse(TrainArgs, argv, description=description, prog=prog, default=TrainArgs(config=base))
+    check_resume(args.config, args.run_dir)
+    return args
+
+
+def parse_config(argv: Sequence[str]) -> TrainConfig:
+    """A :class:`TrainConfig` from ``--key=value`` flags (``--preset`` fills the defaults).
+
+    Library form: raises ``ValueError`` for an unknown flag or a bad value (tyro prints the details).
+    """
+    try:
+        return parse(TrainConfig, argv, default=TrainConfig.from_preset(preset_of(argv)),
+                     prog="TrainConfig.from_flags")
+    except SystemExit as err:
+        if err.code in (0, None):
+            raise
+        raise ValueError(f"TrainConfig.from_flags: cannot parse {list(argv)} (details above)") from None

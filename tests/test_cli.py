@@ -1,0 +1,103 @@
+"""The entry points' command lines (pcmgn_jax.cli, tyro): flag spellings, presets, errors, --resume."""
+import pytest
+
+from pcmgn_jax import cli
+from pcmgn_jax.config import PRESETS, TrainConfig
+
+
+def test_paper_style_flags():
+    args = cli.parse_train(["--lambda_pen=10", "--noise_std=3e-7", "--seed=1", "--latent_size=32",
+                            "--message_passing_steps=4", "--num_steps=2000", "--noise_parts=none"])
+    cfg = args.config
+    assert cfg.lambda_pen == 10.0 and cfg.seed == 1 and cfg.latent_size == 32
+    assert cfg.message_passing_steps == 4 and cfg.num_steps == 2000 and cfg.noise_parts == "none"
+    assert cfg.noise_std == 3e-7            # the old parser turned '-' in values into '_'
+    assert args.run_dir.as_posix() == "runs/cpu" and args.resume is False
+
+
+def test_space_separated_hyphens_and_booleans():
+    cfg = cli.parse_train(["--preset", "tiny", "--lambda-pen", "0", "--no-progress"]).config
+    assert cfg.lambda_pen == 0 and cfg.progress is False
+    assert cli.parse_config(["--progress=false"]).progress is False
+    assert cli.parse_config(["--no_progress", "--progress"]).progress is True
+    args = cli.parse_train(["--workdir", "runs/x", "--resume"])
+    assert args.run_dir.as_posix() == "runs/x" and args.resume
+
+
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+def test_preset_fills_defaults(preset):
+    cfg = cli.parse_train(["--preset", preset]).config
+    assert cfg == TrainConfig.from_preset(preset)
+    # a flag overrides the preset, whatever the order
+    assert cli.parse_train(["--latent_size=24", f"--preset={preset}"]).config == \
+        TrainConfig.from_preset(preset, latent_size=24)
+    assert cli.parse_train([]).config == TrainConfig.from_preset("cpu")
+
+
+def test_unknown_flag_and_preset_errors():
+    with pytest.raises(ValueError, match=r"unknown flag.*--lamda_pen \(did you mean --lambda_pen\?\)"):
+        cli.parse_train(["--lamda_pen=10"])
+    with pytest.raises(ValueError, match="unknown preset 'huge'"):
+        cli.parse_train(["--preset", "huge"])
+    with pytest.raises(ValueError, match="unknown flag"):
+        TrainConfig.from_flags(["--lamda_pen=10"])
+    with pytest.raises(ValueError, match="boolean"):
+        cli.parse_config(["--progress=maybe"])
+    with pytest.raises(SystemExit):                        # a value of the wrong type: tyro's message
+        cli.parse_train(["--latent_size=big"])
+
+
+def test_help_lists_every_field_with_its_comment(capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "250")
+    with pytest.raises(SystemExit) as exit_:
+        cli.parse_train(["--help"], prog="train")
+    assert exit_.value.code == 0
+    out = capsys.readouterr().out
+    import dataclasses
+    for f in dataclasses.fields(TrainConfig):
+        assert f"--{f.name}" in out, f.name
+    assert "weight of the penetration term" in out and "--workdir" in out and "--resume" in out
+
+
+def test_resume_refuses_changed_config(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    saved = TrainConfig.from_preset("tiny", lambda_pen=10.0)
+    saved.save_json(run / "config.json")
+    # the saved config supplies the defaults: --resume alone continues the run
+    args = cli.parse_train(["--workdir", str(run), "--resume"])
+    assert args.config == saved and args.resume
+    assert cli.parse_train(["--workdir", str(run), "--resume", "--lambda_pen=10"]).config == saved
+    with pytest.raises(ValueError, match=r"--resume: the config differs .*\['lambda_pen', 'latent_size'\]"):
+        cli.parse_train(["--workdir", str(run), "--resume", "--lambda_pen=0", "--latent_size=8"])
+    with pytest.raises(ValueError, match=r"\['preset'"):
+        cli.parse_train(["--workdir", str(run), "--resume", "--preset", "cpu"])
+    # without --resume the preset defaults apply (the training loop starts a fresh run)
+    assert cli.parse_train(["--workdir", str(run)]).config == TrainConfig.from_preset("cpu")
+
+
+def test_config_diff_names_fields():
+    a = TrainConfig.from_preset("tiny")
+    assert cli.config_diff(a, a) == {}
+    assert cli.config_diff(a, a.replace(seed=3, lambda_pen=1.0)) == {"lambda_pen": (a.lambda_pen, 1.0),
+                                                                    "seed": (0, 3)}
+
+
+def test_entry_point_flags(tmp_path, capsys):
+    from experiments import generate, hertz_check, panel_report
+
+    args = cli.parse(hertz_check.HertzArgs, ["--radius-mm", "5", "--velocity", "0.62631", "--target", "glass",
+                                             "--json", "out.json"])
+    assert args.radius_mm == 5 and args.target == "glass" and args.json == "out.json"
+    from pcmgn_jax.sim.hertz import ELEMS_PER_RADIUS
+    assert args.elems_per_radius == ELEMS_PER_RADIUS
+    args = cli.parse(generate.GenerateArgs, ["--preset", "cpu", "--n_train", "14", "--n_test", "6",
+                                             "--out", "data/cpu"])
+    assert (args.n_train, args.n_test, args.out) == (14, 6, "data/cpu")
+    args = cli.parse(generate.GenerateArgs, ["--designs", "40,40;40,160", "--split", "extrap", "--out", "d"])
+    assert args.designs == "40,40;40,160" and args.split == "extrap" and args.n_train is None
+    assert generate.preset_sizes("cpu") == (PRESETS["cpu"]["n_train"] + PRESETS["cpu"]["n_val"],
+                                            PRESETS["cpu"]["n_test"])
+    assert cli.parse(panel_report.PanelReportArgs, ["--preset", "cpu", "--frames", "130"]).frames == 130
+    assert generate.main(["--out", str(tmp_path), "--bogus", "1"]) == 2
+    assert "unknown flag(s): --bogus" in capsys.readouterr().err
