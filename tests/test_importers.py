@@ -253,7 +253,12 @@ def test_d3plot_round_trip(tmp_path):
     d.arrays[AT.element_shell_part_indexes] = truth.cell_part.astype(np.int32)
     d.arrays[AT.element_shell_ids] = np.arange(1, len(truth.cells) + 1)
     d.arrays[AT.part_ids] = np.arange(1, len(PART_NAMES) + 1)
+    # titles as LS-DYNA stores them (80 blank-padded bytes); lasso hands them back as bytes
+    d.arrays[AT.part_titles] = np.array([n.upper().encode().ljust(80) for n in PART_NAMES])
+    d.arrays[AT.part_titles_ids] = np.arange(1, len(PART_NAMES) + 1)
     d.write_d3plot(str(tmp_path / "d3plot"))
     traj = imp.import_d3plot(tmp_path / "d3plot", scene=SCENE, parts={"ball": 1, "CG": 2, "PLATE": 3})
     np.testing.assert_allclose(traj.displacement, truth.displacement, atol=1e-9)
     assert traj.meta["source"] == "d3plot"
+    by_title = imp.import_d3plot(tmp_path / "d3plot", scene=SCENE)     # default: parts by title
+    np.testing.assert_array_equal(by_title.cell_part, truth.cell_part)
