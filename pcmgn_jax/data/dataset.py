@@ -30,7 +30,6 @@ never silently mixed.
 """
 from __future__ import annotations
 
-import importlib
 import math
 import os
 import re
@@ -41,6 +40,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from pcmgn_jax.scene import Scene, default_scene
+from pcmgn_jax.sim.mesh import MESH_PRESETS
 from pcmgn_jax.trajectory import Trajectory
 from pcmgn_jax.data.trajectory_io import (TrajectoryFileError, atomic_write_json, read_trajectory,
                                      write_trajectory)
@@ -50,7 +50,7 @@ __all__ = ["DatasetError", "MANIFEST", "PRESETS", "ensure_dataset", "lhs_designs
 
 MANIFEST = "manifest.json"
 DATASET_FORMAT = "pcmgn_jax.data.dataset"
-PRESETS = ("tiny", "cpu", "paper")     # mesh resolution / frame count, interpreted by the solver
+PRESETS = tuple(MESH_PRESETS)          # mesh resolution / frame count (names: sim.mesh.MESH_PRESETS)
 DESIGN_LOW = 50e-6                     # default design range [m] (paper: 50-150 µm)
 DESIGN_HIGH = 150e-6
 _SPLIT_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
@@ -171,15 +171,10 @@ def _is_done(root: Path, entry: dict[str, Any], layers: Sequence[str]) -> bool:
 
 
 def _solver(solve_fn):
-    """(solve_designs, SolverError classes) — the real solver module, imported lazily."""
-    try:
-        mod = importlib.import_module("pcmgn_jax.sim.solver")
-    except ImportError:
-        if solve_fn is None:
-            raise
-        return solve_fn, ()
-    errors = (mod.SolverError,) if hasattr(mod, "SolverError") else ()
-    return (solve_fn or mod.solve_designs), errors
+    """(solve_designs or ``solve_fn`` if given, (SolverError,)); the solver (JAX) is imported lazily."""
+    from pcmgn_jax.sim import solver
+
+    return (solve_fn or solver.solve_designs), (solver.SolverError,)
 
 
 # ---- generation ---------------------------------------------------------------------------------

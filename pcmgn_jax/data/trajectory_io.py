@@ -46,7 +46,7 @@ from pcmgn_jax.trajectory import Trajectory
 
 __all__ = [
     "ARRAY_FIELDS", "FORMAT", "FORMAT_VERSION", "TrajectoryFileError", "content_hash",
-    "read_sidecar", "read_trajectory", "sidecar_hash", "trajectory_paths", "write_trajectory",
+    "read_sidecar", "read_trajectory", "trajectory_paths", "write_trajectory",
     "atomic_write_json", "to_jsonable", "write_xdmf_series",
 ]
 
@@ -303,11 +303,6 @@ def read_sidecar(path_stem: str | os.PathLike) -> dict[str, Any]:
         if key not in side:
             raise TrajectoryFileError(f"{side_path}: field {key!r} is missing")
     return side
-
-
-def sidecar_hash(path_stem: str | os.PathLike) -> str:
-    """The content hash recorded in the sidecar (cheap: does not read the arrays)."""
-    return str(read_sidecar(path_stem)["sha256"])
 
 
 def read_trajectory(path_stem: str | os.PathLike, *, verify: bool = True) -> Trajectory:

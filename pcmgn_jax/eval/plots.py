@@ -1,14 +1,15 @@
-"""Matplotlib figures for an evaluation (Agg backend, PNG files). Inputs in SI; axes in mm / µm / MPa."""
+"""Matplotlib figures for an evaluation (PNG files). Inputs in SI; axes in mm / µm / MPa.
+
+The backend is the caller's choice (experiments/ entry points select Agg; without a display matplotlib
+falls back to Agg by itself); importing this module changes no global state.
+"""
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.collections import PolyCollection  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.collections import PolyCollection
 
 PHASE_COLORS = {"drop": "#dddddd", "contact": "#ffd9a8", "rebound_in_contact": "#b9e3b0", "separated": "#c6dbef"}
 
