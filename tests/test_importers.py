@@ -262,3 +262,19 @@ def test_d3plot_round_trip(tmp_path):
     assert traj.meta["source"] == "d3plot"
     by_title = imp.import_d3plot(tmp_path / "d3plot", scene=SCENE)     # default: parts by title
     np.testing.assert_array_equal(by_title.cell_part, truth.cell_part)
+
+
+def test_cli_every_flag_keeps_its_spelling(tmp_path, capsys):
+    """The tyro CLI accepts every flag of the former argparse one, with underscores, and --ignore_unmapped bare."""
+    from experiments.import_ansys import main
+
+    _ansys_case(tmp_path)
+    (tmp_path / "res" / "times.txt").unlink()
+    argv = ["--mesh", str(tmp_path / "model.cdb"), "--results", str(tmp_path / "res"), "--out", str(tmp_path / "t"),
+            "--part_names", ",".join(PART_NAMES), "--parts", "ball=1,CG=2", "--output_dt", "2e-6",
+            "--length_unit", "mm", "--fixed", "none", "--location_tol", "1e-6", "--ignore_unmapped"]
+    assert main(argv) == 0, capsys.readouterr().err
+    traj = read_trajectory(tmp_path / "t")
+    assert set(traj.cell_part.tolist()) == {0, 1}                  # PLATE cells dropped (unmapped)
+    assert (traj.node_type < len(PART_NAMES)).all()                # --fixed none
+    np.testing.assert_allclose(np.diff(traj.times), 2e-6)

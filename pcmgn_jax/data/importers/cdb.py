@@ -346,10 +346,6 @@ def read_cdb(path: str | os.PathLike, *, scene: Scene | Mapping | None = None,
     if length_unit is not None and file_unit is not None and LENGTH_UNITS.get(length_unit) != LENGTH_UNITS[file_unit]:
         raise InputFileError(f"{path}: /UNITS says {file_unit!r} but length_unit={length_unit!r} was given "
                              "(--length_unit): drop it or make it agree")
-    if length_unit is None and file_unit is None:
-        raise InputFileError(f"{path}: no /UNITS line, so the length unit is unknown (CDWRITE writes none): "
-                             "pass --length_unit mm (or m, um, ...; length_unit= in Python)")
-    scale = length_factor(length_unit or file_unit, f"{path}: length_unit (--length_unit)")
     node_ids = np.array([r[0] for r in node_rows], dtype=np.int64)
     order = np.argsort(node_ids, kind="stable")
     dup = np.nonzero(np.diff(node_ids[order]) == 0)[0]
@@ -361,7 +357,7 @@ def read_cdb(path: str | os.PathLike, *, scene: Scene | Mapping | None = None,
         if r[3] != 0.0:
             raise InputFileError(f"{path}:{r[4]}: node {r[0]} has z = {r[3]}; only 2D (z = 0) meshes are "
                                  "supported: export the 2D model")
-    points = np.array([[r[1], r[2]] for r in node_rows], dtype=np.float64) * scale
+    points = np.array([[r[1], r[2]] for r in node_rows], dtype=np.float64)   # file unit; scaled below
     sorted_ids = node_ids[order]
 
     # element types: skip contact/target/surface, refuse what is not a 2D structural solid
@@ -416,6 +412,10 @@ def read_cdb(path: str | os.PathLike, *, scene: Scene | Mapping | None = None,
 
     if not ignore_unmapped:
         check_types(kept)
+    if length_unit is None and file_unit is None:
+        raise InputFileError(f"{path}: no /UNITS line, so the length unit is unknown (CDWRITE writes none): "
+                             "pass --length_unit mm (or m, um, ...; length_unit= in Python)")
+    points = points * length_factor(length_unit or file_unit, f"{path}: length_unit (--length_unit)")
     eids = np.array([e[0] for e in kept], dtype=np.int64)
     if len(np.unique(eids)) != len(eids):
         u, c = np.unique(eids, return_counts=True)
@@ -447,7 +447,10 @@ def read_cdb(path: str | os.PathLike, *, scene: Scene | Mapping | None = None,
             if p >= len(sorted_ids) or sorted_ids[p] != nd:
                 raise InputFileError(f"{where}: element {eid} refers to node {nd}, which is not in the NBLOCK")
         cells[k] = order[pos]
-    dropped = np.array(sorted(midside - corner_ids), dtype=np.int64)
+    # nodes whose result rows are ignored: midside nodes, and nodes only of skipped or unmapped elements
+    others = {n for (_, _, _, nodes, _), p in zip(kept, cell_part) if p < 0 for n in nodes}
+    others.update(n for e in skipped for n in e[3])
+    dropped = np.array(sorted((midside | others) - corner_ids), dtype=np.int64)
     if n_reduced:
         notes.append(f"{path}: {n_reduced} 8-node quad(s) reduced to their corner nodes; {len(dropped)} midside "
                      "node(s) dropped (their rows in result tables are ignored)")

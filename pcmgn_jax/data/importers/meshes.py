@@ -89,8 +89,10 @@ def read_meshio_mesh(path: str | os.PathLike, *, scene: Scene | Mapping | None =
     else:
         node_ids = np.arange(1, len(pts) + 1, dtype=np.int64)
     node_sets = {k.lower(): node_ids[np.asarray(v, np.int64)] for k, v in (m.point_sets or {}).items()}
+    kept_nodes = np.unique(cells[cell_part >= 0])
+    dropped = np.setdiff1d(node_ids[np.unique(cells[cell_part < 0])], node_ids[kept_nodes])
     return finish_mesh(where, node_ids, pts, cells, cell_part, np.arange(len(cells)), node_sets, names,
-                       ignore_unmapped, cell_label="cell index")
+                       ignore_unmapped, cell_label="cell index", dropped_node_ids=dropped)
 
 
 def is_mapdl_file(path: str | os.PathLike) -> bool:
