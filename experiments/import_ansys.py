@@ -14,14 +14,13 @@ import sys
 from dataclasses import dataclass
 from typing import Optional
 
-import tyro
-
+from pcmgn_jax import cli
 from pcmgn_jax.data.importers import import_ansys_text, parse_parts, read_mesh
 from pcmgn_jax.data.trajectory_io import write_trajectory
 from pcmgn_jax.scene import Scene
 
 
-@dataclass
+@dataclass(frozen=True)
 class Args:
     """Import ANSYS Mechanical text exports and a mesh into one trajectory file (OUT.xdmf/.h5/.json)."""
 
@@ -50,8 +49,8 @@ class Args:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = tyro.cli(Args, args=argv, use_underscores=True, description=__doc__)
     try:
+        args = cli.parse(Args, argv, description=__doc__, prog="python -m experiments.import_ansys")
         scene = Scene.load(args.scene) if args.scene else None
         names = [s.strip() for s in args.part_names.split(",")] if args.part_names else None
         parts = parse_parts(args.parts) if args.parts else None

@@ -278,3 +278,10 @@ def test_cli_every_flag_keeps_its_spelling(tmp_path, capsys):
     assert set(traj.cell_part.tolist()) == {0, 1}                  # PLATE cells dropped (unmapped)
     assert (traj.node_type < len(PART_NAMES)).all()                # --fixed none
     np.testing.assert_allclose(np.diff(traj.times), 2e-6)
+
+
+def test_cli_unknown_flag_named(capsys):
+    from experiments.import_ansys import main
+
+    assert main(["--mesh", "m.cdb", "--results", "r", "--out", "o", "--length_units", "mm"]) == 2
+    assert "--length_units (did you mean --length_unit?)" in capsys.readouterr().err
