@@ -13,8 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
-TARGETS = ("velocity", "displacement", "position")
-NOISE_PARTS = ("none", "ball", "panel", "all")
+from pcmgn_jax.mgn.formulation import FORMULATIONS, NOISE_PARTS, Formulation
 
 
 @dataclass(frozen=True)
@@ -34,14 +33,23 @@ class TrainConfig:
     latent_size: int = 64            # width of every MLP layer and of the latents
     mlp_layers: int = 2              # hidden layers per MLP
     message_passing_steps: int = 8   # processor blocks
-    target: str = "velocity"         # velocity (x += v dt) | displacement (x += dx) | position (x = x^)
+    # ---- formulation: what the model predicts (pcmgn_jax/mgn/formulation.py) ----------------------
+    formulation: str = "default"     # paper (as published) | default (each body as what it is); "" fields below keep it
+    target: str = ""                 # every node's target: velocity | displacement | position | acceleration | total_displacement
+    ball_target: str = ""            # the ball's target (default formulation: acceleration)
+    panel_target: str = ""           # the layers' target (default formulation: total_displacement)
+    ball_model: str = ""             # rigid (one body, driven by its contact nodes; default) | nodes (paper)
+    normalization: str = ""          # per_part (default) | global (paper: one normaliser for all nodes)
+    features: str = ""               # strain (default: deformation channels of their own) | paper
+    loss_weighting: str = ""         # parts (default: every part counts alike) | nodes (paper)
     # ---- loss -------------------------------------------------------------------------------
     lambda_pen: float = 0.0          # weight of the penetration term (0 = vanilla MGN; paper: 10)
     poly_ball: int = 6               # polynomial degree of the ball boundary fit (penetration term)
     poly_panel: int = 5              # polynomial degree of the cover-glass fit (penetration term)
     pen_x_max: float = 1e-3          # [m] boundary nodes with reference x <= this enter the fits
     pen_length_scale: float = 1e-6   # [m] unit of the penetration depth d in L_pen (µm, see penetration.py)
-    noise_std: float = 0.0           # Gaussian noise on input world positions [m] (paper: 3e-7)
+    noise_std: float = 0.0           # Gaussian noise on the input displacement [m], all noised nodes (paper: 3e-7)
+    noise_rel: float = 0.0           # or per part: sigma = noise_rel x the part's RMS motion per frame (noise_std = 0)
     noise_parts: str = "none"        # none | ball | panel | all
     # ---- optimisation -----------------------------------------------------------------------
     seed: int = 0                    # model init, data order and noise
@@ -64,8 +72,13 @@ class TrainConfig:
             raise ValueError(f"config: {name}={getattr(self, name)!r} {why}")
         if self.preset not in PRESETS:
             bad("preset", f"must be one of {sorted(PRESETS)}")
-        if self.target not in TARGETS:
-            bad("target", f"must be one of {TARGETS}")
+        if self.formulation not in FORMULATIONS:
+            bad("formulation", f"must be one of {sorted(FORMULATIONS)}")
+        if self.ball_model not in ("", "rigid", "nodes"):
+            bad("ball_model", "must be rigid or nodes (or empty: the formulation's)")
+        if self.noise_std > 0 and self.noise_rel > 0:
+            bad("noise_rel", "and noise_std are exclusive (absolute or relative noise)")
+        self.formulation_spec()  # raises ValueError naming a bad target / normalization / features
         if self.noise_parts not in NOISE_PARTS:
             bad("noise_parts", f"must be one of {NOISE_PARTS}")
         for name in ("n_train", "latent_size", "mlp_layers", "batch_graphs", "steps_per_dispatch",
@@ -75,8 +88,8 @@ class TrainConfig:
         for name in ("n_val", "n_test", "message_passing_steps", "num_steps", "lr_decay_steps"):
             if getattr(self, name) < 0:
                 bad(name, "must be >= 0")
-        if self.contact_radius < 0 or self.noise_std < 0 or self.lambda_pen < 0:
-            bad("contact_radius/noise_std/lambda_pen", "must be >= 0")
+        if self.contact_radius < 0 or self.noise_std < 0 or self.noise_rel < 0 or self.lambda_pen < 0:
+            bad("contact_radius/noise_std/noise_rel/lambda_pen", "must be >= 0")
         if not 0 < self.learning_rate < 1:
             bad("learning_rate", "must be in (0, 1)")
 
@@ -116,6 +129,17 @@ class TrainConfig:
 
     def replace(self, **kw) -> "TrainConfig":
         return dataclasses.replace(self, **kw)
+
+    def formulation_spec(self) -> Formulation:
+        """The :class:`Formulation` named by ``formulation`` with the non-empty override fields applied."""
+        kw = {k: getattr(self, k) for k in ("ball_target", "panel_target", "normalization", "features",
+                                            "loss_weighting") if getattr(self, k)}
+        if self.target:
+            kw.setdefault("ball_target", self.target)
+            kw.setdefault("panel_target", self.target)
+        if self.ball_model:
+            kw["rigid_ball"] = self.ball_model == "rigid"
+        return FORMULATIONS[self.formulation].replace(**kw)
 
     @property
     def resolved_dataset_dir(self) -> str:

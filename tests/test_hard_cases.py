@@ -23,14 +23,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pcmgn_jax.mgn import contact as contact_lib
-from pcmgn_jax.eval import evaluate as evaluation
-from pcmgn_jax.train import loop as training
 from pcmgn_jax.config import TrainConfig
-from pcmgn_jax.train.penetration import penetration_stats
+from pcmgn_jax.eval import evaluate as evaluation
+from pcmgn_jax.eval.metrics import penetration_stats
+from pcmgn_jax.mgn import checkpoint
+from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.rollout import rollout_checked
-from pcmgn_jax.scene import default_scene
+from pcmgn_jax.scene import Scene, default_scene
 from pcmgn_jax.sim.solver import solve_designs
+from pcmgn_jax.train import loop as training
+from pcmgn_jax.train.sampling import gather, pair_table
+from pcmgn_jax.train.step import loss_fn
 
 N_FRAMES = 16  # frames after the initial one (4 µs each): contact starts at ~16 µs = frame 4
 TRAIN_DESIGNS = np.array([[60e-6, 140e-6], [120e-6, 80e-6], [100e-6, 100e-6]])  # [m] (OCA1, OCA2)
@@ -76,12 +79,12 @@ def extra_rollouts(solver_trajs, hard_run):
     """Batched rollouts of 2x the training window from frame 0 of every extrapolated design."""
     _, extra = solver_trajs
     cfg, workdir, _ = hard_run
-    setup, params, _ = training.load_for_inference(workdir, cfg, extra[0])
+    sim = checkpoint.load(workdir, extra[0])
     args = [np.stack([t.points if f == "points" else getattr(t, f)[0] for t in extra]).astype(np.float32)
             for f in ("points", "displacement", "velocity", "von_mises")]
-    res, _ = rollout_checked(setup.spec.sim, 2 * N_FRAMES, params, setup.stats, setup.topology, setup.index,
+    res, _ = rollout_checked(sim.spec, 2 * N_FRAMES, sim.params, sim.stats, sim.topology, sim.index,
                              *args, batched=True)
-    return setup, res
+    return sim, res
 
 
 def test_solver_energy_within_one_percent_on_extrapolated_designs(solver_trajs):
@@ -112,12 +115,12 @@ def test_loss_and_gradient_finite_on_extrapolated_frames(solver_trajs, hard_run)
     cfg, _, summary = hard_run
     setup, params = summary["setup"], summary["state"]["params"]
     spec = setup.spec
-    assert spec.lambda_pen == 10.0 and spec.noise_std == 3e-7 and setup.noise_mask.any()
-    table = training.pair_table(extra)
-    batch = training.gather(extra, table, np.arange(len(table))[None], target=cfg.target, dt=spec.sim.dt)
+    assert spec.cfg.lambda_pen == 10.0 and spec.cfg.noise_std == 3e-7 and setup.sigma.any()
+    table = pair_table(extra)
+    batch = gather(spec.sim.formulation, extra, table, np.arange(len(table))[None], dt=spec.sim.dt)
     batch = {k: v[0] for k, v in batch.items()}
     keys = jax.random.split(jax.random.PRNGKey(7), len(table))
-    ball_part, panel_part = training.contact_parts(setup.scene)
+    ball_part, panel_part = contact_lib.contact_parts(setup.scene)
     ref = extra[0]  # contact buffer sized on the extrapolated frames (same radius as training)
     index = contact_lib.allocate(points=ref.points, cells=ref.cells, cell_part=ref.cell_part, ball_part=ball_part,
                                  panel_part=panel_part, radius=setup.index.radius,
@@ -126,8 +129,9 @@ def test_loss_and_gradient_finite_on_extrapolated_frames(solver_trajs, hard_run)
     @jax.jit
     def per_sample(params, index, batch, keys):
         def one(sample, key):
-            return jax.value_and_grad(training.loss_fn, has_aux=True)(
-                params, spec, setup.stats, setup.topology, index, setup.noise_mask, setup.pen_nodes, sample, key)
+            return jax.value_and_grad(loss_fn, has_aux=True)(
+                params, spec, setup.stats, setup.topology, index, setup.sigma, setup.pen_nodes, setup.weights,
+                sample, key)
         (loss, aux), grads = jax.vmap(one)(batch, keys)
         gmax = jnp.max(jnp.stack([jnp.max(jnp.abs(g).reshape(g.shape[0], -1), axis=1)
                                   for g in jax.tree_util.tree_leaves(grads)]), axis=0)
@@ -158,8 +162,8 @@ def test_loss_and_gradient_finite_on_extrapolated_frames(solver_trajs, hard_run)
 
 def test_fit_free_penetration_finite_on_extrapolated_rollouts(solver_trajs, extra_rollouts):
     _, extra = solver_trajs
-    setup, res = extra_rollouts
-    _, panel_part = training.contact_parts(setup.scene)
+    sim, res = extra_rollouts
+    _, panel_part = contact_lib.contact_parts(Scene.from_dict(extra[0].meta["scene"]))
     bnodes, pnodes = evaluation.boundary(extra[0], panel_part)
     u = np.asarray(res.displacement, np.float64)
     for b, t in enumerate(extra):

@@ -57,5 +57,5 @@ def test_config_flags():
     with pytest.raises(ValueError, match="unknown flag"):
         TrainConfig.from_flags(["--lamda_pen=10"])
     with pytest.raises(ValueError):
-        TrainConfig.from_flags(["--target=acceleration"])
+        TrainConfig.from_flags(["--target=jerk"])
     assert TrainConfig.from_json(cfg.to_dict()) == cfg

@@ -54,7 +54,7 @@ def test_evaluate_writes_metrics_and_plots(tiny_run, tiny_trajs):
 
     from pcmgn_jax.eval import evaluate as evaluation
     cfg, workdir, _ = tiny_run
-    m = evaluation.evaluate(workdir, test_trajs=tiny_trajs[2:], cfg=cfg, plot=True)
+    m = evaluation.evaluate(workdir, test_trajs=tiny_trajs[2:], train_trajs=tiny_trajs[:2], plot=True)
     saved = json.loads((workdir / "eval" / "metrics.json").read_text())
     for k in ("position_mae_um", "position_rmse_um", "stress_mae_mpa", "stress_rmse_mpa", "penetration_max_um",
               "rollout_seconds_per_trajectory", "per_frame_position_mae_um_mean", "per_frame_stress_mae_mpa_std"):

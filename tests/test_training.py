@@ -6,8 +6,11 @@ import numpy as np
 import pytest
 
 from conftest import CompileCounter, tiny_config
+from pcmgn_jax.mgn import checkpoint
 from pcmgn_jax.mgn import rollout as rl
 from pcmgn_jax.train import loop as training
+from pcmgn_jax.train.sampling import gather, pair_table, sample_ids
+from pcmgn_jax.train.step import train_chunk
 def test_loss_halves(tiny_run):
     _, workdir, _ = tiny_run
     recs = [json.loads(line) for line in (workdir / "metrics.jsonl").read_text().splitlines()]
@@ -20,30 +23,31 @@ def test_loss_halves(tiny_run):
 def test_no_recompilation_after_first_step(tiny_run, tiny_trajs):
     cfg, _, summary = tiny_run
     setup, state = summary["setup"], summary["state"]
-    table = training.pair_table(tiny_trajs[:3])
+    table = pair_table(tiny_trajs[:3])
+    form = setup.spec.sim.formulation
+    args = lambda st, b: (setup.spec, st, setup.stats, setup.topology, setup.index, setup.sigma,  # noqa: E731
+                          setup.pen_nodes, setup.weights, b, jax.random.PRNGKey(0))
     counter = CompileCounter("train_chunk").__enter__()
     for step in (0, 20, 40):
-        ids = training.sample_ids(cfg.seed, step, cfg.steps_per_dispatch, 1, setup.n_pairs)
-        batch = training.gather(tiny_trajs[:3], table, ids, target=cfg.target, dt=setup.spec.sim.dt)
-        state, _ = training.train_chunk(setup.spec, state, setup.stats, setup.topology, setup.index,
-                                        setup.noise_mask, setup.pen_nodes, batch, jax.random.PRNGKey(0))
+        ids = sample_ids(cfg.seed, step, cfg.steps_per_dispatch, 1, setup.n_pairs)
+        batch = gather(form, tiny_trajs[:3], table, ids, dt=setup.spec.sim.dt)
+        state, _ = train_chunk(*args(state, batch))
     counter.__exit__(None, None, None)
     assert counter.count == 0  # the training run compiled it once; new data/state -> no recompile
     with CompileCounter("train_chunk") as c2:  # fresh spec with other sizes compiles exactly once
         import dataclasses
-        spec2 = dataclasses.replace(setup.spec, lr_decay_steps=setup.spec.lr_decay_steps + 1)
+        spec2 = dataclasses.replace(setup.spec, decay_steps=setup.spec.decay_steps + 1)
         for _ in range(2):
-            training.train_chunk(spec2, summary["state"], setup.stats, setup.topology, setup.index,
-                                 setup.noise_mask, setup.pen_nodes, batch, jax.random.PRNGKey(0))
+            train_chunk(spec2, *args(summary["state"], batch)[1:])
     assert c2.count == 1
 
 
 def test_checkpoint_restore_identical_predictions(tiny_run, tiny_trajs):
     cfg, workdir, summary = tiny_run
-    setup, params, _ = training.load_for_inference(workdir, cfg, tiny_trajs[0], which="periodic")
+    sim = checkpoint.load(workdir, tiny_trajs[0], which="periodic")
     t = tiny_trajs[3]
     args = (t.points, t.displacement[0], t.velocity[0], t.von_mises[0])
-    a = rl.rollout(setup.spec.sim, 5, params, setup.stats, setup.topology, setup.index, *args)
+    a = rl.rollout(sim.spec, 5, sim.params, sim.stats, sim.topology, sim.index, *args)
     s0 = summary["setup"]
     b = rl.rollout(s0.spec.sim, 5, summary["state"]["params"], s0.stats, s0.topology, s0.index, *args)
     np.testing.assert_array_equal(np.asarray(a.displacement), np.asarray(b.displacement))

@@ -1,13 +1,17 @@
-"""Roll out a trained run on the test split and write ``eval/metrics.json`` + PNG plots.
+"""Roll out a trained run on a set of trajectories and write ``eval/metrics.json`` + PNG plots,
+beside the baselines (:mod:`pcmgn_jax.eval.surrogates`) fitted on the run's training split.
 
-Metrics (SI in, reports in µm and MPa), over frames 1..T-1 of full rollouts from frame 0:
-  position_mae_um / position_rmse_um   |x_pred - x_true| per node and component
+Metrics (definitions in :mod:`pcmgn_jax.eval.metrics`; SI in, reports in µm and MPa), over frames
+1..T-1 of full rollouts from frame 0:
+  position_mae_um / position_rmse_um   |u_pred - u_true| per node and component
   stress_mae_mpa / stress_rmse_mpa     von Mises
   per_frame_*_mean / *_std             per-frame MAE, mean and std across test trajectories
+  oled_objective_*                     DESIGN §8's objective (paper reading), truth, prediction, error
+  baselines                            the same summary keys for none / nearest / poly2 / rbf
   penetration_*                        fit-free (ball boundary nodes below the CG top polyline,
-                                       pcmgn_jax.train.penetration.penetration_stats), prediction and truth
+                                       pcmgn_jax.eval.metrics.penetration_stats), prediction and truth
   rollout_seconds_per_trajectory       wall time of the batched jitted rollout (compile excluded)
-  phases                               frame ranges of drop / contact / rebound in contact / separated
+  phases                               per trajectory: frame ranges of drop / contact / rebound / separated
 
 Phases from ground truth: contact while the ball's lowest boundary node is at or below the CG top
 (the CG top surface interpolated at that node's x) + ``contact_tol`` [m]; rebound when the ball's mean
@@ -19,42 +23,22 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-import jax
 import numpy as np
 
-from pcmgn_jax.eval import plots
-from pcmgn_jax.config import TrainConfig
-from pcmgn_jax.mgn.rollout import rollout_checked
-from pcmgn_jax.train.loop import contact_parts, load_for_inference
 from pcmgn_jax.data.trajectory_io import atomic_write_json
+from pcmgn_jax.eval import metrics, plots
+from pcmgn_jax.eval.surrogates import BASELINES, FieldRegression, MGNSurrogate, design_of
+from pcmgn_jax.geometry import boundary_nodes
+from pcmgn_jax.mgn.contact import contact_parts
+from pcmgn_jax.scene import Scene
 
 
 def boundary(ref, panel_part: int):
-    """(ball bottom nodes, CG top nodes sorted by x) from the reference mesh."""
-    try:
-        from pcmgn_jax.train.penetration import boundary_nodes
-        # x_max inside the region of interest (its far edge leaves cut edges, not surfaces)
-        bn = boundary_nodes(ref.points, ref.node_part, ball_part=0, panel_part=panel_part, cells=ref.cells,
-                            cell_part=ref.cell_part, x_max=0.8 * float(np.max(ref.points[:, 0])))
-        return np.asarray(bn.ball), np.asarray(bn.panel)
-    except ImportError:  # pragma: no cover - penetration module missing
-        from pcmgn_jax.mgn.contact import surface_nodes
-        b = surface_nodes(ref.points, ref.cells, ref.cell_part, 0, facing="down")
-        p = surface_nodes(ref.points, ref.cells, ref.cell_part, panel_part, facing="up")
-        return b[np.argsort(ref.points[b, 0])], p[np.argsort(ref.points[p, 0])]
-
-
-def penetration(ball_xy, panel_xy) -> dict:
-    """Fit-free penetration stats [µm] of frames (T, Mb, 2), (T, Mp, 2)."""
-    try:
-        from pcmgn_jax.train.penetration import penetration_stats
-        return penetration_stats(ball_xy, panel_xy)
-    except ImportError:  # pragma: no cover  TODO: local fallback (vertical gap to the interpolated CG top)
-        depth = np.stack([np.maximum(np.interp(b[:, 0], p[:, 0], p[:, 1]) - b[:, 1], 0)
-                          for b, p in zip(ball_xy, panel_xy)]) * 1e6
-        per = depth.max(axis=1)
-        return dict(max_um=float(per.max()), mean_um=float(depth[depth > 0].mean()) if np.any(depth > 0) else 0.0,
-                    frames_with_penetration=int(np.sum(per > 0)), per_frame_max_um=per)
+    """(ball bottom nodes, CG top nodes sorted by x) from the reference mesh, inside the region of
+    interest (its far edge leaves cut edges, not surfaces)."""
+    bn = boundary_nodes(ref.points, ref.node_part, ball_part=0, panel_part=panel_part, cells=ref.cells,
+                        cell_part=ref.cell_part, x_max=0.8 * float(np.max(ref.points[:, 0])))
+    return np.asarray(bn.ball), np.asarray(bn.panel)
 
 
 def impact_phases(traj, ball_nodes, panel_nodes, *, contact_tol: float = 0.25e-6) -> dict:
@@ -84,103 +68,84 @@ def impact_phases(traj, ball_nodes, panel_nodes, *, contact_tol: float = 0.25e-6
     return out
 
 
-def predict_trajectories(workdir: str | Path, trajs: Sequence, *, cfg: TrainConfig | None = None,
-                         which: str = "best", batch: int = 4):
-    """Roll the trained model of ``workdir`` out from frame 0 of each trajectory (same topology).
-
-    Returns (displacement (B,T,N,2) [m], von_mises (B,T,N) [Pa], rollout seconds summed over the
-    trajectories (compilation excluded), setup). Used by evaluation and the ParaView export."""
-    workdir = Path(workdir)
-    cfg = cfg or TrainConfig.load(workdir / "config.json")
-    ref = trajs[0]
-    setup, params, meta = load_for_inference(workdir, cfg, ref, which=which)
-    s = setup
-    T = ref.n_frames
-    index = s.index
-    preds = {"displacement": [], "von_mises": []}
-    seconds = 0.0
-    for i in range(0, len(trajs), batch):
-        chunk = trajs[i:i + batch]
-        args = [np.stack([getattr(t, f)[0] if f != "points" else t.points for t in chunk]).astype(np.float32)
-                for f in ("points", "displacement", "velocity", "von_mises")]
-        if i == 0:  # compile (and size the contact buffer) outside the timing
-            _, index = rollout_checked(s.spec.sim, T - 1, params, s.stats, s.topology, index, *args, batched=True)
-        t0 = time.perf_counter()
-        res, index = rollout_checked(s.spec.sim, T - 1, params, s.stats, s.topology, index, *args, batched=True)
-        jax.block_until_ready(res)
-        seconds += time.perf_counter() - t0
-        preds["displacement"].append(np.asarray(res.displacement, np.float64))
-        preds["von_mises"].append(np.asarray(res.von_mises, np.float64))
-    setup = setup._replace(index=index)
-    return (np.concatenate(preds["displacement"]), np.concatenate(preds["von_mises"]), seconds, setup)
+def _scores(scene: Scene, trajs, pred_u, pred_vm, bnodes, pnodes) -> dict:
+    """The metrics of one predictor on ``trajs`` (pred_u (B,T,N,2) [m], pred_vm (B,T,N) [Pa])."""
+    true_u = np.stack([np.asarray(t.displacement, np.float64) for t in trajs])
+    true_vm = np.stack([np.asarray(t.von_mises, np.float64) for t in trajs])
+    out = metrics.field_metrics(pred_u, pred_vm, true_u, true_vm)
+    pen = []
+    for b, t in enumerate(trajs):
+        xy = np.asarray(t.points)[None] + pred_u[b]
+        pen.append(metrics.penetration_stats(xy[:, bnodes], xy[:, pnodes]))
+    out.update(metrics.penetration_summary(pen))
+    if "OLED" in scene.part_names:
+        part = scene.part_names.index("OLED")
+        ref = trajs[0]
+        truth = metrics.oled_objective_node_mean(ref.node_part, ref.points, true_vm, part=part)
+        pred = metrics.oled_objective_node_mean(ref.node_part, ref.points, pred_vm, part=part)
+        rel = metrics.relative_error_pct(pred, truth)
+        out.update(oled_objective_true_mpa=truth.tolist(), oled_objective_pred_mpa=pred.tolist(),
+                   oled_objective_rel_error_pct_mean=float(rel.mean()),
+                   oled_objective_rel_error_pct_max=float(rel.max()))
+    return out
 
 
-def oled_objective(scene, ref, pred_u, pred_vm, trajs, *, layer: str = "OLED", x_max: float = 3e-3) -> dict:
-    """The design objective of DESIGN §8 on truth and prediction: mean von Mises [MPa] of the
-    ``layer`` nodes with reference x < ``x_max`` [m], averaged over all frames, per trajectory,
-    and the surrogate's relative error on it [%]. Empty dict if the scene has no such layer."""
-    if layer not in scene.part_names:
-        return {}
-    sel = (np.asarray(ref.node_part) == scene.part_names.index(layer)) & (np.asarray(ref.points)[:, 0] < x_max)
-    if not sel.any():
-        return {}
-    truth = np.array([np.asarray(t.von_mises, np.float64)[:, sel].mean() for t in trajs]) * 1e-6
-    pred = np.asarray(pred_vm, np.float64)[:, :, sel].mean(axis=(1, 2)) * 1e-6
-    rel = np.abs(pred - truth) / np.maximum(np.abs(truth), 1e-12) * 100.0
-    return dict(oled_objective_true_mpa=truth.tolist(), oled_objective_pred_mpa=pred.tolist(),
-                oled_objective_rel_error_pct_mean=float(rel.mean()),
-                oled_objective_rel_error_pct_max=float(rel.max()))
+SUMMARY_KEYS = ("position_mae_um", "position_rmse_um", "stress_mae_mpa", "stress_rmse_mpa", "penetration_max_um",
+                "penetration_mean_um", "oled_objective_rel_error_pct_mean")
 
 
-def evaluate(workdir: str | Path, *, test_trajs: Sequence, cfg: TrainConfig | None = None,
-             which: str = "best", batch: int = 4, plot: bool = True) -> dict:
-    """Roll out every test trajectory; write WORKDIR/eval/metrics.json and PNGs; return the metrics."""
+def baseline_metrics(train_trajs, test_trajs, scene, bnodes, pnodes) -> dict:
+    """Every baseline of :mod:`pcmgn_jax.eval.surrogates` fitted on ``train_trajs``, scored on the test
+    trajectories like the model (a baseline that does not apply says why instead of a number)."""
+    designs = np.stack([design_of(t) for t in test_trajs])
+    out = {}
+    for kind in BASELINES:
+        try:
+            model = FieldRegression(kind, train_trajs)
+            t0 = time.perf_counter()
+            pu, ps = model.predict(designs)
+            seconds = time.perf_counter() - t0
+        except ValueError as err:
+            out[kind] = {"not_applicable": str(err)}
+            continue
+        m = _scores(scene, test_trajs, pu, ps, bnodes, pnodes)
+        out[kind] = {**{k: m[k] for k in SUMMARY_KEYS if k in m}, "fit_seconds": model.fit_seconds,
+                     "predict_seconds_per_trajectory": seconds / len(test_trajs)}
+    return out
+
+
+def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence = (), which: str = "best",
+             batch: int = 4, plot: bool = True, name: str | None = None) -> dict:
+    """Roll the run's model out on ``test_trajs`` and score it beside the baselines fitted on
+    ``train_trajs`` (the run's training split). Writes WORKDIR/eval[/name]/metrics.json and PNGs."""
     workdir = Path(workdir)
     ref = test_trajs[0]
     T = ref.n_frames
-    pu, ps, seconds, s = predict_trajectories(workdir, test_trajs, cfg=cfg, which=which, batch=batch)
-    index = s.index
-    tu = np.stack([np.asarray(t.displacement, np.float64) for t in test_trajs])
-    ts = np.stack([np.asarray(t.von_mises, np.float64) for t in test_trajs])
-    pos_err = np.abs(pu - tu)[:, 1:] * 1e6        # (B, T-1, N, 2) µm
-    s_err = np.abs(ps - ts)[:, 1:] * 1e-6          # (B, T-1, N) MPa
-    pf_pos = np.abs(pu - tu).mean(axis=(2, 3)) * 1e6   # (B, T)
-    pf_s = np.abs(ps - ts).mean(axis=2) * 1e-6
-    _, panel_part = contact_parts(s.scene)
+    scene = Scene.from_dict(ref.meta["scene"])
+    mgn = MGNSurrogate(workdir, ref, which=which, batch=batch)
+    pu, ps = mgn.rollout_trajectories(test_trajs)
+    _, panel_part = contact_parts(scene)
     bnodes, pnodes = boundary(ref, panel_part)
-    pen_pred, pen_true = [], []
-    for b in range(len(test_trajs)):
-        xy = np.asarray(test_trajs[b].points)[None] + pu[b]
-        pen_pred.append(penetration(xy[:, bnodes], xy[:, pnodes]))
-        xyt = test_trajs[b].positions
-        pen_true.append(penetration(xyt[:, bnodes], xyt[:, pnodes]))
-    phases = impact_phases(ref, bnodes, pnodes)
-    objective = oled_objective(s.scene, ref, pu, ps, test_trajs)
-    metrics = dict(
-        position_mae_um=float(pos_err.mean()), position_rmse_um=float(np.sqrt(np.mean(pos_err ** 2))),
-        stress_mae_mpa=float(s_err.mean()), stress_rmse_mpa=float(np.sqrt(np.mean(s_err ** 2))),
-        penetration_max_um=float(max(p["max_um"] for p in pen_pred)),
-        penetration_mean_um=float(np.mean([p["mean_um"] for p in pen_pred])),
-        penetration_frames=int(sum(p["frames_with_penetration"] for p in pen_pred)),
-        penetration_max_um_truth=float(max(p["max_um"] for p in pen_true)),
-        penetration_frames_truth=int(sum(p["frames_with_penetration"] for p in pen_true)),
-        rollout_seconds_per_trajectory=seconds / len(test_trajs),
-        n_test=len(test_trajs), n_frames=T, n_nodes=ref.n_nodes, checkpoint=which,
-        contact_capacity=int(index.capacity),
-        per_frame_position_mae_um_mean=pf_pos.mean(0).tolist(), per_frame_position_mae_um_std=pf_pos.std(0).tolist(),
-        per_frame_stress_mae_mpa_mean=pf_s.mean(0).tolist(), per_frame_stress_mae_mpa_std=pf_s.std(0).tolist(),
-        phases={k: list(v) for k, v in phases.items()},
-        window_has_all_phases=all(v[0] is not None for v in phases.values()),
-        **objective,
-    )
-    out = plots.ensure_dir(workdir / "eval")
-    atomic_write_json(out / "metrics.json", metrics)
+    m = _scores(scene, test_trajs, pu, ps, bnodes, pnodes)
+    truth_pen = metrics.penetration_summary(
+        [metrics.penetration_stats(t.positions[:, bnodes], t.positions[:, pnodes]) for t in test_trajs],
+        suffix="_truth")
+    phases = [impact_phases(t, bnodes, pnodes) for t in test_trajs]
+    m.update(truth_pen, rollout_seconds_per_trajectory=mgn.rollout_seconds / len(test_trajs),
+             n_test=len(test_trajs), n_frames=T, n_nodes=ref.n_nodes, checkpoint=which,
+             contact_capacity=int(mgn.sim.index.capacity),
+             phases=[{k: list(v) for k, v in p.items()} for p in phases],
+             window_has_all_phases=all(v[0] is not None for p in phases for v in p.values()))
+    if train_trajs:
+        m["baselines"] = baseline_metrics(train_trajs, test_trajs, scene, bnodes, pnodes)
+    out = plots.ensure_dir(workdir / "eval" / name if name else workdir / "eval")
+    atomic_write_json(out / "metrics.json", m)
     if plot:
-        _plots(out, ref, test_trajs[0], pu[0], ps[0], bnodes, pnodes, pf_pos, pf_s, phases)
-    return metrics
+        _plots(out, test_trajs[0], pu[0], ps[0], bnodes, pnodes, m, phases[0])
+    return m
 
 
-def _plots(out, ref, traj, pu, ps, bnodes, pnodes, pf_pos, pf_s, phases):
+def _plots(out, traj, pu, ps, bnodes, pnodes, m, phases):
     times_us = np.asarray(traj.times) * 1e6
     T = len(times_us)
     peak = int(np.argmax(np.asarray(traj.von_mises).max(axis=1)))
@@ -193,5 +158,6 @@ def _plots(out, ref, traj, pu, ps, bnodes, pnodes, pf_pos, pf_s, phases):
     xy_t = traj.positions
     plots.contact_zoom(out / "contact_zoom.png", xy_p[peak, bnodes], xy_p[peak, pnodes], xy_t[peak, bnodes],
                        xy_t[peak, pnodes], peak)
-    plots.mae_vs_frame(out / "mae_vs_frame.png", times_us, pf_pos.mean(0), pf_pos.std(0), pf_s.mean(0),
-                       pf_s.std(0), phases)
+    curves = [np.asarray(m[f"per_frame_{k}_{s}"]) for k in ("position_mae_um", "stress_mae_mpa")
+              for s in ("mean", "std")]
+    plots.mae_vs_frame(out / "mae_vs_frame.png", times_us, *curves, phases)

@@ -146,3 +146,18 @@ def empty_edges(capacity: int) -> ContactEdges:
     z = jnp.zeros((capacity,), jnp.int32)
     return ContactEdges(senders=z, receivers=z, mask=jnp.zeros((capacity,), bool),
                         count=jnp.zeros((), jnp.int32), overflow=jnp.zeros((), bool))
+
+
+def contact_parts(scene) -> tuple[int, int]:
+    """(ball part, contact layer part) of the scene's declared contact pair (a :class:`Scene`)."""
+    if not scene.contact_pairs:
+        raise ValueError("scene declares no contact pair; contact edges need one (ball, layer)")
+    return 0, scene.part_names.index(scene.contact_pairs[0][1])
+
+
+def auto_radius(points, cells, cell_part, panel_part: int) -> float:
+    """Default r_w [m]: 1.5 x the median spacing of the contact layer's top-surface nodes near the axis."""
+    nodes = surface_nodes(points, cells, cell_part, panel_part, facing="up")
+    xs = np.sort(np.asarray(points)[nodes, 0])
+    d = np.diff(xs)[:20]
+    return float(1.5 * np.median(d[d > 0]))

@@ -127,21 +127,47 @@ def _norm(v: jnp.ndarray) -> jnp.ndarray:
     return jnp.where(sq > 0, jnp.sqrt(safe), 0.0)
 
 
-def node_features(topology: Topology, points, displacement, velocity) -> jnp.ndarray:
-    """[one_hot(type), x^w, xdot^w] -> (N, n_types + 4). points/displacement [m], velocity [m/s]."""
+def node_features(topology: Topology, points, displacement, velocity, features: str = "paper") -> jnp.ndarray:
+    """(N, n_types + k) node features [m, m/s].
+
+    'paper':  [one_hot(type), x^w, xdot^w]          (k = 4; x^w = X + u, the paper's Table 1)
+    'strain': [one_hot(type), X, u, xdot^w]         (k = 6; reference position and displacement apart,
+              so the µm displacement is not a 1e-3 fraction of a mm coordinate)
+    """
     one_hot = jnp.eye(topology.n_node_types, dtype=jnp.float32)[jnp.asarray(topology.node_type)]
-    world = jnp.asarray(points, jnp.float32) + jnp.asarray(displacement, jnp.float32)
-    return jnp.concatenate([one_hot, world, jnp.asarray(velocity, jnp.float32)], axis=-1)
+    points = jnp.asarray(points, jnp.float32)
+    displacement = jnp.asarray(displacement, jnp.float32)
+    velocity = jnp.asarray(velocity, jnp.float32)
+    if features == "paper":
+        return jnp.concatenate([one_hot, points + displacement, velocity], axis=-1)
+    if features == "strain":
+        return jnp.concatenate([one_hot, points, displacement, velocity], axis=-1)
+    raise ValueError(f"features must be 'paper' or 'strain', got {features!r}")
 
 
-def mesh_edge_features(topology: Topology, points, displacement) -> jnp.ndarray:
-    """[u_ij, |u_ij|, x_ij, |x_ij|] -> (E, 6) [m], ij = sender - receiver."""
+def mesh_edge_features(topology: Topology, points, displacement, features: str = "paper") -> jnp.ndarray:
+    """(E, 6) mesh-edge features, ij = sender - receiver.
+
+    'paper':  [u_ij, |u_ij|, x_ij, |x_ij|] [m]  (u_ij reference, x_ij = u_ij + (u_s - u_r) world)
+    'strain': [u_ij / L, L, (u_s - u_r) / L, (|x_ij| - L) / L] with L = |u_ij| [m]: direction, length,
+              relative displacement and stretch (dimensionless, ~1e-4..1e-2), the deformation on its own
+              scale. The stretch is formed as (2 u_ij.d + |d|^2) / (L (|x_ij| + L)), free of cancellation.
+    """
     s, r = jnp.asarray(topology.mesh_senders), jnp.asarray(topology.mesh_receivers)
     points = jnp.asarray(points, jnp.float32)
     displacement = jnp.asarray(displacement, jnp.float32)
     u_ij = points[s] - points[r]
-    x_ij = u_ij + (displacement[s] - displacement[r])
-    return jnp.concatenate([u_ij, _norm(u_ij), x_ij, _norm(x_ij)], axis=-1)
+    d_ij = displacement[s] - displacement[r]
+    x_ij = u_ij + d_ij
+    if features == "paper":
+        return jnp.concatenate([u_ij, _norm(u_ij), x_ij, _norm(x_ij)], axis=-1)
+    if features != "strain":
+        raise ValueError(f"features must be 'paper' or 'strain', got {features!r}")
+    length = _norm(u_ij)
+    safe = jnp.where(length > 0, length, 1.0)  # coincident reference nodes (degenerate quads)
+    stretch = (2 * jnp.sum(u_ij * d_ij, -1, keepdims=True) + jnp.sum(d_ij * d_ij, -1, keepdims=True)) \
+        / (safe * (_norm(x_ij) + safe))
+    return jnp.concatenate([u_ij / safe, length, d_ij / safe, stretch], axis=-1)
 
 
 def contact_edge_features(points, displacement, senders, receivers, mask) -> jnp.ndarray:
@@ -153,23 +179,25 @@ def contact_edge_features(points, displacement, senders, receivers, mask) -> jnp
     return jnp.where(mask[:, None], feats, 0.0)
 
 
-def build_graph(topology: Topology, *, points, displacement, velocity, contact) -> jraph.GraphsTuple:
+def build_graph(topology: Topology, *, points, displacement, velocity, contact,
+                features: str = "paper") -> jraph.GraphsTuple:
     """Pure graph builder (jittable, vmappable).
 
     points:       (N, 2) reference coordinates [m]
     displacement: (N, 2) [m]   (world position = points + displacement)
     velocity:     (N, 2) [m/s] world velocity
     contact:      a :class:`pcmgn_jax.mgn.contact.ContactEdges` (senders, receivers, mask) of capacity C
+    features:     'paper' | 'strain' (see :func:`node_features`, :func:`mesh_edge_features`)
     """
     n = topology.n_node
-    mesh = EdgeSet(features=mesh_edge_features(topology, points, displacement),
+    mesh = EdgeSet(features=mesh_edge_features(topology, points, displacement, features),
                    senders=jnp.asarray(topology.mesh_senders), receivers=jnp.asarray(topology.mesh_receivers),
                    mask=jnp.ones(topology.mesh_senders.shape, bool))
     cont = EdgeSet(features=contact_edge_features(points, displacement, contact.senders,
                                                   contact.receivers, contact.mask),
                    senders=contact.senders, receivers=contact.receivers, mask=contact.mask)
     return jraph.GraphsTuple(
-        nodes=node_features(topology, points, displacement, velocity),
+        nodes=node_features(topology, points, displacement, velocity, features),
         edges={"mesh": mesh, "contact": cont},
         senders=mesh.senders, receivers=mesh.receivers,
         n_node=jnp.array([n], jnp.int32), n_edge=jnp.array([mesh.senders.shape[0]], jnp.int32),

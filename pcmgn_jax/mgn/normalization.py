@@ -1,20 +1,26 @@
-"""Feature and target normalisation from the training split; wraps the model, not inside it.
+"""Feature and target normalisation: statistics from the training split, wrapping the model.
 
-Statistics are per-channel totals (float64 sums over every sampled node / edge / frame of the training
-split), so they do not depend on the data order. A channel whose standard deviation is zero or below
-``1e-8 * (|mean| + tiny)`` gets std = 1 (the "zero-variance guard"): e.g. the velocity of a dataset with
-no motion in x. Stats are a pytree of float32 arrays saved with each checkpoint (and as JSON).
+Statistics are per channel *and per node type* (rows: node types, the last one the fixed nodes), so a
+formulation can normalise each part on its own scale (``per_part``) or all parts on one scale
+(``global``, the paper: every row then holds the same all-node statistics). Mesh-edge statistics are
+indexed by the edge's receiver type; contact edges have one row (they join two parts).
 
-Layout (shapes):
-    node_mean/std    [4]  world position x, y [m], world velocity x, y [m/s] (one-hot is not scaled)
-    mesh_mean/std    [6]  u_ij, |u_ij|, x_ij, |x_ij| [m]
-    contact_mean/std [3]  x_ij, |x_ij| [m] (real contact edges only)
-    target_mean/std  [k]  model outputs in SI (e.g. velocity [m/s] x, y and von Mises [Pa])
+Layout (T = node types, shapes of the float32 arrays)::
+
+    node_mean/std     [T, Cn]  physical node channels (after the one-hot), see graphs.node_features
+    mesh_mean/std     [T, Cm]  mesh-edge channels, by receiver type
+    contact_mean/std  [Cc]     contact-edge channels (real contact edges only)
+    target_mean/std   [T, 3]   per-node targets [a_x, a_y, von Mises] in SI
+    ball_mean/std     [2]      the rigid ball's target (unused unless the formulation has a rigid ball)
+
+Sums are float64 (shifted by the first batch's mean for a stable variance), so the statistics do not
+depend on the data order. Zero-variance guard: a channel whose std is not finite or below
+``1e-8 * (|mean| + tiny)`` gets std = 1 (e.g. the x-velocity of nodes that never move in x). A node type
+with no samples in a channel set takes the all-node statistics. The statistics are saved once, inside
+each checkpoint (:mod:`pcmgn_jax.mgn.checkpoint`).
 """
 from __future__ import annotations
 
-import json
-from pathlib import Path
 from typing import NamedTuple
 
 import jax.numpy as jnp
@@ -33,6 +39,8 @@ class Stats(NamedTuple):
     contact_std: jnp.ndarray
     target_mean: jnp.ndarray
     target_std: jnp.ndarray
+    ball_mean: jnp.ndarray
+    ball_std: jnp.ndarray
 
     def to_json(self) -> dict:
         return {k: np.asarray(v, np.float64).tolist() for k, v in self._asdict().items()}
@@ -41,12 +49,11 @@ class Stats(NamedTuple):
     def from_json(cls, data: dict) -> "Stats":
         return cls(**{k: np.asarray(data[k], np.float32) for k in cls._fields})
 
-    def save(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(self.to_json(), indent=1))
 
-    @classmethod
-    def load(cls, path: str | Path) -> "Stats":
-        return cls.from_json(json.loads(Path(path).read_text()))
+def guard_std(mean: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """Zero-variance guard: std -> 1 where it is not finite or ~0 relative to |mean|."""
+    ok = np.isfinite(std) & (std > 1e-8 * (np.abs(mean) + 1e-30))
+    return np.where(ok, std, 1.0)
 
 
 class Accumulator:
@@ -80,39 +87,69 @@ class Accumulator:
         return mean, guard_std(mean, np.sqrt(var))
 
 
-def guard_std(mean: np.ndarray, std: np.ndarray) -> np.ndarray:
-    """Zero-variance guard: std -> 1 where it is not finite or ~0 relative to |mean|."""
-    ok = np.isfinite(std) & (std > 1e-8 * (np.abs(mean) + 1e-30))
-    return np.where(ok, std, 1.0)
+class TypedAccumulator:
+    """One :class:`Accumulator` per node type plus one over all samples."""
+
+    def __init__(self, n_types: int, channels: int):
+        self.all = Accumulator(channels)
+        self.per = [Accumulator(channels) for _ in range(n_types)]
+
+    def add(self, x, types, mask=None) -> None:
+        x = np.asarray(x, np.float64)
+        types = np.asarray(types)
+        keep = np.ones(types.shape, bool) if mask is None else np.asarray(mask, bool)
+        self.all.add(x, keep)
+        for k, acc in enumerate(self.per):
+            acc.add(x, keep & (types == k))
+
+    def result(self, per_part: bool) -> tuple[np.ndarray, np.ndarray]:
+        """(mean, std) of shape [T, C]: per type (types without samples: all-node values) or global."""
+        gm, gs = self.all.result()
+        rows = [(a.result() if (per_part and a.n) else (gm, gs)) for a in self.per]
+        return np.stack([r[0] for r in rows]), np.stack([r[1] for r in rows])
 
 
-def make_stats(*, node: Accumulator, mesh: Accumulator, contact: Accumulator, target: Accumulator,
+def make_stats(*, node: TypedAccumulator, mesh: TypedAccumulator, contact: Accumulator,
+               motion: TypedAccumulator, stress: TypedAccumulator, ball: Accumulator, per_part: bool,
                contact_default_std: float = 1.0) -> Stats:
-    nm, ns = node.result()
-    mm, ms = mesh.result()
-    cm, cs = contact.result(default_std=contact_default_std)
-    tm, ts = target.result()
+    """Stats from accumulators; the per-node target rows join the motion (a_x, a_y) and stress channels."""
     f = lambda a: np.asarray(a, np.float32)  # noqa: E731
-    return Stats(f(nm), f(ns), f(mm), f(ms), f(cm), f(cs), f(tm), f(ts))
+    nm, ns = node.result(per_part)
+    mm, ms = mesh.result(per_part)
+    cm, cs = contact.result(default_std=contact_default_std)
+    (am, as_), (sm, ss) = motion.result(per_part), stress.result(per_part)
+    tm, ts = np.concatenate([am, sm], axis=1), np.concatenate([as_, ss], axis=1)
+    bm, bs = ball.result()
+    return Stats(f(nm), f(ns), f(mm), f(ms), f(cm), f(cs), f(tm), f(ts), f(bm), f(bs))
 
 
-def normalize_graph(stats: Stats, graph: jraph.GraphsTuple, n_node_types: int) -> jraph.GraphsTuple:
-    """Normalised copy of a raw graph from :func:`pcmgn_jax.mgn.graphs.build_graph`."""
+def normalize_graph(stats: Stats, graph: jraph.GraphsTuple, node_type) -> jraph.GraphsTuple:
+    """Normalised copy of a raw graph from :func:`pcmgn_jax.mgn.graphs.build_graph`.
+
+    ``node_type`` (N,) int: the row of the statistics for each node (mesh edges use the receiver's).
+    """
+    node_type = jnp.asarray(node_type)
+    stats = Stats(*(jnp.asarray(a) for a in stats))  # NumPy statistics index with traced types too
+    k = stats.node_mean.shape[-1]
     nodes = graph.nodes
-    onehot, phys = nodes[..., :n_node_types], nodes[..., n_node_types:]
-    nodes = jnp.concatenate([onehot, (phys - stats.node_mean) / stats.node_std], axis=-1)
-    edges = {}
-    for key, (m, s) in {"mesh": (stats.mesh_mean, stats.mesh_std),
-                        "contact": (stats.contact_mean, stats.contact_std)}.items():
-        es: EdgeSet = graph.edges[key]
-        feats = (es.features - m) / s
-        edges[key] = es._replace(features=jnp.where(es.mask[..., None], feats, 0.0))
-    return graph._replace(nodes=nodes, edges=edges)
+    onehot, phys = nodes[..., :-k], nodes[..., -k:]
+    nodes = jnp.concatenate([onehot, (phys - stats.node_mean[node_type]) / stats.node_std[node_type]], axis=-1)
+    mesh: EdgeSet = graph.edges["mesh"]
+    rt = node_type[mesh.receivers]
+    mesh = mesh._replace(features=(mesh.features - stats.mesh_mean[rt]) / stats.mesh_std[rt])
+    cont: EdgeSet = graph.edges["contact"]
+    feats = (cont.features - stats.contact_mean) / stats.contact_std
+    cont = cont._replace(features=jnp.where(cont.mask[..., None], feats, 0.0))
+    return graph._replace(nodes=nodes, edges={"mesh": mesh, "contact": cont})
 
 
-def normalize_target(stats: Stats, target):
-    return (target - stats.target_mean) / stats.target_std
+def normalize_target(stats: Stats, node_type, target):
+    """(N, 3) physical per-node target -> normalised, with each node's type row."""
+    node_type = jnp.asarray(node_type)
+    return (target - jnp.asarray(stats.target_mean)[node_type]) / jnp.asarray(stats.target_std)[node_type]
 
 
-def denormalize_output(stats: Stats, output):
-    return output * stats.target_std + stats.target_mean
+def denormalize_output(stats: Stats, node_type, output):
+    """(N, >=3) normalised model output -> physical [a_x, a_y, von Mises] (N, 3)."""
+    node_type = jnp.asarray(node_type)
+    return output[:, :3] * jnp.asarray(stats.target_std)[node_type] + jnp.asarray(stats.target_mean)[node_type]

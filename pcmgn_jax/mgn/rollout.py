@@ -1,20 +1,10 @@
-"""Targets, the one-step update and the jitted ``lax.scan`` rollout.
+"""The learned simulator: one jitted step and the ``lax.scan`` rollout.
 
 State of a frame: reference ``points`` (N,2) [m], displacement ``u`` (N,2) [m], velocity ``v`` (N,2)
-[m/s]. World position = points + u; positions are integrated on the *displacement* so float32 keeps µm
-steps on mm coordinates.
-
-Targets (paper Table "output quantities"), model outputs [a_x, a_y, von Mises]:
-
-- ``velocity``     a = (u_{t+1} - u_t) / dt, update u_{t+1} = u_t + a dt (paper eq. forward Euler).
-  The target is the frame-averaged velocity, i.e. exactly the velocity for which the Euler step
-  reproduces the next frame; the solver's instantaneous v_{t+1} would leave an O(dv dt / 2) error per
-  step (~2 µm accumulated over an impact).
-- ``displacement`` a = u_{t+1} - u_t, update u_{t+1} = u_t + a.
-- ``position``     a = x_{t+1} (world), update u_{t+1} = a - points.
-
-Velocity *input* feature: the solver velocity at frame 0, then (u_t - u_{t-1}) / dt -- what the rollout
-feeds back -- so training inputs match rollout inputs.
+[m/s] (frame-averaged, (u_t - u_{t-1}) / dt; the solver's at frame 0). World position = points + u;
+positions are integrated on the *displacement* so float32 keeps µm steps on mm coordinates. What the
+model predicts and how it becomes the next frame is the :class:`~pcmgn_jax.mgn.formulation.Formulation`
+(targets, rigid ball, normalisation, features).
 
 Boundary conditions re-imposed after every step: fixed nodes (node_type == n_parts) u = v = 0;
 symmetry-axis nodes (x = 0) u_x = v_x = 0. Contact edges are recomputed from the predicted positions
@@ -23,7 +13,7 @@ inside the scan; every frame reports contact-buffer overflow (callers grow the b
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import flax.linen as nn
@@ -32,23 +22,20 @@ import jax.numpy as jnp
 import numpy as np
 
 from pcmgn_jax.mgn import contact as contact_lib
+from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, integrate, rigidify
 from pcmgn_jax.mgn.graphs import Topology, build_graph
 from pcmgn_jax.mgn.normalization import Stats, denormalize_output, normalize_graph
-
-TARGETS = ("velocity", "displacement", "position")
 
 
 @dataclass(frozen=True)
 class Spec:
-    """Static (hashable) settings of the simulator: the jit cache key."""
+    """Static (hashable) settings of the learned simulator: the jit cache key."""
 
-    model: nn.Module          # EncodeProcessDecode
-    target: str = "velocity"  # velocity | displacement | position
-    dt: float = 4e-6          # frame interval [s]
+    model: nn.Module                                         # EncodeProcessDecode
+    formulation: Formulation = field(default_factory=Formulation)
+    dt: float = 4e-6                                         # frame interval [s]
 
     def __post_init__(self):
-        if self.target not in TARGETS:
-            raise ValueError(f"target must be one of {TARGETS}, got {self.target!r}")
         if not self.dt > 0:
             raise ValueError(f"dt must be > 0 [s], got {self.dt!r}")
 
@@ -61,41 +48,16 @@ class Rollout(NamedTuple):
     contact_count: jnp.ndarray  # [T] int32 directed contact edges needed
 
 
-# ---- targets (host or device; float64 NumPy in, any float out) ------------------------------------
-
-def input_velocity(displacement, velocity, t: int, dt: float):
-    """Velocity feature of frame t: solver velocity at t = 0, else (u_t - u_{t-1}) / dt."""
-    if t == 0:
-        return velocity[0]
-    return (displacement[t] - displacement[t - 1]) / dt
+def ball_mask(topology: Topology):
+    return jnp.asarray(topology.node_type) == BALL_PART
 
 
-def make_target(target: str, *, points, u_t, u_next, vm_next, dt: float):
-    """Physical (SI) training target (N, 3) for one step."""
-    if target == "velocity":
-        a = (u_next - u_t) / dt
-    elif target == "displacement":
-        a = u_next - u_t
-    elif target == "position":
-        a = points + u_next
-    else:
-        raise ValueError(f"target must be one of {TARGETS}, got {target!r}")
-    return np.concatenate([a, np.asarray(vm_next)[:, None]], axis=-1) if isinstance(a, np.ndarray) \
-        else jnp.concatenate([a, vm_next[:, None]], axis=-1)
-
-
-def integrate(spec: Spec, topology: Topology, points, u, out):
-    """Apply the update rule to physical outputs ``out`` (N,3); returns (u_next, v_next, vm_next)."""
-    a = out[:, :2]
-    if spec.target == "velocity":
-        u_next = u + a * spec.dt
-    elif spec.target == "displacement":
-        u_next = u + a
-    else:
-        u_next = a - points
-    u_next = impose_bc(topology, u_next)
-    v_next = (u_next - u) / spec.dt if spec.target != "velocity" else impose_bc(topology, a)
-    return u_next, v_next, out[:, 2]
+def ball_output(topology: Topology, out):
+    """The rigid ball's normalised output (2,): softmax(score)-weighted mean of the ball nodes' a_x, a_y."""
+    ball = ball_mask(topology)
+    score = jnp.where(ball, out[:, 3], -jnp.inf)
+    w = jax.nn.softmax(jnp.where(jnp.any(ball), score, 0.0))
+    return jnp.sum(w[:, None] * out[:, :2], axis=0)
 
 
 def impose_bc(topology: Topology, field):
@@ -112,16 +74,29 @@ def predict(spec: Spec, params, stats: Stats, topology: Topology, index: contact
     points = jnp.asarray(points, jnp.float32)
     u = jnp.asarray(u, jnp.float32)
     edges = contact_lib.update(index, points + u)
-    graph = build_graph(topology, points=points, displacement=u, velocity=v, contact=edges)
-    graph = normalize_graph(stats, graph, topology.n_node_types)
+    graph = build_graph(topology, points=points, displacement=u, velocity=v, contact=edges,
+                        features=spec.formulation.features)
+    graph = normalize_graph(stats, graph, topology.node_type)
     return spec.model.apply(params, graph), edges
 
 
 def step(spec: Spec, params, stats: Stats, topology: Topology, index, points, u, v):
     """One frame forward: (u, v) -> (u_next, v_next, vm_next, contact edges)."""
     out, edges = predict(spec, params, stats, topology, index, points, u, v)
-    u_next, v_next, vm = integrate(spec, topology, points, u, denormalize_output(stats, out))
+    u_next, v_next, vm = integrate_output(spec, stats, topology, points, u, v, out)
     return u_next, v_next, vm, edges
+
+
+def integrate_output(spec: Spec, stats: Stats, topology: Topology, points, u, v, out):
+    """Normalised model output (N, k) -> next (u, v) with boundary conditions, and von Mises (N,) [Pa]."""
+    form = spec.formulation
+    phys = denormalize_output(stats, topology.node_type, out)
+    a_ball = None
+    if form.rigid_ball:
+        a_ball = ball_output(topology, out) * stats.ball_std + stats.ball_mean
+    u_next, v_next = integrate(form, ball_mask(topology), points=jnp.asarray(points, jnp.float32), u=u, v=v,
+                               a=phys[:, :2], a_ball=a_ball, dt=spec.dt)
+    return impose_bc(topology, u_next), impose_bc(topology, v_next), phys[:, 2]
 
 
 @functools.partial(jax.jit, static_argnames=("spec",))
@@ -140,6 +115,8 @@ def _rollout(spec: Spec, n_steps: int, params, stats, topology, index, points, u
 
     u0 = impose_bc(topology, jnp.asarray(u0, jnp.float32))
     v0 = jnp.asarray(v0, jnp.float32)
+    if spec.formulation.rigid_ball:
+        u0, v0 = rigidify(u0, ball_mask(topology)), rigidify(v0, ball_mask(topology))
     _, (us, vs, vms, ovf, cnt) = jax.lax.scan(body, (u0, v0), None, length=n_steps)
     cat = lambda a, b: jnp.concatenate([a[None], b], axis=0)  # noqa: E731
     return Rollout(cat(u0, us), cat(v0, vs), cat(jnp.asarray(vm0, jnp.float32), vms), ovf, cnt)

@@ -1,8 +1,8 @@
-"""Ball / cover-glass penetration: boundary nodes, stable polynomial fits, the paper's loss, a fit-free metric.
+"""Ball / cover-glass penetration loss: stable polynomial fits and the paper's loss term.
 
 Paper section 2.3 (DESIGN.md §6), made numerically safe:
 
-1. :func:`boundary_nodes` (host, NumPy, once per reference mesh): ball bottom nodes and cover-glass (CG) top
+1. (in :mod:`pcmgn_jax.geometry`) ``boundary_nodes`` (host, NumPy, once per reference mesh): ball bottom nodes and cover-glass (CG) top
    nodes, sorted by reference x, plus a fixed fit interval ``[x_lo, x_hi]``.
 2. :func:`poly_fit_eval` (jittable, differentiable): least-squares polynomial of a static degree. x is mapped
    to t in [-1, 1] on the fixed interval, the basis is Legendre (orthogonal on [-1, 1]), y is centred and
@@ -11,7 +11,7 @@ Paper section 2.3 (DESIGN.md §6), made numerically safe:
    x^6 of a millimetre is 1e-18 and cond(V^T V) = cond(V)^2.
 3. :func:`penetration_depth`, :func:`penetration_loss`: d = y_CG(x) - y_ball(x) at the ball boundary nodes
    inside the overlap of both x ranges; L_pen = mean of (d / length_scale)^2 over nodes with d > 0.
-4. :func:`signed_distance_to_polyline`, :func:`penetration_stats`: fit-free evaluation metric (true
+4. (in :mod:`pcmgn_jax.eval.metrics`) ``signed_distance_to_polyline``, ``penetration_stats``: fit-free evaluation metric (true
    Euclidean distance of ball boundary nodes to the CG top polyline, negative = penetration).
 
 Coordinates: x = radius >= 0 (axisymmetric half model, axis at x = 0) or width, y = height, both [m];
@@ -20,175 +20,23 @@ the ball sits above the panel. All public inputs and outputs are SI metres excep
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.linalg import solve_triangular
 
-from pcmgn_jax import geometry
 
 __all__ = [
-    "BoundaryNodes",
-    "boundary_nodes",
     "legendre_basis",
     "poly_fit",
     "poly_fit_eval",
     "penetration_depth",
     "penetration_loss",
-    "signed_distance_to_polyline",
-    "penetration_stats",
 ]
 
 DEFAULT_RIDGE = 1e-10
 DEFAULT_REFINE = 3
-
-
-# ---------------------------------------------------------------------------------------------------------
-# 1. Boundary nodes (host side, reference mesh, once)
-# ---------------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class BoundaryNodes:
-    """Boundary node sets of the declared contact pair, from the reference mesh.
-
-    ball:      (Mb,) int64  node indices of the ball's lower surface, sorted by reference x
-    panel:     (Mp,) int64  node indices of the cover glass top surface, sorted by reference x
-    interval:  (x_lo, x_hi) [m] fixed fit interval mapped to t in [-1, 1]; covers both sets' reference x
-               with a margin for the expected motion (radial displacements are O(µm))
-    ball_rule, panel_rule: how each set was found ('columns' | 'edges' | 'bins'), see boundary_nodes.
-    """
-
-    ball: np.ndarray
-    panel: np.ndarray
-    interval: tuple[float, float]
-    ball_rule: str = "columns"
-    panel_rule: str = "columns"
-
-
-def _x_clusters(x: np.ndarray, tol: float) -> np.ndarray:
-    """Column label of every entry of x: single-linkage clusters of sorted x with gaps <= tol."""
-    order = np.argsort(x, kind="stable")
-    xs = x[order]
-    new = np.concatenate([[True], np.diff(xs) > tol])
-    labels_sorted = np.cumsum(new) - 1
-    labels = np.empty_like(labels_sorted)
-    labels[order] = labels_sorted
-    return labels
-
-
-def _extreme_per_label(idx: np.ndarray, labels: np.ndarray, y: np.ndarray, side: str) -> np.ndarray:
-    """For each label, the index (from idx) of the lowest ('bottom') or highest ('top') y."""
-    key = y if side == "bottom" else -y
-    # sort by (label, key); first of each label is the extreme
-    order = np.lexsort((key, labels))
-    first = np.concatenate([[True], labels[order][1:] != labels[order][:-1]])
-    return idx[order[first]]
-
-
-def _surface_nodes(points, idx, side, *, tol, cells, rule, normal_tol):
-    """Lower ('bottom') or upper ('top') surface nodes of one part; returns (indices, rule used)."""
-    x, y = points[idx, 0], points[idx, 1]
-    labels = _x_clusters(x, tol)
-    n_cols = int(labels.max()) + 1 if len(idx) else 0
-    columnar = n_cols <= 0.5 * len(idx)  # a columnar mesh has >= 2 nodes per column on average
-    if rule == "auto":
-        rule = "columns" if columnar else ("edges" if cells is not None else "bins")
-    if rule == "columns":
-        out = _extreme_per_label(idx, labels, y, side)
-    elif rule == "edges":
-        if cells is None:
-            raise ValueError("boundary_nodes: rule 'edges' needs the part's cells")
-        out = geometry.surface_nodes(points, cells, None, 0, facing="down" if side == "bottom" else "up",
-                                     min_normal_y=normal_tol, visible_only=True)
-        out = out[np.isin(out, idx)]
-    elif rule == "bins":
-        # bin x at the mesh spacing h (median nearest-neighbour distance of the part's nodes)
-        from scipy.spatial import cKDTree
-
-        dist, _ = cKDTree(points[idx]).query(points[idx], k=2)
-        h = float(np.median(dist[:, 1]))
-        out = _extreme_per_label(idx, np.floor((x - x.min()) / h).astype(np.int64), y, side)
-    else:
-        raise ValueError(f"boundary_nodes: unknown rule {rule!r} (auto | columns | edges | bins)")
-    return out[np.argsort(points[out, 0], kind="stable")].astype(np.int64), rule
-
-
-def boundary_nodes(
-    points,
-    node_part,
-    *,
-    ball_part: int = 0,
-    panel_part: int = 1,
-    x_max: float | None = None,
-    tol: float | None = None,
-    cells=None,
-    cell_part=None,
-    rule: str = "auto",
-    margin: float | None = None,
-    normal_tol: float = 1e-6,
-) -> BoundaryNodes:
-    """Ball bottom and cover-glass top nodes of the reference mesh (host-side NumPy, call once).
-
-    points:    (N, 2) reference coordinates [m]; node_part: (N,) part ids (0 = ball, 1 = CG, ...).
-    x_max:     [m] keep only nodes with reference x <= x_max (the window where contact can happen; both
-               boundaries use it). None keeps all. Recommended: a few contact radii (0.5-1 mm for the
-               paper's scene), because a degree-5/6 polynomial over the whole 5 mm ball or the whole panel
-               cannot resolve a ~0.25 mm contact patch.
-    tol:       [m] x-column tolerance; default 1e-6 x the mesh's x extent (5 nm on 5 mm).
-    cells, cell_part: optional quad connectivity (E, 4) and per-cell part ids, used by rule 'edges'.
-    rule:      how the surface of each part is found:
-               'columns' (the paper's definition): nodes sharing a reference x within ``tol`` form a
-                   column; ball bottom = lowest ball node per column, CG top = highest CG node per column.
-               'edges': nodes of boundary edges of the part's cells whose outward normal points down
-                   (ball) / up (CG), |n_y| > normal_tol. Exact for any (unstructured) mesh; excludes the
-                   symmetry-axis edge (n_y = 0).
-               'bins': x binned at the mesh spacing (median nearest-neighbour distance), extreme node per
-                   bin. Fallback for unstructured meshes without cells; can pick a node one layer inside
-                   the surface where a bin holds no surface node.
-               'auto' (default): 'columns' if the part is columnar (>= 2 nodes per column on average),
-                   else 'edges' if cells are given, else 'bins'. Decided per part.
-    margin:    [m] added on both sides of the fit interval; default 2 % of the x span (>> the O(µm)
-               radial motion, so predicted x stays inside [-1, 1] after mapping).
-
-    Returns BoundaryNodes(ball, panel, interval, ball_rule, panel_rule).
-    """
-    points = np.asarray(points, dtype=np.float64)
-    node_part = np.asarray(node_part)
-    if points.ndim != 2 or points.shape[1] != 2 or node_part.shape != (points.shape[0],):
-        raise ValueError(f"boundary_nodes: points (N, 2) and node_part (N,) expected, got "
-                         f"{points.shape} and {node_part.shape}")
-    span = float(np.ptp(points[:, 0])) if len(points) else 0.0
-    tol = 1e-6 * max(span, 1e-12) if tol is None else float(tol)
-
-    def part_nodes(pid):
-        idx = np.flatnonzero(node_part == pid)
-        if x_max is not None:
-            idx = idx[points[idx, 0] <= x_max + tol]
-        if len(idx) == 0:
-            raise ValueError(f"boundary_nodes: no nodes of part {pid} (x_max={x_max})")
-        return idx
-
-    def part_cells(pid):
-        if cells is None:
-            return None
-        c = np.asarray(cells)
-        if cell_part is not None:
-            return c[np.asarray(cell_part) == pid]
-        return c[np.all(node_part[c] == pid, axis=1)]
-
-    ball, ball_rule = _surface_nodes(points, part_nodes(ball_part), "bottom", tol=tol,
-                                     cells=part_cells(ball_part), rule=rule, normal_tol=normal_tol)
-    panel, panel_rule = _surface_nodes(points, part_nodes(panel_part), "top", tol=tol,
-                                       cells=part_cells(panel_part), rule=rule, normal_tol=normal_tol)
-    if x_max is not None:
-        ball = ball[points[ball, 0] <= x_max + tol]
-        panel = panel[points[panel, 0] <= x_max + tol]
-    allx = np.concatenate([points[ball, 0], points[panel, 0]])
-    lo, hi = float(allx.min()), float(allx.max())
-    m = 0.02 * max(hi - lo, 1e-12) if margin is None else float(margin)
-    return BoundaryNodes(ball=ball, panel=panel, interval=(lo - m, hi + m),
-                         ball_rule=ball_rule, panel_rule=panel_rule)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -351,7 +199,7 @@ def penetration_depth(ball_xy, panel_xy, *, degree_ball: int = 6, degree_panel: 
     differ by up to +-0.1..0.3 µm inside the contact patch, so ground truth can show d > 0 with
     L_pen ~ 1e-3..7e-2 (µm^2) depending on window and degrees (B.6/P.5: <= 0.03), and a real
     penetration below ~0.1 µm can be hidden by a negative fit error. The fit-free metric
-    (:func:`penetration_stats`) does not have this floor.
+    (``pcmgn_jax.eval.metrics.penetration_stats``) does not have this floor.
     """
     ball_xy = jnp.asarray(ball_xy)
     panel_xy = jnp.asarray(panel_xy)
@@ -409,84 +257,3 @@ def penetration_loss(d, valid, *, length_scale: float = 1e-6, reduction: str = "
 # ---------------------------------------------------------------------------------------------------------
 # 4. Fit-free metric
 # ---------------------------------------------------------------------------------------------------------
-def _xp(*arrays):
-    return np if all(isinstance(a, (np.ndarray, float, int, list, tuple)) for a in arrays) else jnp
-
-
-def signed_distance_to_polyline(points_xy, polyline_xy):
-    """Signed Euclidean distance [m] of points to a polyline (the CG top surface).
-
-    points_xy:   (..., P, 2) points [m] (ball bottom nodes).
-    polyline_xy: (..., S + 1, 2) polyline vertices [m] ordered by increasing x (the CG top nodes in
-                 BoundaryNodes.panel order); leading axes broadcast with points_xy.
-    Returns (..., P): distance to the nearest point of the polyline, positive above it (gap, the outward
-    side of the panel = left of the direction of increasing x), negative below it (penetration), 0 on it.
-    The sign is the side of the nearest segment (at a vertex both adjacent segments agree). Points beyond
-    the polyline's ends are measured to the end vertex; exclude them (penetration_stats does).
-    NumPy in -> NumPy out (float64 stays float64); jax arrays in -> jax array out (jittable).
-    """
-    xp = _xp(points_xy, polyline_xy)
-    p = xp.asarray(points_xy)[..., :, None, :]  # (..., P, 1, 2)
-    poly = xp.asarray(polyline_xy)
-    a = poly[..., None, :-1, :]  # (..., 1, S, 2)
-    ab = poly[..., None, 1:, :] - a
-    l2 = xp.sum(ab * ab, axis=-1)
-    l2s = xp.where(l2 > 0, l2, 1)
-    ap = p - a
-    u = xp.clip(xp.sum(ap * ab, axis=-1) / l2s, 0, 1)
-    diff = ap - u[..., None] * ab  # p - closest point
-    d2 = xp.sum(diff * diff, axis=-1)  # (..., P, S)
-    k = xp.argmin(d2, axis=-1)[..., None]
-    d2min = xp.take_along_axis(d2, k, axis=-1)[..., 0]
-    abk = xp.take_along_axis(xp.broadcast_to(ab, diff.shape), k[..., None], axis=-2)[..., 0, :]
-    dk = xp.take_along_axis(diff, k[..., None], axis=-2)[..., 0, :]
-    cross = abk[..., 0] * dk[..., 1] - abk[..., 1] * dk[..., 0]
-    dist = xp.sqrt(xp.where(d2min > 0, d2min, 0))
-    return xp.where(cross < 0, -dist, dist)
-
-
-def penetration_stats(ball_xy_frames, panel_xy_frames, *, ball_mask=None, threshold_um: float = 0.0):
-    """Fit-free penetration statistics of a rollout (or ground truth), in micrometres.
-
-    ball_xy_frames:  (T, Mb, 2) or (Mb, 2) world positions [m] of the ball bottom nodes.
-    panel_xy_frames: (T, Mp, 2) or (Mp, 2) world positions [m] of the CG top nodes, ordered by x.
-    ball_mask:       optional (Mb,) bool of nodes to include.
-    threshold_um:    a node penetrates when its depth exceeds this [µm] (0: any depth > 0).
-
-    Penetration of a node = max(0, -signed distance to the CG polyline), counted only for nodes whose x
-    lies inside the polyline's x range of that frame. Computed in float64 NumPy.
-    Returns dict:
-      max_um:                  largest penetration over all frames and nodes [µm]
-      mean_um:                 mean depth over all (frame, node) pairs that penetrate [µm] (0 if none)
-      frames_with_penetration: number of frames whose max exceeds threshold_um (int)
-      per_frame_max_um:        (T,) float64 per-frame max [µm]
-      per_frame_mean_um:       (T,) float64 per-frame mean over penetrating nodes [µm] (0 if none)
-    Note: penalty-contact ground truth penetrates slightly too; compare models against its numbers.
-    """
-    b = np.asarray(ball_xy_frames, dtype=np.float64)
-    p = np.asarray(panel_xy_frames, dtype=np.float64)
-    if b.ndim == 2:
-        b = b[None]
-    if p.ndim == 2:
-        p = p[None]
-    t = max(b.shape[0], p.shape[0])
-    b = np.broadcast_to(b, (t,) + b.shape[1:])
-    p = np.broadcast_to(p, (t,) + p.shape[1:])
-    sd = signed_distance_to_polyline(b, p)  # (T, Mb)
-    inside = (b[..., 0] >= p[..., 0].min(axis=-1, keepdims=True)) & \
-             (b[..., 0] <= p[..., 0].max(axis=-1, keepdims=True))
-    if ball_mask is not None:
-        inside &= np.asarray(ball_mask, bool)[None]
-    depth_um = np.where(inside, np.maximum(-sd, 0.0), 0.0) * 1e6
-    pen = depth_um > threshold_um
-    per_max = depth_um.max(axis=-1) if depth_um.shape[-1] else np.zeros(t)
-    cnt = pen.sum(axis=-1)
-    per_mean = np.where(cnt > 0, np.where(pen, depth_um, 0).sum(axis=-1) / np.maximum(cnt, 1), 0.0)
-    n_pen = int(pen.sum())
-    return {
-        "max_um": float(per_max.max()) if t else 0.0,
-        "mean_um": float(depth_um[pen].sum() / n_pen) if n_pen else 0.0,
-        "frames_with_penetration": int(np.sum(per_max > threshold_um)),
-        "per_frame_max_um": per_max,
-        "per_frame_mean_um": per_mean,
-    }

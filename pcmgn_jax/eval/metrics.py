@@ -1,0 +1,169 @@
+"""Every error metric of the project, one definition each (evaluation, validation, export, benchmarks).
+
+Arrays are SI (m, Pa); reports are µm and MPa. A prediction is compared with the truth over frames
+1..T-1 (frame 0 is the given initial state and is excluded everywhere).
+
+- ``position_mae_um``   mean over trajectories, frames 1.., nodes and the two components of
+                        |u_pred - u_true| [µm] (per component, not the Euclidean norm)
+- ``position_rmse_um``  the root mean square of the same per-component errors [µm]
+- ``stress_mae_mpa``, ``stress_rmse_mpa``   the same for the nodal von Mises stress [MPa]
+- ``per_frame_*``       the per-frame MAE (mean over nodes and components), mean and std across
+                        trajectories (frame 0 included as 0, for plotting against time)
+- penetration           fit-free: depth of ball boundary nodes below the cover-glass top polyline
+                        (:func:`penetration_stats`), pooled over all (trajectory, frame, node) triples
+- ``oled_objective``    the design objective of DESIGN §8 in the paper's reading (node average)
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+
+def _check(pred, true, name):
+    pred, true = np.asarray(pred, np.float64), np.asarray(true, np.float64)
+    if pred.shape != true.shape:
+        raise ValueError(f"{name}: prediction shape {pred.shape} != truth shape {true.shape}")
+    if pred.ndim < 2 or pred.shape[-2 if name == "displacement" else -1] == 0:
+        raise ValueError(f"{name}: empty arrays {pred.shape}")
+    return pred, true
+
+
+def position_errors_um(pred_u, true_u) -> np.ndarray:
+    """|u_pred - u_true| per component [µm] of frames 1.. : (B, T-1, N, 2) from (B, T, N, 2) [m]."""
+    pred, true = _check(pred_u, true_u, "displacement")
+    return np.abs(pred - true)[:, 1:] * 1e6
+
+
+def stress_errors_mpa(pred_vm, true_vm) -> np.ndarray:
+    """|s_pred - s_true| [MPa] of frames 1.. : (B, T-1, N) from (B, T, N) [Pa]."""
+    pred, true = _check(pred_vm, true_vm, "von_mises")
+    return np.abs(pred - true)[:, 1:] * 1e-6
+
+
+def position_mae_um(pred_u, true_u) -> float:
+    return float(position_errors_um(pred_u, true_u).mean())
+
+
+def field_metrics(pred_u, pred_vm, true_u, true_vm) -> dict:
+    """Position and stress MAE / RMSE and their per-frame curves (see the module docstring)."""
+    pe = position_errors_um(pred_u, true_u)
+    se = stress_errors_mpa(pred_vm, true_vm)
+    pf_pos = np.concatenate([np.zeros((pe.shape[0], 1)), pe.mean(axis=(2, 3))], axis=1)
+    pf_s = np.concatenate([np.zeros((se.shape[0], 1)), se.mean(axis=2)], axis=1)
+    return dict(position_mae_um=float(pe.mean()), position_rmse_um=float(np.sqrt(np.mean(pe ** 2))),
+                stress_mae_mpa=float(se.mean()), stress_rmse_mpa=float(np.sqrt(np.mean(se ** 2))),
+                per_frame_position_mae_um_mean=pf_pos.mean(0).tolist(),
+                per_frame_position_mae_um_std=pf_pos.std(0).tolist(),
+                per_frame_stress_mae_mpa_mean=pf_s.mean(0).tolist(),
+                per_frame_stress_mae_mpa_std=pf_s.std(0).tolist())
+
+
+def penetration_summary(per_trajectory: list[dict], *, prefix: str = "penetration", suffix: str = "") -> dict:
+    """Pool :func:`penetration_stats` results of several rollouts: the max depth, the mean depth over
+    every penetrating (trajectory, frame, node) triple, and the number of frames with penetration."""
+    total = sum(p["mean_um"] * p["n_penetrating"] for p in per_trajectory)
+    count = sum(p["n_penetrating"] for p in per_trajectory)
+    return {f"{prefix}_max_um{suffix}": float(max(p["max_um"] for p in per_trajectory)),
+            f"{prefix}_mean_um{suffix}": float(total / count) if count else 0.0,
+            f"{prefix}_frames{suffix}": int(sum(p["frames_with_penetration"] for p in per_trajectory))}
+
+
+def oled_objective_node_mean(node_part, points, von_mises, *, part: int, x_max: float = 3e-3) -> np.ndarray:
+    """The paper's objective: mean von Mises [MPa] of the ``part`` nodes with reference x < ``x_max`` [m],
+    over those nodes and all frames. von_mises (B, T, N) [Pa] -> (B,). NaN when no node qualifies."""
+    sel = (np.asarray(node_part) == part) & (np.asarray(points)[:, 0] < x_max)
+    vm = np.asarray(von_mises, np.float64)
+    if not sel.any():
+        return np.full(vm.shape[0], np.nan)
+    return vm[:, :, sel].mean(axis=(1, 2)) * 1e-6
+
+
+def relative_error_pct(pred, true) -> np.ndarray:
+    """|pred - true| / |true| in % (guarded against a zero truth)."""
+    pred, true = np.asarray(pred, np.float64), np.asarray(true, np.float64)
+    return np.abs(pred - true) / np.maximum(np.abs(true), 1e-12) * 100.0
+
+
+def _xp(*arrays):
+    return np if all(isinstance(a, (np.ndarray, float, int, list, tuple)) for a in arrays) else jnp
+
+
+def signed_distance_to_polyline(points_xy, polyline_xy):
+    """Signed Euclidean distance [m] of points to a polyline (the CG top surface).
+
+    points_xy:   (..., P, 2) points [m] (ball bottom nodes).
+    polyline_xy: (..., S + 1, 2) polyline vertices [m] ordered by increasing x (the CG top nodes in
+                 BoundaryNodes.panel order); leading axes broadcast with points_xy.
+    Returns (..., P): distance to the nearest point of the polyline, positive above it (gap, the outward
+    side of the panel = left of the direction of increasing x), negative below it (penetration), 0 on it.
+    The sign is the side of the nearest segment (at a vertex both adjacent segments agree). Points beyond
+    the polyline's ends are measured to the end vertex; exclude them (penetration_stats does).
+    NumPy in -> NumPy out (float64 stays float64); jax arrays in -> jax array out (jittable).
+    """
+    xp = _xp(points_xy, polyline_xy)
+    p = xp.asarray(points_xy)[..., :, None, :]  # (..., P, 1, 2)
+    poly = xp.asarray(polyline_xy)
+    a = poly[..., None, :-1, :]  # (..., 1, S, 2)
+    ab = poly[..., None, 1:, :] - a
+    l2 = xp.sum(ab * ab, axis=-1)
+    l2s = xp.where(l2 > 0, l2, 1)
+    ap = p - a
+    u = xp.clip(xp.sum(ap * ab, axis=-1) / l2s, 0, 1)
+    diff = ap - u[..., None] * ab  # p - closest point
+    d2 = xp.sum(diff * diff, axis=-1)  # (..., P, S)
+    k = xp.argmin(d2, axis=-1)[..., None]
+    d2min = xp.take_along_axis(d2, k, axis=-1)[..., 0]
+    abk = xp.take_along_axis(xp.broadcast_to(ab, diff.shape), k[..., None], axis=-2)[..., 0, :]
+    dk = xp.take_along_axis(diff, k[..., None], axis=-2)[..., 0, :]
+    cross = abk[..., 0] * dk[..., 1] - abk[..., 1] * dk[..., 0]
+    dist = xp.sqrt(xp.where(d2min > 0, d2min, 0))
+    return xp.where(cross < 0, -dist, dist)
+
+
+def penetration_stats(ball_xy_frames, panel_xy_frames, *, ball_mask=None, threshold_um: float = 0.0):
+    """Fit-free penetration statistics of a rollout (or ground truth), in micrometres.
+
+    ball_xy_frames:  (T, Mb, 2) or (Mb, 2) world positions [m] of the ball bottom nodes.
+    panel_xy_frames: (T, Mp, 2) or (Mp, 2) world positions [m] of the CG top nodes, ordered by x.
+    ball_mask:       optional (Mb,) bool of nodes to include.
+    threshold_um:    a node penetrates when its depth exceeds this [µm] (0: any depth > 0).
+
+    Penetration of a node = max(0, -signed distance to the CG polyline), counted only for nodes whose x
+    lies inside the polyline's x range of that frame. Computed in float64 NumPy.
+    Returns dict:
+      n_penetrating:           number of (frame, node) pairs that penetrate
+      max_um:                  largest penetration over all frames and nodes [µm]
+      mean_um:                 mean depth over all (frame, node) pairs that penetrate [µm] (0 if none)
+      frames_with_penetration: number of frames whose max exceeds threshold_um (int)
+      per_frame_max_um:        (T,) float64 per-frame max [µm]
+      per_frame_mean_um:       (T,) float64 per-frame mean over penetrating nodes [µm] (0 if none)
+    Note: penalty-contact ground truth penetrates slightly too; compare models against its numbers.
+    """
+    b = np.asarray(ball_xy_frames, dtype=np.float64)
+    p = np.asarray(panel_xy_frames, dtype=np.float64)
+    if b.ndim == 2:
+        b = b[None]
+    if p.ndim == 2:
+        p = p[None]
+    t = max(b.shape[0], p.shape[0])
+    b = np.broadcast_to(b, (t,) + b.shape[1:])
+    p = np.broadcast_to(p, (t,) + p.shape[1:])
+    sd = signed_distance_to_polyline(b, p)  # (T, Mb)
+    inside = (b[..., 0] >= p[..., 0].min(axis=-1, keepdims=True)) & \
+             (b[..., 0] <= p[..., 0].max(axis=-1, keepdims=True))
+    if ball_mask is not None:
+        inside &= np.asarray(ball_mask, bool)[None]
+    depth_um = np.where(inside, np.maximum(-sd, 0.0), 0.0) * 1e6
+    pen = depth_um > threshold_um
+    per_max = depth_um.max(axis=-1) if depth_um.shape[-1] else np.zeros(t)
+    cnt = pen.sum(axis=-1)
+    per_mean = np.where(cnt > 0, np.where(pen, depth_um, 0).sum(axis=-1) / np.maximum(cnt, 1), 0.0)
+    n_pen = int(pen.sum())
+    return {
+        "n_penetrating": n_pen,
+        "max_um": float(per_max.max()) if t else 0.0,
+        "mean_um": float(depth_um[pen].sum() / n_pen) if n_pen else 0.0,
+        "frames_with_penetration": int(np.sum(per_max > threshold_um)),
+        "per_frame_max_um": per_max,
+        "per_frame_mean_um": per_mean,
+    }

@@ -1,0 +1,165 @@
+"""Surrogates behind one small interface: designs in, fields out.
+
+    s = fit_baseline("rbf", train_trajs)              # or "none", "nearest", "poly2"; or MGNSurrogate(...)
+    u, vm = s.predict(designs_m)                      # (B, T, N, 2) [m], (B, T, N) [Pa]
+
+``designs_m`` is (B, D) [m], the thicknesses of the scene's ``design_layers`` (in the trajectories'
+``meta['design']`` order). The baselines are fitted on the training split only and need a shared
+topology (every training and predicted design has the same node numbering: true for the built-in
+solver's meshes at a fixed preset, where a design moves nodes but never renumbers them):
+
+- ``none``     nothing moves, zero stress (u = u_0 of the first training trajectory, i.e. 0)
+- ``nearest``  the training trajectory whose design is nearest (Euclidean, in µm)
+- ``poly2``    per node, frame and channel, a least-squares quadratic in the design variables
+               (coordinates scaled to [-1, 1] over the training box)
+- ``rbf``      per node, frame and channel, ``scipy.interpolate.RBFInterpolator`` (thin-plate spline
+               with a linear tail) over the scaled design variables
+
+The MGN surrogate rolls the trained model out from each design's initial state, on that design's mesh
+(built by :mod:`pcmgn_jax.sim.mesh` at the training data's preset).
+"""
+from __future__ import annotations
+
+import time
+from itertools import combinations_with_replacement
+from typing import Sequence
+
+import numpy as np
+
+BASELINES = ("none", "nearest", "poly2", "rbf")
+
+
+def design_of(traj) -> np.ndarray:
+    """(D,) design [m] of a trajectory, in its scene's ``design_layers`` order."""
+    d = traj.meta.get("design")
+    layers = traj.meta.get("scene", {}).get("design_layers")
+    if isinstance(d, dict):
+        return np.array([float(d[k]) for k in (layers or d)])
+    if d is None:
+        raise ValueError(f"trajectory {traj.meta.get('name', '?')}: meta has no 'design'")
+    return np.asarray(d, np.float64)
+
+
+def _fields(trajs) -> np.ndarray:
+    """(B, T*N*3) float64: displacement x, y and von Mises of every frame and node."""
+    return np.stack([np.concatenate([np.asarray(t.displacement, np.float64),
+                                     np.asarray(t.von_mises, np.float64)[..., None]], axis=-1).reshape(-1)
+                     for t in trajs])
+
+
+class FieldRegression:
+    """A baseline fitted on training trajectories of one topology (see the module docstring)."""
+
+    def __init__(self, kind: str, train_trajs: Sequence):
+        if kind not in BASELINES:
+            raise ValueError(f"baseline must be one of {BASELINES}, got {kind!r}")
+        if not train_trajs:
+            raise ValueError("a baseline needs at least one training trajectory")
+        ref = train_trajs[0]
+        for t in train_trajs:
+            if t.displacement.shape != ref.displacement.shape or not np.array_equal(t.cells, ref.cells):
+                raise ValueError(f"baseline {kind!r}: per-node regression needs one shared topology; "
+                                 f"{t.meta.get('name', '?')} differs from {ref.meta.get('name', '?')}")
+        self.name = kind
+        self.shape = ref.displacement.shape  # (T, N, 2)
+        self.x = np.stack([design_of(t) for t in train_trajs])
+        self.lo, self.hi = self.x.min(0), self.x.max(0)
+        t0 = time.perf_counter()
+        if kind == "poly2":
+            self.y = _fields(train_trajs)
+            A = self._poly(self._scale(self.x))
+            if A.shape[0] < A.shape[1]:
+                raise ValueError(f"poly2 needs >= {A.shape[1]} training designs, got {A.shape[0]}")
+            self.coef = np.linalg.lstsq(A, self.y, rcond=None)[0]
+        elif kind == "rbf":
+            from scipy.interpolate import RBFInterpolator
+            self.rbf = RBFInterpolator(self._scale(self.x), _fields(train_trajs), kernel="thin_plate_spline",
+                                       degree=1)
+        elif kind == "nearest":
+            self.y = _fields(train_trajs)
+        self.fit_seconds = time.perf_counter() - t0
+
+    def _scale(self, d):
+        return 2 * (np.asarray(d, np.float64) - self.lo) / np.where(self.hi > self.lo, self.hi - self.lo, 1.0) - 1
+
+    @staticmethod
+    def _poly(z) -> np.ndarray:
+        cols = [np.ones(len(z))] + [z[:, i] for i in range(z.shape[1])]
+        cols += [z[:, i] * z[:, j] for i, j in combinations_with_replacement(range(z.shape[1]), 2)]
+        return np.stack(cols, axis=1)
+
+    def predict(self, designs_m) -> tuple[np.ndarray, np.ndarray]:
+        d = np.atleast_2d(np.asarray(designs_m, np.float64))
+        B = len(d)
+        if self.name == "none":
+            flat = np.zeros((B, int(np.prod(self.shape[:2])) * 3))
+        elif self.name == "nearest":
+            k = np.argmin(((d[:, None] - self.x[None]) ** 2).sum(-1), axis=1)
+            flat = self.y[k]
+        elif self.name == "poly2":
+            flat = self._poly(self._scale(d)) @ self.coef
+        else:
+            flat = self.rbf(self._scale(d))
+        f = flat.reshape((B,) + self.shape[:2] + (3,))
+        return f[..., :2], f[..., 2]
+
+
+class MGNSurrogate:
+    """The trained MGN of a run directory as a surrogate (rollout from each design's initial state)."""
+
+    name = "mgn"
+
+    def __init__(self, workdir, ref, *, which: str = "best", batch: int = 4):
+        from pcmgn_jax.mgn.checkpoint import load
+        self.sim = load(workdir, ref, which=which)
+        self.ref = ref
+        self.batch = batch
+        self.rollout_seconds = 0.0
+
+    def rollout(self, points, u0, v0, vm0) -> tuple[np.ndarray, np.ndarray]:
+        """Roll out from initial states (B, N, 2) x3 and (B, N): (u (B,T,N,2) [m], vm (B,T,N) [Pa]).
+        Batches of ``batch`` designs; the first call of a batch shape compiles outside the timing."""
+        import jax
+
+        from pcmgn_jax.mgn.rollout import rollout_checked
+        s = self.sim
+        T = self.ref.n_frames
+        out_u, out_s = [], []
+        self.rollout_seconds = 0.0
+        for i in range(0, len(points), self.batch):
+            args = [np.asarray(a[i:i + self.batch], np.float32) for a in (points, u0, v0, vm0)]
+            index = s.index
+            _, index = rollout_checked(s.spec, T - 1, s.params, s.stats, s.topology, index, *args, batched=True)
+            t0 = time.perf_counter()
+            res, index = rollout_checked(s.spec, T - 1, s.params, s.stats, s.topology, index, *args, batched=True)
+            jax.block_until_ready(res)
+            self.rollout_seconds += time.perf_counter() - t0
+            self.sim = s._replace(index=index)
+            out_u.append(np.asarray(res.displacement, np.float64))
+            out_s.append(np.asarray(res.von_mises, np.float64))
+        return np.concatenate(out_u), np.concatenate(out_s)
+
+    def rollout_trajectories(self, trajs) -> tuple[np.ndarray, np.ndarray]:
+        """Roll out from frame 0 of each trajectory (their own meshes)."""
+        f = lambda name: np.stack([getattr(t, name)[0] for t in trajs])  # noqa: E731
+        return self.rollout(np.stack([t.points for t in trajs]), f("displacement"), f("velocity"), f("von_mises"))
+
+    def predict(self, designs_m) -> tuple[np.ndarray, np.ndarray]:
+        """Designs (B, D) [m] -> fields, each on its own mesh (the training data's scene and preset)."""
+        from pcmgn_jax.scene import Scene
+        from pcmgn_jax.sim.mesh import build_mesh, roi
+        scene = Scene.from_dict(self.ref.meta["scene"])
+        preset = self.ref.meta.get("solver", {}).get("preset")
+        if preset is None:
+            raise ValueError("MGNSurrogate.predict(designs) needs solver-generated training data (meta.solver."
+                             "preset); use rollout_trajectories for imported data")
+        pts = []
+        for d in np.atleast_2d(designs_m):
+            mesh, _ = roi(build_mesh(scene.with_design(*d), preset), preset)
+            if mesh.n_nodes != self.ref.n_nodes or not np.array_equal(mesh.cells, self.ref.cells):
+                raise ValueError(f"design {np.asarray(d) * 1e6} µm gives another topology than the training mesh")
+            pts.append(mesh.points)
+        pts = np.stack(pts)
+        v0 = np.zeros_like(pts)
+        v0[:, np.asarray(self.ref.node_part) == 0, 1] = -scene.ball.velocity  # the solver's initial state
+        return self.rollout(pts, np.zeros_like(pts), v0, np.zeros(pts.shape[:2]))

@@ -1,0 +1,133 @@
+"""Checkpoints of a trained simulator, and the one way to load one for inference.
+
+A run directory holds ``config.json`` (the resolved :class:`~pcmgn_jax.config.TrainConfig`) and orbax
+checkpoints under ``checkpoints/{periodic,best}/<step>/`` with three items: ``state`` (step, params,
+optimiser state), ``stats`` (the normalisation statistics, stored only here) and ``meta`` (JSON:
+config, contact radius and capacity, frame interval, total steps, best validation error).
+
+    sim = load(workdir, ref_traj)            # Loaded(spec, params, stats, topology, index, meta)
+    res = rollout(sim.spec, n, sim.params, sim.stats, sim.topology, sim.index, ...)
+
+No pickle anywhere: params and stats are orbax arrays, meta is JSON.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import numpy as np
+import orbax.checkpoint as ocp
+
+from pcmgn_jax.config import TrainConfig
+from pcmgn_jax.mgn import contact as contact_lib
+from pcmgn_jax.mgn.graphs import Topology, topology_from_trajectory
+from pcmgn_jax.mgn.model import EncodeProcessDecode
+from pcmgn_jax.mgn.normalization import Stats
+from pcmgn_jax.mgn.rollout import Spec
+
+ITEMS = ("state", "stats", "meta")
+
+
+class Loaded(NamedTuple):
+    """A trained simulator ready for :func:`pcmgn_jax.mgn.rollout.rollout`."""
+
+    spec: Spec
+    params: Any
+    stats: Stats
+    topology: Topology
+    index: contact_lib.ContactIndex
+    meta: dict
+    config: TrainConfig
+
+
+def make_spec(cfg: TrainConfig, dt: float) -> Spec:
+    """The static simulator settings (model sizes, formulation, frame interval [s]) of a config."""
+    form = cfg.formulation_spec()
+    model = EncodeProcessDecode(output_size=form.output_size, latent_size=cfg.latent_size,
+                                mlp_layers=cfg.mlp_layers, message_passing_steps=cfg.message_passing_steps)
+    return Spec(model=model, formulation=form, dt=float(dt))
+
+
+def manager(path: str | Path, max_to_keep: int | None = None) -> ocp.CheckpointManager:
+    return ocp.CheckpointManager(
+        Path(path).absolute(), options=ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True,
+                                                                    enable_async_checkpointing=False),
+        item_names=ITEMS)
+
+
+def save(mgr: ocp.CheckpointManager, state: dict, stats: Stats, meta: dict) -> None:
+    """Write ``state`` (with an int ``step``), the statistics and the JSON ``meta``; waits until done."""
+    step = int(state["step"])
+    mgr.save(step, args=ocp.args.Composite(
+        state=ocp.args.StandardSave(state), stats=ocp.args.StandardSave(dict(stats._asdict())),
+        meta=ocp.args.JsonSave(meta)), force=True)
+    mgr.wait_until_finished()
+
+
+def read_meta(path: str | Path, step: int | None = None) -> tuple[int, dict]:
+    """(step, meta) of the latest (or given) checkpoint in ``path``; FileNotFoundError if none."""
+    mgr = manager(path)
+    step = mgr.latest_step() if step is None else step
+    if step is None:
+        raise FileNotFoundError(f"no checkpoint in {path}")
+    return step, mgr.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
+
+
+def _stats(raw) -> Stats:
+    return Stats(**{k: np.asarray(raw[k], np.float32) for k in Stats._fields})
+
+
+def restore_stats(path: str | Path, step: int | None = None) -> Stats:
+    """The normalisation statistics of the latest (or given) checkpoint in ``path``."""
+    step, _ = read_meta(path, step)
+    return _stats(manager(path).restore(step, args=ocp.args.Composite(stats=ocp.args.StandardRestore()))["stats"])
+
+
+def restore(path: str | Path, template_state: dict, step: int | None = None) -> tuple[dict, Stats, dict]:
+    """(state, stats, meta) from a checkpoint directory (latest step unless ``step``); ``template_state``
+    gives the pytree structure (optimiser state included)."""
+    step, meta = read_meta(path, step)
+    res = manager(path).restore(step, args=ocp.args.Composite(
+        state=ocp.args.StandardRestore(template_state), stats=ocp.args.StandardRestore()))
+    return res["state"], _stats(res["stats"]), meta
+
+
+def checkpoint_dir(workdir: str | Path, which: str = "best") -> Path:
+    """``workdir/checkpoints/<which>``, falling back from an empty 'best' to 'periodic'."""
+    if which not in ("best", "periodic"):
+        raise ValueError(f"which must be 'best' or 'periodic', got {which!r}")
+    path = Path(workdir) / "checkpoints" / which
+    if which == "best" and manager(path).latest_step() is None:
+        path = Path(workdir) / "checkpoints" / "periodic"
+    return path
+
+
+def contact_index_for(ref, scene, *, radius: float, capacity: int) -> contact_lib.ContactIndex:
+    ball_part, panel_part = contact_lib.contact_parts(scene)
+    return contact_lib.allocate(points=ref.points, cells=ref.cells, cell_part=ref.cell_part,
+                                ball_part=ball_part, panel_part=panel_part, radius=radius, capacity=capacity)
+
+
+def load(workdir: str | Path, ref, *, which: str = "best", cfg: TrainConfig | None = None) -> Loaded:
+    """A trained simulator from a run directory, on the mesh of the trajectory ``ref``.
+
+    ``ref`` supplies the mesh (points, cells, parts) and its scene; the parameters and statistics come
+    from the checkpoint (``which``: 'best', or 'periodic' for the latest).
+    """
+    from pcmgn_jax.scene import Scene
+
+    workdir = Path(workdir)
+    cfg = cfg or TrainConfig.load(workdir / "config.json")
+    path = checkpoint_dir(workdir, which)
+    step, meta = read_meta(path)
+    topology = topology_from_trajectory(ref)
+    index = contact_index_for(ref, Scene.from_dict(ref.meta["scene"]), radius=meta["contact_radius"],
+                              capacity=meta["contact_capacity"])
+    spec = make_spec(cfg, meta["dt"])
+    mgr = manager(path)
+    raw = mgr.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(),
+                                                    stats=ocp.args.StandardRestore()))
+    params = jax.tree.map(np.asarray, raw["state"]["params"])
+    stats = _stats(raw["stats"])
+    return Loaded(spec, params, stats, topology, index, meta, cfg)

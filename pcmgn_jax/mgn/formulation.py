@@ -1,0 +1,209 @@
+"""What the network predicts and how a prediction becomes the next frame: the one home of the targets.
+
+A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
+
+- the **target** of the moving nodes (model outputs [a_x, a_y] per node; the third output is the von
+  Mises stress of the next frame, for every formulation):
+
+  ======================  ==============================  ======================================
+  target                  a (physical, SI)                update (u: displacement [m], v: velocity)
+  ======================  ==============================  ======================================
+  ``velocity``            (u_{t+1} - u_t) / dt            u' = u + a dt            (paper)
+  ``displacement``        u_{t+1} - u_t                   u' = u + a
+  ``position``            X + u_{t+1} (world)             u' = a - X
+  ``acceleration``        (v_{t+1} - v_t) / dt            v' = v + a dt, u' = u + v' dt
+  ``total_displacement``  u_{t+1} (from the reference)    u' = a
+  ======================  ==============================  ======================================
+
+  with v_t = (u_t - u_{t-1}) / dt the frame-averaged velocity (the solver's velocity at t = 0), which is
+  also the model's velocity input, in training and in a rollout alike.
+- ``rigid_ball``: the ball (part 0) moves as one rigid body. Its nodes all carry the ball's mean
+  displacement and velocity; the network predicts the ball's single acceleration (or other target) as
+  an attention-weighted mean of its per-node outputs (a softmax over a 4th output channel of the ball
+  nodes), so the nodes that see the contact drive the whole body.
+- ``normalization``: ``global`` (the paper: one mean/std per channel over all nodes) or ``per_part``
+  (one mean/std per channel and node type, so the 2 MPa OLED and the 700 MPa cover glass are both O(1)).
+- ``features``: ``paper`` (nodes [one-hot, world position, velocity], mesh edges [u_ij, |u_ij|, x_ij,
+  |x_ij|]) or ``strain`` (nodes [one-hot, reference position, displacement, velocity], mesh edges
+  [u_ij/|u_ij|, |u_ij|, (u_s - u_r)/|u_ij|, stretch (|x_ij| - |u_ij|)/|u_ij|]: the deformation is a
+  channel of its own instead of 0.01 % of x_ij).
+- ``loss_weighting``: ``nodes`` (the paper: mean over nodes) or ``parts`` (mean over parts of each
+  part's node mean, so 388 ball nodes or the big plate do not outvote the 30 µm OLED).
+
+Noise (training): Gaussian n on the input displacement of the noised nodes (one shared sample for a
+rigid ball); the velocity input is derived from the noisy displacement (v~ = v + n/dt, as in a
+rollout), and the target is corrected so the update from the noisy input lands on the clean next frame
+(:func:`noise_correction`).
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+
+TARGETS = ("velocity", "displacement", "position", "acceleration", "total_displacement")
+NORMALIZATIONS = ("global", "per_part")
+FEATURES = ("paper", "strain")
+LOSS_WEIGHTINGS = ("nodes", "parts")
+NOISE_PARTS = ("none", "ball", "panel", "all")
+BALL_PART = 0  # scene convention: part 0 is the ball, 1.. the layers from the top (scene.py)
+
+
+@dataclass(frozen=True)
+class Formulation:
+    """Static description of what the MGN predicts (a jit cache key; see the module docstring)."""
+
+    ball_target: str = "acceleration"
+    panel_target: str = "total_displacement"
+    rigid_ball: bool = True
+    normalization: str = "per_part"
+    features: str = "strain"
+    loss_weighting: str = "parts"
+
+    def __post_init__(self):
+        for name, allowed in (("ball_target", TARGETS), ("panel_target", TARGETS),
+                              ("normalization", NORMALIZATIONS), ("features", FEATURES),
+                              ("loss_weighting", LOSS_WEIGHTINGS)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"formulation: {name}={getattr(self, name)!r} must be one of {allowed}")
+
+    @property
+    def output_size(self) -> int:
+        """Model outputs per node: a_x, a_y, von Mises (+ the rigid ball's attention score)."""
+        return 4 if self.rigid_ball else 3
+
+    def replace(self, **kw) -> "Formulation":
+        return dataclasses.replace(self, **kw)
+
+
+FORMULATIONS = {
+    # the paper as published: every node predicts its next velocity, one normaliser, raw features
+    "paper": Formulation(ball_target="velocity", panel_target="velocity", rigid_ball=False,
+                         normalization="global", features="paper", loss_weighting="nodes"),
+    # the project's default: each body modelled as what it is
+    "default": Formulation(),
+}
+
+
+def _xp(a):
+    return np if isinstance(a, np.ndarray) else jnp
+
+
+def per_node_target(kind: str, *, points, u_prev, u, u_next, dt: float):
+    """Physical target (N, 2) of ``kind`` for one step (see the table). NumPy or JAX arrays."""
+    if kind == "velocity":
+        return (u_next - u) / dt
+    if kind == "displacement":
+        return u_next - u
+    if kind == "position":
+        return points + u_next
+    if kind == "acceleration":
+        return (u_next - 2.0 * u + u_prev) / (dt * dt)
+    if kind == "total_displacement":
+        return u_next
+    raise ValueError(f"target must be one of {TARGETS}, got {kind!r}")
+
+
+def apply_target(kind: str, *, points, u, v, a, dt: float):
+    """Inverse of :func:`per_node_target`: (u', v') from the physical output ``a`` (N, 2)."""
+    if kind == "velocity":
+        u_next = u + a * dt
+    elif kind == "displacement":
+        u_next = u + a
+    elif kind == "position":
+        u_next = a - points
+    elif kind == "acceleration":
+        u_next = u + (v + a * dt) * dt
+    elif kind == "total_displacement":
+        u_next = a
+    else:
+        raise ValueError(f"target must be one of {TARGETS}, got {kind!r}")
+    return u_next, (u_next - u) / dt
+
+
+def noise_correction(kind: str, noise, dt: float):
+    """What to add to the clean target of ``kind`` when the input displacement carries ``noise`` [m]
+    (and the velocity input noise/dt), so the update from the noisy input lands on the clean frame."""
+    if kind == "velocity":
+        return -noise / dt
+    if kind == "displacement":
+        return -noise
+    if kind == "acceleration":
+        return -2.0 * noise / (dt * dt)
+    if kind in ("position", "total_displacement"):
+        return jnp.zeros_like(noise)
+    raise ValueError(f"target must be one of {TARGETS}, got {kind!r}")
+
+
+def previous_displacement(displacement, velocity, t: int, dt: float):
+    """u_{t-1} (N, 2): the stored frame, or u_0 - v_0 dt before the first frame (velocity input = v_0)."""
+    if t == 0:
+        return displacement[0] - velocity[0] * dt
+    return displacement[t - 1]
+
+
+def is_ball(node_type) -> np.ndarray:
+    return np.asarray(node_type) == BALL_PART
+
+
+def rigid_mean(field, ball_mask):
+    """Mean (2,) of a (N, 2) field over the ball nodes (``ball_mask`` (N,) bool, at least one True)."""
+    xp = _xp(field)
+    w = xp.asarray(ball_mask, field.dtype)[:, None]
+    return xp.sum(field * w, axis=0) / xp.maximum(xp.sum(w), 1.0)
+
+
+def rigidify(field, ball_mask):
+    """``field`` with the ball nodes replaced by their mean (a rigid body). NumPy or JAX."""
+    xp = _xp(field)
+    return xp.where(xp.asarray(ball_mask)[:, None], rigid_mean(field, ball_mask)[None], field)
+
+
+def training_sample(form: Formulation, ball_mask, *, points, u_prev, u, u_next, vm_next, dt: float) -> dict:
+    """Inputs and physical targets of one step (NumPy, host side).
+
+    Returns dict(u (N,2), v (N,2) inputs; target (N,3) per-node [a_x, a_y, von Mises]; ball (2,) the
+    rigid ball's target (zeros unless ``form.rigid_ball``)). With a rigid ball, the ball rows of every
+    displacement are its mean (the ball is rigid to ~0.005 µm in the solver's data).
+    """
+    f = lambda a: np.asarray(a, np.float64)  # noqa: E731
+    points, u_prev, u, u_next = f(points), f(u_prev), f(u), f(u_next)
+    ball = np.asarray(ball_mask, bool)
+    if form.rigid_ball:
+        u_prev, u, u_next = (rigidify(a, ball) for a in (u_prev, u, u_next))
+    kw = dict(points=points, u_prev=u_prev, u=u, u_next=u_next, dt=dt)
+    a = np.where(ball[:, None], per_node_target(form.ball_target, **kw), per_node_target(form.panel_target, **kw))
+    rigid = np.zeros(2)
+    if form.rigid_ball:
+        rigid = per_node_target(form.ball_target, points=rigid_mean(points, ball), u_prev=rigid_mean(u_prev, ball),
+                                u=rigid_mean(u, ball), u_next=rigid_mean(u_next, ball), dt=dt)
+    return dict(u=u, v=(u - u_prev) / dt, target=np.concatenate([a, f(vm_next)[:, None]], axis=-1), ball=rigid)
+
+
+def add_noise(form: Formulation, ball_mask, sample: dict, noise, dt: float) -> dict:
+    """``sample`` (from :func:`training_sample`, JAX arrays) with ``noise`` (N, 2) [m] on the input
+    displacement, the velocity input v + noise/dt, and targets corrected (module docstring). With a
+    rigid ball the caller passes one shared noise vector on all ball rows."""
+    ball = jnp.asarray(ball_mask)[:, None]
+    corr = jnp.where(ball, noise_correction(form.ball_target, noise, dt),
+                     noise_correction(form.panel_target, noise, dt))
+    out = dict(sample, u=sample["u"] + noise, v=sample["v"] + noise / dt,
+               target=jnp.asarray(sample["target"]).at[:, :2].add(corr))
+    if form.rigid_ball:
+        out["ball"] = sample["ball"] + noise_correction(form.ball_target, rigid_mean(noise, ball_mask), dt)
+    return out
+
+
+def integrate(form: Formulation, ball_mask, *, points, u, v, a, a_ball, dt: float):
+    """Next (u', v') (N, 2) from physical per-node outputs ``a`` (N, 2) and the rigid ball's ``a_ball``
+    (2,) (ignored unless ``form.rigid_ball``). Boundary conditions are the caller's."""
+    ball = jnp.asarray(ball_mask)[:, None]
+    un, vn = apply_target(form.panel_target, points=points, u=u, v=v, a=a, dt=dt)
+    if form.rigid_ball:
+        ub, vb = apply_target(form.ball_target, points=rigid_mean(points, ball_mask), u=rigid_mean(u, ball_mask),
+                              v=rigid_mean(v, ball_mask), a=a_ball, dt=dt)
+        return jnp.where(ball, ub[None], un), jnp.where(ball, vb[None], vn)
+    ub, vb = apply_target(form.ball_target, points=points, u=u, v=v, a=a, dt=dt)
+    return jnp.where(ball, ub, un), jnp.where(ball, vb, vn)
