@@ -35,7 +35,7 @@ __all__ = ["CACHE_DIR", "cache_dir", "ensure_cache", "load_split"]
 
 CACHE_DIR = ".cache"
 INDEX = "index.json"
-CACHE_FORMAT = "pcmgn_jax.data.cache"
+CACHE_FORMAT = "pcmgn_jax.cache"
 CACHE_VERSION = 1
 
 

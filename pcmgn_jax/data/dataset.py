@@ -15,7 +15,7 @@ explicit designs (``--designs``) go into a named split (default ``extrap``).
 
 manifest.json::
 
-    {"format": "pcmgn_jax.data.dataset", "format_version": 1, "preset": "cpu", "scene": {...},
+    {"format": "pcmgn_jax.dataset", "format_version": 1, "preset": "cpu", "scene": {...},
      "design_layers": ["OCA1", "OCA2"], "units": {"design_m": "m", "design_um": "µm", "wall_time_s": "s"},
      "splits": {"train": {"origin": {"kind": "lhs", "seed": 0, "n_total": 150, "rows": [0, 100],
                                      "low_m": 5e-05, "high_m": 0.00015},
@@ -49,7 +49,7 @@ __all__ = ["DatasetError", "MANIFEST", "PRESETS", "ensure_dataset", "lhs_designs
            "load_splits", "parse_designs", "split_stems"]
 
 MANIFEST = "manifest.json"
-DATASET_FORMAT = "pcmgn_jax.data.dataset"
+DATASET_FORMAT = "pcmgn_jax.dataset"
 PRESETS = tuple(MESH_PRESETS)          # mesh resolution / frame count (names: sim.mesh.MESH_PRESETS)
 DESIGN_LOW = 50e-6                     # default design range [m] (paper: 50-150 µm)
 DESIGN_HIGH = 150e-6
