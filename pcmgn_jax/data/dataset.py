@@ -30,6 +30,7 @@ never silently mixed.
 """
 from __future__ import annotations
 
+import importlib
 import math
 import os
 import re
@@ -171,9 +172,9 @@ def _is_done(root: Path, entry: dict[str, Any], layers: Sequence[str]) -> bool:
 
 
 def _solver(solve_fn):
-    """(solve_designs or ``solve_fn`` if given, (SolverError,)); the solver (JAX) is imported lazily."""
-    from pcmgn_jax.sim import solver
-
+    """(solve_designs or ``solve_fn`` if given, (SolverError,)); the solver (JAX) is imported lazily,
+    through ``sys.modules`` (``import_module``), so a test can substitute the module."""
+    solver = importlib.import_module("pcmgn_jax.sim.solver")
     return (solve_fn or solver.solve_designs), (solver.SolverError,)
 
 
