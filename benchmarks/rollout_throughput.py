@@ -51,7 +51,7 @@ def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2,
     from pcmgn_jax.mgn.graphs import build_graph, make_topology
     from pcmgn_jax.sim.mesh import build_mesh, roi
     from pcmgn_jax.mgn.model import EncodeProcessDecode
-    from pcmgn_jax.mgn.normalization import Stats, normalize_graph
+    from pcmgn_jax.mgn.normalization import normalize_graph
     from pcmgn_jax.mgn.rollout import Spec
     from pcmgn_jax.scene import default_scene
 
@@ -85,22 +85,24 @@ def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2,
     v0 = np.zeros_like(points)
     v0[:, ball, 1] = -base.ball.velocity
     vm0 = np.zeros(points.shape[:2], np.float32)
-    # normalisation statistics from the initial frame (means/stds of the right magnitudes)
+    # normalisation statistics from the pressed frame (means/stds of the right magnitudes; targets O(1))
+    from pcmgn_jax.mgn.formulation import FORMULATIONS
+    from pcmgn_jax.mgn.normalization import Accumulator, TypedAccumulator, make_stats
+    form = FORMULATIONS["default"]
     edges = contact_lib.update(index, jnp.asarray(pressed[-1], jnp.float32))
-    g = build_graph(topo, points=m0.points, displacement=pressed[-1] - m0.points, velocity=v0[0], contact=edges)
+    g = build_graph(topo, points=m0.points, displacement=pressed[-1] - m0.points, velocity=v0[0], contact=edges,
+                    features=form.features)
     k = topo.n_node_types
-    phys = np.asarray(g.nodes[:, k:], np.float64)
-    mesh_f = np.asarray(g.edges["mesh"].features, np.float64)
-    std = lambda x: np.maximum(x.std(0), 1e-9).astype(np.float32)  # noqa: E731
-    f32 = lambda x: np.asarray(x, np.float32)  # noqa: E731
-    stats = Stats(node_mean=f32(phys.mean(0)), node_std=np.maximum(std(phys), f32([1e-4, 1e-4, 0.3, 0.3])),
-                  mesh_mean=f32(mesh_f.mean(0)), mesh_std=std(mesh_f),
-                  contact_mean=f32(np.zeros(3)), contact_std=f32(np.full(3, radius)),
-                  target_mean=f32(np.zeros(3)), target_std=f32([0.3, 0.3, 1e8]))
-    model = EncodeProcessDecode(output_size=3, latent_size=latent, mlp_layers=mlp_layers,
+    node_type = np.asarray(topo.node_type)
+    acc = dict(node=TypedAccumulator(k, g.nodes.shape[1] - k), mesh=TypedAccumulator(k, 6), contact=Accumulator(3),
+               motion=TypedAccumulator(k, 2), stress=TypedAccumulator(k, 1), ball=Accumulator(2))
+    acc["node"].add(np.asarray(g.nodes[:, k:]), node_type)
+    acc["mesh"].add(np.asarray(g.edges["mesh"].features), node_type[np.asarray(topo.mesh_receivers)])
+    stats = make_stats(**acc, per_part=True, contact_default_std=radius)
+    model = EncodeProcessDecode(output_size=form.output_size, latent_size=latent, mlp_layers=mlp_layers,
                                 message_passing_steps=layers)
-    spec = Spec(model=model, target="velocity", dt=float(base.output_dt))
-    params = model.init(jax.random.PRNGKey(seed), normalize_graph(stats, g, k))
+    spec = Spec(model=model, formulation=form, dt=float(base.output_dt))
+    params = model.init(jax.random.PRNGKey(seed), normalize_graph(stats, g, node_type))
     return dict(spec=spec, params=params, stats=stats, topology=topo, index=index, points=points,
                 u0=u0, v0=v0, vm0=vm0, n_nodes=int(m0.n_nodes), n_mesh_edges=int(topo.mesh_senders.shape[0]),
                 contact_capacity=int(index.capacity), designs_m=designs)

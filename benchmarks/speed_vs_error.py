@@ -49,11 +49,12 @@ def _args(argv):
 # ---- errors ---------------------------------------------------------------------------------------
 
 def errors(pred_u, pred_vm, test_trajs) -> dict:
-    """pred_u (B,T,N,2) [m], pred_vm (B,T,N) [Pa] on the test trajectories' nodes."""
+    """pred_u (B,T,N,2) [m], pred_vm (B,T,N) [Pa] on the test trajectories' nodes (pcmgn_jax.eval.metrics)."""
+    from pcmgn_jax.eval.metrics import position_errors_um, stress_errors_mpa
     tu = np.stack([np.asarray(t.displacement, np.float64) for t in test_trajs])
     ts = np.stack([np.asarray(t.von_mises, np.float64) for t in test_trajs])
-    pos = np.abs(np.asarray(pred_u, np.float64) - tu)[:, 1:] * 1e6
-    st = np.abs(np.asarray(pred_vm, np.float64) - ts)[:, 1:] * 1e-6
+    pos = position_errors_um(pred_u, tu)
+    st = stress_errors_mpa(pred_vm, ts)
     return dict(position_mae_um=float(pos.mean()), position_max_um=float(pos.max()),
                 stress_mae_mpa=float(st.mean()), stress_max_mpa=float(st.max()),
                 finite=bool(np.isfinite(pos).all() and np.isfinite(st).all()))
@@ -62,36 +63,24 @@ def errors(pred_u, pred_vm, test_trajs) -> dict:
 # ---- surrogates ---------------------------------------------------------------------------------
 
 def surrogate_point(workdir, test_trajs, *, which: str = "best", label: str | None = None) -> dict:
+    """The trained MGN of ``workdir`` through the evaluation's surrogate (batched rollouts, compiled
+    before timing); a single-design rollout timed separately."""
     import jax
 
-    from pcmgn_jax.config import TrainConfig
-    from pcmgn_jax.mgn.rollout import rollout_checked
-    from pcmgn_jax.train.loop import load_for_inference
+    from pcmgn_jax.eval.surrogates import MGNSurrogate
 
     workdir = Path(workdir)
-    cfg = TrainConfig.load(workdir / "config.json")
     ref = test_trajs[0]
-    setup, params, _ = load_for_inference(workdir, cfg, ref, which=which)
-    T = ref.n_frames
-    args = [np.stack([getattr(t, f)[0] if f != "points" else t.points for t in test_trajs]).astype(np.float32)
-            for f in ("points", "displacement", "velocity", "von_mises")]
-    run = lambda index: rollout_checked(setup.spec.sim, T - 1, params, setup.stats, setup.topology,  # noqa
-                                        index, *args, batched=True)
-    _, index = run(setup.index)                      # compile + size the contact buffer
-    t0 = time.perf_counter()
-    res, index = run(index)
-    jax.block_until_ready(res)
-    wall = time.perf_counter() - t0
-    one = [x[:1] for x in args]
-    r1 = lambda: rollout_checked(setup.spec.sim, T - 1, params, setup.stats, setup.topology, index,  # noqa
-                                 *one, batched=True)
-    jax.block_until_ready(r1()[0])
-    t0 = time.perf_counter()
-    jax.block_until_ready(r1()[0])
-    wall1 = time.perf_counter() - t0
+    mgn = MGNSurrogate(workdir, ref, which=which, batch=len(test_trajs))
+    pu, pvm = mgn.rollout_trajectories(test_trajs)
+    wall = mgn.rollout_seconds
+    one = MGNSurrogate(workdir, ref, which=which, batch=1)
+    one.rollout_trajectories(test_trajs[:1])
+    wall1 = one.rollout_seconds
+    cfg = mgn.sim.config
     mesh_s = _mesh_build_s(ref)
-    n_params = int(sum(x.size for x in jax.tree.leaves(params)))
-    err = errors(res.displacement, res.von_mises, test_trajs)
+    n_params = int(sum(x.size for x in jax.tree.leaves(mgn.sim.params)))
+    err = errors(pu, pvm, test_trajs)
     per = wall / len(test_trajs)
     return dict(kind="surrogate", label=label or f"MGN {cfg.latent_size}x{cfg.message_passing_steps} "
                 f"({workdir.name})", workdir=str(workdir), latent=cfg.latent_size,

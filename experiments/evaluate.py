@@ -1,8 +1,9 @@
 """Evaluate a run: ``python -m experiments.evaluate --workdir RUN [--which best|periodic]``.
 
+Rolls the model out on the run's test split and scores it beside the baselines fitted on its training
+split (nothing moves, nearest training design, per-node quadratic and RBF regression over the design).
 Writes RUN/eval/metrics.json and PNG plots (see pcmgn_jax.eval.evaluate).
 """
-import json
 import sys
 from dataclasses import dataclass
 from typing import Literal
@@ -24,11 +25,9 @@ def main(argv=None) -> int:
     from pcmgn_jax.config import TrainConfig
     from pcmgn_jax.data.dataset import load_splits
     cfg = TrainConfig.load(f"{args.workdir}/config.json")
-    _, _, test = load_splits(cfg.resolved_dataset_dir, n_train=0, n_val=0, n_test=cfg.n_test)
-    m = evaluation.evaluate(args.workdir, test_trajs=test, cfg=cfg, which=args.which)
-    keys = ("position_mae_um", "position_rmse_um", "stress_mae_mpa", "stress_rmse_mpa", "penetration_max_um",
-            "rollout_seconds_per_trajectory")
-    print(json.dumps({k: m[k] for k in keys}, indent=1))
+    train, _, test = load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train, n_val=0, n_test=cfg.n_test)
+    m = evaluation.evaluate(args.workdir, test_trajs=test, train_trajs=train, which=args.which)
+    print(evaluation.summary_table(m))
     print(f"wrote {args.workdir}/eval/metrics.json and PNGs")
     return 0
 

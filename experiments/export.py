@@ -31,9 +31,9 @@ class ExportArgs:
 def predict_with_model(workdir: Path, truth):
     """(displacement (T,N,2) [m], von_mises (T,N) [Pa]) of the trained model in ``workdir``
     rolled out from frame 0 of ``truth`` (best checkpoint)."""
-    from pcmgn_jax.eval.evaluate import predict_trajectories
+    from pcmgn_jax.eval.surrogates import MGNSurrogate
 
-    disp, vm, _, _ = predict_trajectories(workdir, [truth])
+    disp, vm = MGNSurrogate(workdir, truth).rollout_trajectories([truth])
     return disp[0], vm[0]
 
 

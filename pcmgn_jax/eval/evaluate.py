@@ -94,6 +94,21 @@ SUMMARY_KEYS = ("position_mae_um", "position_rmse_um", "stress_mae_mpa", "stress
                 "penetration_mean_um", "oled_objective_rel_error_pct_mean")
 
 
+def summary_table(m: dict) -> str:
+    """A Markdown table of the model's and the baselines' summary metrics (from ``evaluate``)."""
+    cols = ("position_mae_um", "stress_mae_mpa", "oled_objective_rel_error_pct_mean", "penetration_max_um")
+    head = "| predictor | position MAE [µm] | stress MAE [MPa] | OLED objective error [%] | max penetration [µm] |"
+    rows = [head, "|---|---|---|---|---|"]
+    preds = [("MGN", m)] + [(k, v) for k, v in m.get("baselines", {}).items()]
+    for name, v in preds:
+        if "not_applicable" in v:
+            rows.append(f"| {name} | n/a: {v['not_applicable']} | | | |")
+            continue
+        rows.append("| " + " | ".join([name] + [f"{v[c]:.4g}" if c in v else "-" for c in cols]) + " |")
+    rows.append(f"| ground truth | | | | {m.get('penetration_max_um_truth', float('nan')):.4g} |")
+    return "\n".join(rows)
+
+
 def baseline_metrics(train_trajs, test_trajs, scene, bnodes, pnodes) -> dict:
     """Every baseline of :mod:`pcmgn_jax.eval.surrogates` fitted on ``train_trajs``, scored on the test
     trajectories like the model (a baseline that does not apply says why instead of a number)."""

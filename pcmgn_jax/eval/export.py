@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from pcmgn_jax.eval.metrics import field_metrics
 from pcmgn_jax.trajectory import Trajectory
 from pcmgn_jax.data.trajectory_io import to_jsonable, trajectory_paths, write_xdmf_series
 
@@ -33,15 +34,13 @@ COMPARISON_FORMAT = "pcmgn_jax.comparison"
 
 
 def comparison_summary(truth: Trajectory, pred_disp: np.ndarray, pred_vm: np.ndarray) -> dict[str, Any]:
-    """Errors of a prediction: position [µm] and von Mises [MPa] MAE/RMSE, overall and per frame."""
-    err = np.linalg.norm(pred_disp - np.asarray(truth.displacement, np.float64), axis=-1) * 1e6
-    serr = np.abs(pred_vm - np.asarray(truth.von_mises, np.float64)) * 1e-6
-    return {
-        "position_mae_um": float(err.mean()), "position_rmse_um": float(np.sqrt((err ** 2).mean())),
-        "stress_mae_mpa": float(serr.mean()), "stress_rmse_mpa": float(np.sqrt((serr ** 2).mean())),
-        "per_frame": {"position_mae_um": err.mean(axis=1).tolist(),
-                      "stress_mae_mpa": serr.mean(axis=1).tolist()},
-    }
+    """Errors of a prediction (:func:`pcmgn_jax.eval.metrics.field_metrics`, the evaluation's definitions):
+    position [µm] and von Mises [MPa] MAE/RMSE over frames 1.., and per frame."""
+    m = field_metrics(np.asarray(pred_disp, np.float64)[None], np.asarray(pred_vm, np.float64)[None],
+                      np.asarray(truth.displacement, np.float64)[None], np.asarray(truth.von_mises, np.float64)[None])
+    return {**{k: m[k] for k in ("position_mae_um", "position_rmse_um", "stress_mae_mpa", "stress_rmse_mpa")},
+            "per_frame": {"position_mae_um": m["per_frame_position_mae_um_mean"],
+                          "stress_mae_mpa": m["per_frame_stress_mae_mpa_mean"]}}
 
 
 def export_comparison(truth: Trajectory, pred: np.ndarray, pred_von_mises: np.ndarray,

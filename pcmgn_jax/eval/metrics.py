@@ -15,6 +15,7 @@ Arrays are SI (m, Pa); reports are µm and MPa. A prediction is compared with th
 """
 from __future__ import annotations
 
+import jax.numpy as jnp
 import numpy as np
 
 

@@ -71,7 +71,7 @@ def count_pairs(index_nodes: tuple[np.ndarray, np.ndarray, np.ndarray], position
 
 
 def allocate(*, points: np.ndarray, cells: np.ndarray, cell_part: np.ndarray, ball_part: int = 0,
-             panel_part: int = 1, radius: float, positions=(), capacity_factor: float = 1.5,
+             panel_part: int = 1, radius: float, positions=(), capacity_factor: float = 2.0,
              min_capacity: int = 64, capacity: int | None = None) -> ContactIndex:
     """Host-side: candidates from the reference mesh and a buffer sized from ``positions``.
 

@@ -21,6 +21,7 @@ from typing import Sequence
 import jax
 import numpy as np
 
+from pcmgn_jax.cli import check_resume
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.eval.metrics import position_mae_um
 from pcmgn_jax.mgn import checkpoint
@@ -76,6 +77,8 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
     """Train; returns a summary dict. ``stop_after``: stop (as if killed) after that many steps."""
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
+    if resume:
+        check_resume(cfg, workdir)  # a resumed run keeps its config.json; a changed config is refused
     periodic_dir = workdir / "checkpoints" / "periodic"
     periodic = checkpoint.manager(periodic_dir, cfg.max_to_keep)
     best_mgr = checkpoint.manager(workdir / "checkpoints" / "best", 1)
