@@ -37,7 +37,7 @@ class TrainConfig:
     formulation: str = "default"     # paper (as published) | default (each body as what it is); "" fields below keep it
     target: str = ""                 # every node's target: velocity | displacement | position | acceleration | total_displacement
     ball_target: str = ""            # the ball's target (default formulation: acceleration)
-    panel_target: str = ""           # the layers' target (default formulation: total_displacement)
+    panel_target: str = ""           # the layers' target (default formulation: velocity)
     ball_model: str = ""             # rigid (one body, driven by its contact nodes; default) | nodes (paper)
     normalization: str = ""          # per_part (default) | global (paper: one normaliser for all nodes)
     features: str = ""               # strain (default: deformation channels of their own) | paper
@@ -49,8 +49,9 @@ class TrainConfig:
     pen_x_max: float = 1e-3          # [m] boundary nodes with reference x <= this enter the fits
     pen_length_scale: float = 1e-6   # [m] unit of the penetration depth d in L_pen (µm, see penetration.py)
     noise_std: float = 0.0           # Gaussian noise on the input displacement [m], all noised nodes (paper: 3e-7)
-    noise_rel: float = 0.0           # or per part: sigma = noise_rel x the part's RMS motion per frame (noise_std = 0)
+    noise_rel: float = 0.0           # used when noise_std = 0: sigma per part = noise_rel x its RMS motion per frame
     noise_parts: str = "none"        # none | ball | panel | all
+    pushforward: bool = False        # inputs of the noise_parts = the model's own one-step prediction (no gradient through it)
     # ---- optimisation -----------------------------------------------------------------------
     seed: int = 0                    # model init, data order and noise
     learning_rate: float = 1e-3      # Adam initial learning rate (paper)
@@ -76,8 +77,6 @@ class TrainConfig:
             bad("formulation", f"must be one of {sorted(FORMULATIONS)}")
         if self.ball_model not in ("", "rigid", "nodes"):
             bad("ball_model", "must be rigid or nodes (or empty: the formulation's)")
-        if self.noise_std > 0 and self.noise_rel > 0:
-            bad("noise_rel", "and noise_std are exclusive (absolute or relative noise)")
         self.formulation_spec()  # raises ValueError naming a bad target / normalization / features
         if self.noise_parts not in NOISE_PARTS:
             bad("noise_parts", f"must be one of {NOISE_PARTS}")
@@ -151,14 +150,15 @@ PRESETS: dict[str, dict[str, Any]] = {
     "tiny": dict(data_preset="tiny", n_train=3, n_val=1, n_test=2, latent_size=32,
                  message_passing_steps=3, epochs=1, num_steps=400, steps_per_dispatch=20,
                  log_every=20, ckpt_every=200, val_every=200),
-    # the README's main job on a 2-core CPU (~20 min train + evaluate after data generation)
+    # the README's main job on a 2-core CPU: the project's default formulation (rigid ball, per-part
+    # normalisation, strain features; noise 1.0 x each layer's per-frame motion; see results/ablation.md)
     "cpu": dict(data_preset="cpu", n_train=12, n_val=2, n_test=6, latent_size=64,
                 message_passing_steps=8, epochs=1, num_steps=4000, steps_per_dispatch=25,
-                log_every=100, ckpt_every=1000, val_every=1000,
-                lambda_pen=10.0, noise_std=3e-7, noise_parts="all"),  # paper's best: B.6/P.5, λ=10
+                log_every=100, ckpt_every=1000, val_every=1000, formulation="default",
+                lambda_pen=0.0, noise_std=0.0, noise_rel=1.0, noise_parts="panel"),
     # the paper: 15 x 128, 100 epochs, 100 training / 50 test trajectories (a GPU job)
     "paper": dict(data_preset="paper", n_train=100, n_val=5, n_test=50, latent_size=128,
                   message_passing_steps=15, epochs=100, num_steps=0, steps_per_dispatch=50,
-                  log_every=500, ckpt_every=10000, val_every=10000,
-                  lambda_pen=10.0, noise_std=3e-7, noise_parts="all"),
+                  log_every=500, ckpt_every=10000, val_every=10000, formulation="paper",
+                  lambda_pen=10.0, noise_std=3e-7, noise_parts="all"),  # the paper's best: B.6/P.5, λ=10
 }

@@ -56,7 +56,7 @@ class Formulation:
     """Static description of what the MGN predicts (a jit cache key; see the module docstring)."""
 
     ball_target: str = "acceleration"
-    panel_target: str = "total_displacement"
+    panel_target: str = "velocity"
     rigid_ball: bool = True
     normalization: str = "per_part"
     features: str = "strain"

@@ -119,7 +119,7 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
         while step < end:
             t_chunk = time.perf_counter()
             ids = sample_ids(cfg.seed, step, K, B, setup.n_pairs)
-            batch = gather(form, train_trajs, table, ids, dt=setup.spec.sim.dt)
+            batch = gather(form, train_trajs, table, ids, dt=setup.spec.sim.dt, previous=cfg.pushforward)
             new_state, m = train_chunk(setup.spec, state, setup.stats, setup.topology, setup.index, setup.sigma,
                                        setup.pen_nodes, setup.weights, batch, seed_key)
             m = jax.device_get(m)

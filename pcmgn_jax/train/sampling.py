@@ -40,16 +40,28 @@ def sample(form: Formulation, traj, t: int, dt: float) -> dict:
 FIELDS = (("points", (2,)), ("u", (2,)), ("v", (2,)), ("target", (3,)))
 
 
-def gather(form: Formulation, trajs, table, ids: np.ndarray, *, dt: float) -> dict[str, np.ndarray]:
-    """Host batch (K, B, ...) float32: points, u, v (N, 2) inputs, target (N, 3), ball (2,) targets."""
+def gather(form: Formulation, trajs, table, ids: np.ndarray, *, dt: float,
+           previous: bool = False) -> dict[str, np.ndarray]:
+    """Host batch (K, B, ...) float32: points, u, v (N, 2) inputs, target (N, 3), ball (2,) targets.
+
+    ``previous``: also the inputs of the frame before (u_prev_in, v_prev_in; the same frame when t = 0)
+    and ``has_prev`` (K, B), for pushforward training.
+    """
     K, B = ids.shape
     n = trajs[0].n_nodes
     out = {k: np.empty((K, B, n) + d, np.float32) for k, d in FIELDS}
     out["ball"] = np.empty((K, B, 2), np.float32)
+    if previous:
+        out.update(u_prev_in=np.empty((K, B, n, 2), np.float32), v_prev_in=np.empty((K, B, n, 2), np.float32),
+                   has_prev=np.empty((K, B), np.float32))
     for a in range(K):
         for b in range(B):
             i, t = table[ids[a, b]]
             s = sample(form, trajs[i], int(t), dt)
-            for k in out:
+            for k in ("points", "u", "v", "target", "ball"):
                 out[k][a, b] = s[k]
+            if previous:
+                p = sample(form, trajs[i], int(t) - 1, dt) if t > 0 else s
+                out["u_prev_in"][a, b], out["v_prev_in"][a, b] = p["u"], p["v"]
+                out["has_prev"][a, b] = float(t > 0)
     return out

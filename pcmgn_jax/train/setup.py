@@ -27,7 +27,7 @@ from pcmgn_jax.mgn.graphs import Topology, build_graph, topology_from_trajectory
 from pcmgn_jax.mgn.normalization import Accumulator, Stats, TypedAccumulator, make_stats
 from pcmgn_jax.mgn.rollout import Spec
 from pcmgn_jax.scene import Scene
-from pcmgn_jax.train.noise import motion_rms, noise_sigma, sample_noise
+from pcmgn_jax.train.noise import motion_rms, noise_parts_mask, noise_sigma, sample_noise
 from pcmgn_jax.train.sampling import pair_table, sample
 
 
@@ -48,7 +48,7 @@ class Setup(NamedTuple):
     stats: Stats
     sigma: np.ndarray        # [N] float32 noise std per node [m] (0: not noised)
     pen_nodes: dict          # {"ball": [Mb] int32, "panel": [Mp] int32} boundary nodes of the fits
-    weights: dict            # {"motion": [N], "ball": [], "stress": [N]} float32 loss weights
+    weights: dict            # {"motion": [N], "ball": [], "stress": [N]} loss weights, "perturbed": [N] noised parts
     scene: Scene
     n_pairs: int             # (trajectory, frame) training pairs
     total_steps: int
@@ -192,5 +192,6 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
                         noise_std=cfg.noise_std, noise_rel=cfg.noise_rel, rms=rms)
     if stats is None:
         stats = compute_stats(sim, train_trajs, topology, index, sigma, max_frames=stats_max_frames, seed=cfg.seed)
-    return Setup(spec, topology, index, stats, sigma, pen_nodes, loss_weights(sim.formulation, topology),
-                 scene, n_pairs, steps)
+    weights = dict(loss_weights(sim.formulation, topology),
+                   perturbed=noise_parts_mask(ref.node_part, cfg.noise_parts, fixed=topology.fixed).astype(np.float32))
+    return Setup(spec, topology, index, stats, sigma, pen_nodes, weights, scene, n_pairs, steps)

@@ -49,10 +49,24 @@ def _penetration(spec: TrainSpec, pen_nodes, points, u_next):
 
 
 def loss_fn(params, spec: TrainSpec, stats: Stats, topology, index, sigma, pen_nodes, weights, sample, key):
-    """Loss of one graph. sample: points, u, v (N,2), target (N,3), ball (2,) SI. Returns (loss, aux)."""
+    """Loss of one graph. sample: points, u, v (N,2), target (N,3), ball (2,) SI (with ``pushforward``
+    also u_prev_in, v_prev_in (N,2), has_prev ()). Returns (loss, aux)."""
     sim = spec.sim
     form = sim.formulation
     ball = jnp.asarray(topology.node_type) == BALL_PART
+    if spec.cfg.pushforward:
+        pf_mask = weights["perturbed"]
+        # the model's own one-step prediction of this frame (from the true previous frame) as the input:
+        # its deviation from the truth is exactly an input "noise" n with velocity noise n/dt
+        frozen = jax.lax.stop_gradient(params)
+        out0, _ = predict(sim, frozen, stats, topology, index, sample["points"], sample["u_prev_in"],
+                          sample["v_prev_in"])
+        u_hat, _, _ = integrate_output(sim, stats, topology, sample["points"], sample["u_prev_in"],
+                                       sample["v_prev_in"], out0)
+        # only on the perturbed parts (noise_parts): for a body that keeps an acceleration target, landing on
+        # the true next frame from a wrong position would need an unphysical one-step acceleration
+        dev = jax.lax.stop_gradient(u_hat - sample["u"]) * (sample["has_prev"] * pf_mask)[:, None]
+        sample = add_noise(form, ball, sample, dev, sim.dt)
     sample = add_noise(form, ball, sample, sample_noise(key, sigma, ball, rigid_ball=form.rigid_ball), sim.dt)
     out, edges = predict(sim, params, stats, topology, index, sample["points"], sample["u"], sample["v"])
     err = (out[:, :3] - normalize_target(stats, topology.node_type, sample["target"])) ** 2

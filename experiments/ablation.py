@@ -1,0 +1,115 @@
+"""The surrogate-accuracy ablation: each formulation change alone and combined, several seeds, same data.
+
+    python -m experiments.ablation --out results/ablation --num_steps 2000 --seeds 0,1
+
+Every cell is a training run (``--preset cpu`` plus the cell's flags, ``runs/ablation/<cell>_s<seed>``)
+followed by the evaluation on the test split (with the baselines). Resumable: a cell whose
+``eval/metrics.json`` exists is not retrained; a killed training resumes from its last checkpoint.
+Writes OUT.json (every cell's metrics and training time) and OUT.md (the table: mean and spread over
+seeds). Runs one job at a time (the machine has two cores).
+"""
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pcmgn_jax import cli
+
+# cell name -> (what it changes, flags on top of --preset cpu). Noise and lambda are fixed across the
+# formulation cells so that only the formulation changes; the last cells vary them on the default.
+CELLS = {
+    "paper": ("the paper's formulation (velocity target, one normaliser, raw features, node-mean loss)",
+              ["--formulation=paper"]),
+    "paper+per_part": ("+ per-part normalisation and part-mean loss",
+                       ["--formulation=paper", "--normalization=per_part", "--loss_weighting=parts"]),
+    "paper+strain": ("+ strain-like features", ["--formulation=paper", "--features=strain"]),
+    "paper+rigid_ball": ("+ rigid ball (one acceleration, pooled from its nodes)",
+                         ["--formulation=paper", "--ball_model=rigid", "--ball_target=acceleration"]),
+    "default": ("all three (the project's default formulation)", ["--formulation=default"]),
+    "default+lambda10": ("default + penetration loss, lambda = 10", ["--formulation=default", "--lambda_pen=10"]),
+}
+COMMON = ["--lambda_pen=0", "--noise_std=0", "--noise_rel=1.0", "--noise_parts=panel"]
+KEYS = ("position_mae_um", "stress_mae_mpa", "oled_objective_rel_error_pct_mean", "penetration_max_um")
+
+
+@dataclass(frozen=True)
+class AblationArgs:
+    out: str = "results/ablation"           # output stem: OUT.json and OUT.md
+    runs: str = "runs/ablation"             # where the cells' run directories go
+    num_steps: int = 1000                   # optimiser steps per cell (the cpu preset trains 4000)
+    seeds: str = "0,1"                      # comma-separated training seeds (same data for all)
+    cells: str = ""                         # comma-separated subset of the cells ("" = all)
+
+
+def run_cell(name: str, seed: int, args: AblationArgs) -> dict:
+    from experiments import evaluate, train
+    workdir = Path(args.runs) / f"{name}_s{seed}"
+    metrics = workdir / "eval" / "metrics.json"
+    if not metrics.exists():
+        flags = ["--preset=cpu", f"--workdir={workdir}", f"--num_steps={args.num_steps}", f"--seed={seed}",
+                 "--no_progress", *COMMON, *CELLS[name][1]]
+        resume = (workdir / "checkpoints" / "periodic").is_dir()
+        t0 = time.perf_counter()
+        if train.main(flags + (["--resume"] if resume else [])) != 0:
+            raise RuntimeError(f"training of cell {name} seed {seed} failed")
+        (workdir / "train_seconds.json").write_text(json.dumps({"seconds": time.perf_counter() - t0,
+                                                                "resumed": resume}))
+        if evaluate.main([f"--workdir={workdir}"]) != 0:
+            raise RuntimeError(f"evaluation of cell {name} seed {seed} failed")
+    m = json.loads(metrics.read_text())
+    secs = workdir / "train_seconds.json"
+    m["train_seconds"] = json.loads(secs.read_text())["seconds"] if secs.exists() else float("nan")
+    return m
+
+
+def table(results: dict, baselines: dict) -> str:
+    head = ("| cell | what changes | position MAE [µm] | stress MAE [MPa] | OLED objective error [%] | "
+            "max penetration [µm] | training time [s] |")
+    rows = [head, "|---|---|---|---|---|---|---|"]
+    for name, per_seed in results.items():
+        cols = []
+        for k in KEYS + ("train_seconds",):
+            v = np.array([m[k] for m in per_seed.values()], float)
+            cols.append(f"{v.mean():.3g} ± {v.std():.2g}" if len(v) > 1 else f"{v.mean():.3g}")
+        rows.append(f"| {name} | {CELLS[name][0]} | " + " | ".join(cols) + " |")
+    for name, b in baselines.items():
+        rows.append(f"| baseline: {name} | fitted on the 12 training designs | "
+                    + " | ".join(f"{b[k]:.3g}" for k in KEYS) + " | – |")
+    return "\n".join(rows)
+
+
+def main(argv=None) -> int:
+    args = cli.parse(AblationArgs, argv, description=__doc__, prog="python -m experiments.ablation")
+    names = [c for c in args.cells.split(",") if c] or list(CELLS)
+    unknown = sorted(set(names) - set(CELLS))
+    if unknown:
+        raise ValueError(f"unknown cell(s) {unknown}; choose from {list(CELLS)}")
+    seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
+    results, baselines = {}, {}
+    for name in names:
+        results[name] = {}
+        for seed in seeds:
+            m = run_cell(name, seed, args)
+            results[name][seed] = {k: m[k] for k in KEYS + ("train_seconds",)}
+            baselines = m.get("baselines", baselines)
+            print(f"{name} seed {seed}: " + ", ".join(f"{k}={m[k]:.4g}" for k in KEYS), flush=True)
+    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    command = "python -m experiments.ablation " + " ".join(sys.argv[1:] if argv is None else argv)
+    atomic_write_json(out.with_suffix(".json"), dict(command=command, common_flags=COMMON, cells=results,
+                                                     baselines={k: {kk: v[kk] for kk in KEYS} for k, v in
+                                                                baselines.items() if "not_applicable" not in v}))
+    md = table(results, {k: v for k, v in baselines.items() if "not_applicable" not in v})
+    out.with_suffix(".md").write_text(f"`{command}` (flags common to every cell: `{' '.join(COMMON)}`)\n\n{md}\n")
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(cli.run(main))
