@@ -95,7 +95,7 @@ def main(argv=None) -> int:
         results[name] = {}
         for seed in seeds:
             m = run_cell(name, seed, args)
-            results[name][seed] = {k: m[k] for k in KEYS + ("train_seconds",)}
+            results[name][str(seed)] = {k: m[k] for k in KEYS + ("train_seconds",)}
             baselines = m.get("baselines", baselines)
             print(f"{name} seed {seed}: " + ", ".join(f"{k}={m[k]:.4g}" for k in KEYS), flush=True)
     from pcmgn_jax.data.trajectory_io import atomic_write_json

@@ -151,11 +151,11 @@ PRESETS: dict[str, dict[str, Any]] = {
                  message_passing_steps=3, epochs=1, num_steps=400, steps_per_dispatch=20,
                  log_every=20, ckpt_every=200, val_every=200),
     # the README's main job on a 2-core CPU: the project's default formulation (rigid ball, per-part
-    # normalisation, strain features; noise 1.0 x each layer's per-frame motion; see results/ablation.md)
+    # normalisation, strain features; noise 1.0 x each layer's per-frame motion; lambda 10: results/ablation.md)
     "cpu": dict(data_preset="cpu", n_train=12, n_val=2, n_test=6, latent_size=64,
                 message_passing_steps=8, epochs=1, num_steps=4000, steps_per_dispatch=25,
                 log_every=100, ckpt_every=1000, val_every=1000, formulation="default",
-                lambda_pen=0.0, noise_std=0.0, noise_rel=1.0, noise_parts="panel"),
+                lambda_pen=10.0, noise_std=0.0, noise_rel=1.0, noise_parts="panel"),
     # the paper: 15 x 128, 100 epochs, 100 training / 50 test trajectories (a GPU job)
     "paper": dict(data_preset="paper", n_train=100, n_val=5, n_test=50, latent_size=128,
                   message_passing_steps=15, epochs=100, num_steps=0, steps_per_dispatch=50,
