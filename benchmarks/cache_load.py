@@ -13,7 +13,8 @@ import time
 import numpy as np
 
 from pcmgn_jax.data.cache import ensure_cache, load_split
-from pcmgn_jax.train.loop import gather, pair_table, sample_ids
+from pcmgn_jax.mgn.formulation import FORMULATIONS
+from pcmgn_jax.train.sampling import gather, pair_table, sample_ids
 from pcmgn_jax.data.trajectory_io import atomic_write_json
 
 
@@ -31,7 +32,7 @@ def main(argv=None) -> int:
     t_load = time.perf_counter() - t0
     dt = float(trajs[0].times[1] - trajs[0].times[0])
     ids = sample_ids(0, 0, 1, 1, len(pair_table(trajs)))
-    batch = gather(trajs, pair_table(trajs), ids, target="velocity", dt=dt)
+    batch = gather(FORMULATIONS["default"], trajs, pair_table(trajs), ids, dt=dt)
     t_first = time.perf_counter() - t0
     out = {"dataset": args.dataset, "split": args.split, "trajectories": len(trajs),
            "nodes": trajs[0].n_nodes, "frames": trajs[0].n_frames,
