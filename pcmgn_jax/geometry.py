@@ -288,3 +288,13 @@ def boundary_nodes(
     m = 0.02 * max(hi - lo, 1e-12) if margin is None else float(margin)
     return BoundaryNodes(ball=ball, panel=panel, interval=(lo - m, hi + m),
                          ball_rule=ball_rule, panel_rule=panel_rule)
+
+
+def roi_boundary_nodes(mesh, panel_part: int, *, x_max: float | None = None, ball_part: int = 0) -> BoundaryNodes:
+    """:func:`boundary_nodes` of a region-of-interest mesh (anything with points, node_part, cells,
+    cell_part), kept within 0.8 of its x extent (and ``x_max`` [m] if smaller): at the crop's far edge
+    the cut sides are not the ball's or the glass's surface."""
+    limit = 0.8 * float(np.max(np.asarray(mesh.points)[:, 0]))
+    return boundary_nodes(mesh.points, mesh.node_part, ball_part=ball_part, panel_part=panel_part,
+                          x_max=limit if x_max is None else min(x_max, limit), cells=mesh.cells,
+                          cell_part=mesh.cell_part)

@@ -28,7 +28,7 @@ import numpy as np
 from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.eval import metrics, plots
 from pcmgn_jax.eval.surrogates import BASELINES, FieldRegression, MGNSurrogate, design_of
-from pcmgn_jax.geometry import boundary_nodes
+from pcmgn_jax.geometry import roi_boundary_nodes
 from pcmgn_jax.mgn.contact import contact_parts
 from pcmgn_jax.scene import Scene
 
@@ -36,8 +36,7 @@ from pcmgn_jax.scene import Scene
 def boundary(ref, panel_part: int):
     """(ball bottom nodes, CG top nodes sorted by x) from the reference mesh, inside the region of
     interest (its far edge leaves cut edges, not surfaces)."""
-    bn = boundary_nodes(ref.points, ref.node_part, ball_part=0, panel_part=panel_part, cells=ref.cells,
-                        cell_part=ref.cell_part, x_max=0.8 * float(np.max(ref.points[:, 0])))
+    bn = roi_boundary_nodes(ref, panel_part)
     return np.asarray(bn.ball), np.asarray(bn.panel)
 
 

@@ -67,3 +67,16 @@ def sample_noise(key, sigma, ball_mask, *, rigid_ball: bool):
         s_ball = jnp.max(jnp.where(ball, sigma, 0.0))
         n = jnp.where(ball[:, None], s_ball * jax.random.normal(k2, (2,), sigma.dtype)[None], n)
     return n
+
+
+def perturb(spec, topology, sample: dict, sigma, key, offset=None) -> dict:
+    """``sample`` as the training loss sees it: ``offset`` (N, 2) [m] (e.g. the pushforward deviation)
+    plus drawn noise on the input displacement, with the velocity input and targets corrected
+    (:func:`pcmgn_jax.mgn.formulation.add_noise`). One function for the loss and the statistics."""
+    from pcmgn_jax.mgn.formulation import add_noise
+    from pcmgn_jax.mgn.rollout import ball_mask
+
+    form = spec.formulation
+    ball = ball_mask(topology)
+    n = sample_noise(key, sigma, ball, rigid_ball=form.rigid_ball)
+    return add_noise(form, ball, sample, n if offset is None else n + offset, spec.dt)

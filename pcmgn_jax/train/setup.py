@@ -15,19 +15,18 @@ from dataclasses import dataclass
 from typing import NamedTuple, Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from pcmgn_jax.config import TrainConfig
-from pcmgn_jax.geometry import boundary_nodes
+from pcmgn_jax.geometry import roi_boundary_nodes
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.checkpoint import make_spec
-from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, add_noise
+from pcmgn_jax.mgn.formulation import BALL_PART, Formulation
 from pcmgn_jax.mgn.graphs import Topology, build_graph, topology_from_trajectory
 from pcmgn_jax.mgn.normalization import Accumulator, Stats, TypedAccumulator, make_stats
 from pcmgn_jax.mgn.rollout import Spec
 from pcmgn_jax.scene import Scene
-from pcmgn_jax.train.noise import motion_rms, noise_parts_mask, noise_sigma, sample_noise
+from pcmgn_jax.train.noise import motion_rms, noise_parts_mask, noise_sigma, perturb
 from pcmgn_jax.train.sampling import pair_table, sample
 
 
@@ -69,12 +68,8 @@ def total_steps(cfg: TrainConfig, n_pairs: int) -> int:
 
 
 def penetration_nodes(cfg: TrainConfig, ref, panel_part: int):
-    """Ball-bottom / CG-top node sets and fit interval (:func:`pcmgn_jax.geometry.boundary_nodes`)."""
-    # stay inside the region of interest: at its far edge the crop leaves cut edges that are not
-    # the ball's or the glass's surface
-    x_max = min(cfg.pen_x_max, 0.8 * float(np.max(ref.points[:, 0])))
-    return boundary_nodes(ref.points, ref.node_part, ball_part=BALL_PART, panel_part=panel_part, x_max=x_max,
-                          cells=ref.cells, cell_part=ref.cell_part)
+    """Ball-bottom / CG-top node sets and fit interval (:func:`pcmgn_jax.geometry.roi_boundary_nodes`)."""
+    return roi_boundary_nodes(ref, panel_part, x_max=cfg.pen_x_max)
 
 
 def loss_weights(form: Formulation, topology: Topology) -> dict:
@@ -111,15 +106,13 @@ def loss_weights(form: Formulation, topology: Topology) -> dict:
 @functools.partial(jax.jit, static_argnames=("spec",))
 def _noisy_features(spec: Spec, topology, index, sigma, smp, key):
     form = spec.formulation
-    ball = jnp.asarray(topology.node_type) == BALL_PART
-    smp = add_noise(form, ball, smp, sample_noise(key, sigma, ball, rigid_ball=form.rigid_ball), spec.dt)
+    smp = perturb(spec, topology, smp, sigma, key)
     points = smp["points"]
     edges = contact_lib.update(index, points + smp["u"])
     g = build_graph(topology, points=points, displacement=smp["u"], velocity=smp["v"], contact=edges,
                     features=form.features)
     return (g.nodes[:, topology.n_node_types:], g.edges["mesh"].features, g.edges["contact"].features,
             edges.mask, smp["target"], smp["ball"])
-
 
 
 def compute_stats(spec: Spec, trajs, topology: Topology, index, sigma, *, max_frames: int = 2000,
@@ -154,7 +147,6 @@ def compute_stats(spec: Spec, trajs, topology: Topology, index, sigma, *, max_fr
         if form.rigid_ball:
             acc["ball"].add(np.asarray(ball)[None])
     return make_stats(**acc, per_part=form.normalization == "per_part", contact_default_std=index.radius)
-
 
 
 def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 2000,

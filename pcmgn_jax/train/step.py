@@ -18,10 +18,9 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from pcmgn_jax.mgn.formulation import BALL_PART, add_noise
 from pcmgn_jax.mgn.normalization import Stats, normalize_target
 from pcmgn_jax.mgn.rollout import ball_output, integrate_output, predict
-from pcmgn_jax.train.noise import sample_noise
+from pcmgn_jax.train.noise import perturb
 from pcmgn_jax.train.penetration import penetration_depth, penetration_loss
 from pcmgn_jax.train.setup import TrainSpec
 
@@ -53,21 +52,20 @@ def loss_fn(params, spec: TrainSpec, stats: Stats, topology, index, sigma, pen_n
     also u_prev_in, v_prev_in (N,2), has_prev ()). Returns (loss, aux)."""
     sim = spec.sim
     form = sim.formulation
-    ball = jnp.asarray(topology.node_type) == BALL_PART
+    dev = None
     if spec.cfg.pushforward:
         pf_mask = weights["perturbed"]
         # the model's own one-step prediction of this frame (from the true previous frame) as the input:
-        # its deviation from the truth is exactly an input "noise" n with velocity noise n/dt
+        # its deviation from the truth is exactly an input "noise" n with velocity noise n/dt; only on
+        # the perturbed parts (noise_parts): for a body that keeps an acceleration target, landing on the
+        # true next frame from a wrong position would need an unphysical one-step acceleration
         frozen = jax.lax.stop_gradient(params)
         out0, _ = predict(sim, frozen, stats, topology, index, sample["points"], sample["u_prev_in"],
                           sample["v_prev_in"])
         u_hat, _, _ = integrate_output(sim, stats, topology, sample["points"], sample["u_prev_in"],
                                        sample["v_prev_in"], out0)
-        # only on the perturbed parts (noise_parts): for a body that keeps an acceleration target, landing on
-        # the true next frame from a wrong position would need an unphysical one-step acceleration
         dev = jax.lax.stop_gradient(u_hat - sample["u"]) * (sample["has_prev"] * pf_mask)[:, None]
-        sample = add_noise(form, ball, sample, dev, sim.dt)
-    sample = add_noise(form, ball, sample, sample_noise(key, sigma, ball, rigid_ball=form.rigid_ball), sim.dt)
+    sample = perturb(sim, topology, sample, sigma, key, dev)
     out, edges = predict(sim, params, stats, topology, index, sample["points"], sample["u"], sample["v"])
     err = (out[:, :3] - normalize_target(stats, topology.node_type, sample["target"])) ** 2
     loss_data = jnp.sum(weights["motion"] * (err[:, 0] + err[:, 1])) + jnp.sum(weights["stress"] * err[:, 2])
