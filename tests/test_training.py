@@ -87,3 +87,10 @@ def test_nonzero_lambda_pen_is_wired_or_refused(tiny_trajs, tmp_path):
     res = training.train(cfg, tmp_path, train_trajs=tiny_trajs[:3])
     rec = json.loads((tmp_path / "metrics.jsonl").read_text().splitlines()[-1])
     assert "loss_pen" in rec and np.isfinite(rec["loss"]) and res["step"] == 20
+
+
+def test_pushforward_training_runs_and_lowers_the_loss(tiny_trajs, tmp_path):
+    cfg = tiny_config(pushforward=True, noise_rel=0.5, noise_parts="panel", num_steps=80)
+    res = training.train(cfg, tmp_path, train_trajs=tiny_trajs[:3])
+    losses = [json.loads(line)["loss"] for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
+    assert res["step"] == 80 and np.all(np.isfinite(losses)) and losses[-1] < losses[0]
