@@ -164,6 +164,13 @@ class MGNSurrogate:
                 raise ValueError(f"design {np.asarray(d) * 1e6} µm gives another topology than the training mesh")
             pts.append(mesh.points)
         pts = np.stack(pts)
+        return self.rollout(pts, *self.initial_state(pts))
+
+    def initial_state(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The solver's initial state on meshes (B, N, 2) [m]: u0 = 0 [m], v0 = the ball's drop velocity on
+        ball nodes [m/s], von Mises 0 [Pa]."""
+        from pcmgn_jax.scene import Scene
+        pts = np.asarray(points, np.float64)
         v0 = np.zeros_like(pts)
-        v0[:, np.asarray(self.ref.node_part) == 0, 1] = -scene.ball.velocity  # the solver's initial state
-        return self.rollout(pts, np.zeros_like(pts), v0, np.zeros(pts.shape[:2]))
+        v0[:, np.asarray(self.ref.node_part) == 0, 1] = -Scene.from_dict(self.ref.meta["scene"]).ball.velocity
+        return np.zeros_like(pts), v0, np.zeros(pts.shape[:2])
