@@ -105,51 +105,70 @@ class FieldRegression:
 
 
 class MGNSurrogate:
-    """The trained MGN of a run directory as a surrogate (rollout from each design's initial state)."""
+    """The trained MGN of a run directory as a surrogate (rollout from each design's initial state).
+
+    Many designs roll out ``batch`` at a time as one padded disjoint-union graph
+    (:func:`pcmgn_jax.mgn.rollout.rollout_designs`), each on its own mesh: meshes may differ in node
+    count and topology. Fields come back stacked, (B, T, N, ...), when every design has the same number
+    of nodes, else as lists of per-design arrays (T, N_b, ...).
+    """
 
     name = "mgn"
 
-    def __init__(self, workdir, ref, *, which: str = "best", batch: int = 4):
+    def __init__(self, workdir, ref, *, which: str = "best", batch: int = 8):
         from pcmgn_jax.mgn.checkpoint import load
         self.sim = load(workdir, ref, which=which)
         self.ref = ref
         self.batch = batch
         self.rollout_seconds = 0.0
-        self._compiled: set = set()
+        self._compiled: set = set()  # size buckets already compiled (and run once, untimed)
 
-    def rollout(self, points, u0, v0, vm0) -> tuple[np.ndarray, np.ndarray]:
-        """Roll out from initial states (B, N, 2) x3 and (B, N): (u (B,T,N,2) [m], vm (B,T,N) [Pa]).
-        Batches of ``batch`` designs; the first call of a batch shape compiles outside the timing."""
-        import jax
+    def _design(self, mesh, u0, v0, vm0) -> dict:
+        """One design for the union rollout: ``mesh`` (points, cells, cell_part, node_type) and its initial
+        state; the model's topology and contact buffer when it is the reference mesh, else its own."""
+        from pcmgn_jax.mgn.checkpoint import contact_index_for
+        from pcmgn_jax.mgn.graphs import make_topology
+        from pcmgn_jax.scene import Scene
+        s = self.sim
+        topology, index = s.topology, s.index
+        if not (len(mesh.points) == self.ref.n_nodes and np.array_equal(mesh.cells, self.ref.cells)
+                and np.array_equal(mesh.node_type, self.ref.node_type)):
+            topology = make_topology(points=mesh.points, cells=mesh.cells, node_type=mesh.node_type,
+                                     n_parts=s.topology.n_node_types - 1)
+            index = contact_index_for(mesh, Scene.from_dict(self.ref.meta["scene"]), radius=s.index.radius,
+                                      capacity=s.index.capacity)
+        return dict(topology=topology, index=index, points=np.asarray(mesh.points, np.float32),
+                    u0=np.asarray(u0, np.float32), v0=np.asarray(v0, np.float32), vm0=np.asarray(vm0, np.float32))
 
-        from pcmgn_jax.mgn.rollout import rollout_checked
-        T = self.ref.n_frames
-        out_u, out_s = [], []
-        self.rollout_seconds = 0.0
-        for i in range(0, len(points), self.batch):
-            args = [np.asarray(a[i:i + self.batch], np.float32) for a in (points, u0, v0, vm0)]
-            s = self.sim
-            index = s.index
-            if args[0].shape not in self._compiled:  # compile (and size the contact buffer) untimed
-                _, index = rollout_checked(s.spec, T - 1, s.params, s.stats, s.topology, index, *args,
-                                           batched=True)
-                self._compiled.add(args[0].shape)
-            t0 = time.perf_counter()
-            res, index = rollout_checked(s.spec, T - 1, s.params, s.stats, s.topology, index, *args, batched=True)
-            jax.block_until_ready(res)
-            self.rollout_seconds += time.perf_counter() - t0
-            self.sim = s._replace(index=index)
-            out_u.append(np.asarray(res.displacement, np.float64))
-            out_s.append(np.asarray(res.von_mises, np.float64))
-        return np.concatenate(out_u), np.concatenate(out_s)
+    def _rollout(self, designs):
+        """Union rollouts of ``designs`` (see :meth:`_design`): (u, vm) stacked or lists (class docstring).
+        The first batch of a size bucket compiles (and sizes the contact buffer) outside the timing."""
+        from pcmgn_jax.mgn.rollout import rollout_designs
+        s = self.sim
+        out = rollout_designs(s.spec, self.ref.n_frames - 1, s.params, s.stats, designs, batch_size=self.batch,
+                              compiled=self._compiled)
+        self.rollout_seconds = out.seconds
+        self.sim = s._replace(index=s.index.replace(capacity=max(s.index.capacity, out.capacity)))
+        u = [np.asarray(r.displacement, np.float64) for r in out.rollouts]
+        vm = [np.asarray(r.von_mises, np.float64) for r in out.rollouts]
+        if len({a.shape for a in u}) == 1:
+            return np.stack(u), np.stack(vm)
+        return u, vm
 
-    def rollout_trajectories(self, trajs) -> tuple[np.ndarray, np.ndarray]:
-        """Roll out from frame 0 of each trajectory (their own meshes)."""
-        f = lambda name: np.stack([getattr(t, name)[0] for t in trajs])  # noqa: E731
-        return self.rollout(np.stack([t.points for t in trajs]), f("displacement"), f("velocity"), f("von_mises"))
+    def rollout(self, points, u0, v0, vm0):
+        """Roll out from initial states (B, N, 2) x3 and (B, N) on the reference mesh's topology:
+        (u (B,T,N,2) [m], vm (B,T,N) [Pa])."""
+        return self._rollout([dict(self._design(self.ref, u, v, vm), points=np.asarray(p, np.float32))
+                              for p, u, v, vm in zip(points, u0, v0, vm0)])
 
-    def predict(self, designs_m) -> tuple[np.ndarray, np.ndarray]:
-        """Designs (B, D) [m] -> fields, each on its own mesh (the training data's scene and preset)."""
+    def rollout_trajectories(self, trajs):
+        """Roll out from frame 0 of each trajectory, each on its own mesh (stacked when the node counts
+        agree, else lists)."""
+        return self._rollout([self._design(t, t.displacement[0], t.velocity[0], t.von_mises[0]) for t in trajs])
+
+    def predict(self, designs_m):
+        """Designs (B, D) [m] -> fields, each on its own mesh (the training data's scene and preset):
+        (u (B,T,N,2), vm (B,T,N)), or lists when the designs' meshes differ in node count."""
         from pcmgn_jax.scene import Scene
         from pcmgn_jax.sim.mesh import build_mesh, roi
         scene = Scene.from_dict(self.ref.meta["scene"])
@@ -157,20 +176,19 @@ class MGNSurrogate:
         if preset is None:
             raise ValueError("MGNSurrogate.predict(designs) needs solver-generated training data (meta.solver."
                              "preset); use rollout_trajectories for imported data")
-        pts = []
+        designs = []
         for d in np.atleast_2d(designs_m):
             mesh, _ = roi(build_mesh(scene.with_design(*d), preset), preset)
-            if mesh.n_nodes != self.ref.n_nodes or not np.array_equal(mesh.cells, self.ref.cells):
-                raise ValueError(f"design {np.asarray(d) * 1e6} µm gives another topology than the training mesh")
-            pts.append(mesh.points)
-        pts = np.stack(pts)
-        return self.rollout(pts, *self.initial_state(pts))
+            u0, v0, vm0 = self.initial_state(mesh.points[None], node_part=mesh.node_part)
+            designs.append(self._design(mesh, u0[0], v0[0], vm0[0]))
+        return self._rollout(designs)
 
-    def initial_state(self, points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def initial_state(self, points, node_part=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The solver's initial state on meshes (B, N, 2) [m]: u0 = 0 [m], v0 = the ball's drop velocity on
-        ball nodes [m/s], von Mises 0 [Pa]."""
+        ball nodes [m/s], von Mises 0 [Pa]. ``node_part``: the meshes' (N,) parts (default: the reference's)."""
         from pcmgn_jax.scene import Scene
         pts = np.asarray(points, np.float64)
         v0 = np.zeros_like(pts)
-        v0[:, np.asarray(self.ref.node_part) == 0, 1] = -Scene.from_dict(self.ref.meta["scene"]).ball.velocity
+        part = self.ref.node_part if node_part is None else node_part
+        v0[:, np.asarray(part) == 0, 1] = -Scene.from_dict(self.ref.meta["scene"]).ball.velocity
         return np.zeros_like(pts), v0, np.zeros(pts.shape[:2])

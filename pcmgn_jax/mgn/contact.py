@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
@@ -109,10 +110,17 @@ def allocate(*, points: np.ndarray, cells: np.ndarray, cell_part: np.ndarray, ba
                         capacity=int(capacity))
 
 
+def full_capacity(index: ContactIndex) -> int:
+    """All directed candidate pairs of one graph (of the largest graph for a per-graph index), >= 2."""
+    allowed = np.asarray(index.allowed)
+    per_graph = allowed.reshape((-1,) + allowed.shape[-2:]).sum(axis=(1, 2))
+    return max(2 * int(per_graph.max(initial=0)), 2)
+
+
 def grow(index: ContactIndex, needed: int, factor: float = 1.5) -> ContactIndex:
-    """A larger buffer holding at least ``needed`` directed edges (host-side, after an overflow)."""
-    full = max(2 * int(np.asarray(index.allowed).sum()), 2)
-    cap = min(full, max(index.capacity * 2, int(16 * math.ceil(factor * needed / 16))))
+    """A larger buffer holding at least ``needed`` directed edges (host-side, after an overflow).
+    For a per-graph index (:func:`stack`) the capacity and ``needed`` are per graph."""
+    cap = min(full_capacity(index), max(index.capacity * 2, int(16 * math.ceil(factor * needed / 16))))
     cap += cap % 2
     return index.replace(capacity=int(cap))
 
@@ -146,6 +154,44 @@ def empty_edges(capacity: int) -> ContactEdges:
     z = jnp.zeros((capacity,), jnp.int32)
     return ContactEdges(senders=z, receivers=z, mask=jnp.zeros((capacity,), bool),
                         count=jnp.zeros((), jnp.int32), overflow=jnp.zeros((), bool))
+
+
+def stack(indices, offsets, *, n_slots: int, n_ball: int, n_panel: int, capacity: int) -> ContactIndex:
+    """Host-side: one per-graph index for a disjoint union of graphs (see :mod:`pcmgn_jax.mgn.batching`).
+
+    indices: one :class:`ContactIndex` per graph, all of the same radius; offsets: each graph's first
+    node in the union. Returns ball_nodes [n_slots, n_ball], panel_nodes [n_slots, n_panel] (union node
+    numbers), allowed [n_slots, n_ball, n_panel] (False on padding, and for the slots past the graphs)
+    and ``capacity`` directed edges per graph. :func:`update_graphs` searches each graph on its own.
+    """
+    if not indices:
+        raise ValueError("stack needs at least one contact index")
+    radii = {float(i.radius) for i in indices}
+    if len(radii) != 1:
+        raise ValueError(f"graphs of one batch must share the contact radius, got {sorted(radii)} [m]")
+    if len(indices) > n_slots:
+        raise ValueError(f"{len(indices)} graphs do not fit {n_slots} slots")
+    ball = np.zeros((n_slots, n_ball), np.int32)
+    panel = np.zeros((n_slots, n_panel), np.int32)
+    allowed = np.zeros((n_slots, n_ball, n_panel), bool)
+    for g, (index, off) in enumerate(zip(indices, offsets)):
+        nb, npn = len(index.ball_nodes), len(index.panel_nodes)
+        if nb > n_ball or npn > n_panel:
+            raise ValueError(f"graph {g}: {nb} x {npn} contact candidates exceed the {n_ball} x {n_panel} bucket")
+        ball[g, :nb] = np.asarray(index.ball_nodes) + off
+        panel[g, :npn] = np.asarray(index.panel_nodes) + off
+        allowed[g, :nb, :npn] = np.asarray(index.allowed)
+    return ContactIndex(ball_nodes=ball, panel_nodes=panel, allowed=allowed, radius=radii.pop(),
+                        capacity=int(capacity))
+
+
+def update_graphs(index: ContactIndex, positions: jnp.ndarray) -> ContactEdges:
+    """Jittable: :func:`update` on each graph of a per-graph index (:func:`stack`) over the union's world
+    ``positions`` (N, 2) [m]. Edges [G * C] graph-major (each graph's edges in :func:`update`'s order);
+    ``count`` and ``overflow`` [G] per graph."""
+    edges = jax.vmap(update, in_axes=(0, None))(index, positions)
+    flat = lambda a: a.reshape(-1)  # noqa: E731
+    return edges._replace(senders=flat(edges.senders), receivers=flat(edges.receivers), mask=flat(edges.mask))
 
 
 def contact_parts(scene) -> tuple[int, int]:

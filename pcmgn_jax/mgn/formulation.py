@@ -40,6 +40,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -148,17 +149,35 @@ def is_ball(node_type) -> np.ndarray:
     return np.asarray(node_type) == BALL_PART
 
 
-def rigid_mean(field, ball_mask):
-    """Mean (2,) of a (N, 2) field over the ball nodes (``ball_mask`` (N,) bool, at least one True)."""
+def rigid_mean(field, ball_mask, segments=None):
+    """Mean of a (N, 2) field over the ball nodes (``ball_mask`` (N,) bool). NumPy or JAX.
+
+    ``segments``: None for one graph -> (2,); or ``(node_graph (N,) int, n_graph)`` for a disjoint union
+    of graphs (JAX only) -> (n_graph, 2), one mean per graph over its own ball nodes (0 for a graph
+    without ball nodes, e.g. padding).
+    """
     xp = _xp(field)
     w = xp.asarray(ball_mask, field.dtype)[:, None]
-    return xp.sum(field * w, axis=0) / xp.maximum(xp.sum(w), 1.0)
+    if segments is None:
+        return xp.sum(field * w, axis=0) / xp.maximum(xp.sum(w), 1.0)
+    node_graph, n_graph = segments
+    total = jax.ops.segment_sum(field * w, node_graph, num_segments=n_graph)
+    count = jax.ops.segment_sum(w, node_graph, num_segments=n_graph)
+    return total / jnp.maximum(count, 1.0)
 
 
-def rigidify(field, ball_mask):
-    """``field`` with the ball nodes replaced by their mean (a rigid body). NumPy or JAX."""
+def per_body(body_values, segments=None):
+    """A rigid body's value(s) broadcast to every node: (2,) -> (1, 2), or (G, 2) -> (N, 2) by graph."""
+    if segments is None:
+        return body_values[None]
+    return body_values[segments[0]]
+
+
+def rigidify(field, ball_mask, segments=None):
+    """``field`` with the ball nodes replaced by their (per-graph) mean (a rigid body). NumPy or JAX."""
     xp = _xp(field)
-    return xp.where(xp.asarray(ball_mask)[:, None], rigid_mean(field, ball_mask)[None], field)
+    mean = per_body(rigid_mean(field, ball_mask, segments), segments)
+    return xp.where(xp.asarray(ball_mask)[:, None], mean, field)
 
 
 def training_sample(form: Formulation, ball_mask, *, points, u_prev, u, u_next, vm_next, dt: float) -> dict:
@@ -196,14 +215,15 @@ def add_noise(form: Formulation, ball_mask, sample: dict, noise, dt: float) -> d
     return out
 
 
-def integrate(form: Formulation, ball_mask, *, points, u, v, a, a_ball, dt: float):
+def integrate(form: Formulation, ball_mask, *, points, u, v, a, a_ball, dt: float, segments=None):
     """Next (u', v') (N, 2) from physical per-node outputs ``a`` (N, 2) and the rigid ball's ``a_ball``
-    (2,) (ignored unless ``form.rigid_ball``). Boundary conditions are the caller's."""
+    ((2,), or (G, 2) per graph with ``segments``; see :func:`rigid_mean`; ignored unless
+    ``form.rigid_ball``). Boundary conditions are the caller's."""
     ball = jnp.asarray(ball_mask)[:, None]
     un, vn = apply_target(form.panel_target, points=points, u=u, v=v, a=a, dt=dt)
     if form.rigid_ball:
-        ub, vb = apply_target(form.ball_target, points=rigid_mean(points, ball_mask), u=rigid_mean(u, ball_mask),
-                              v=rigid_mean(v, ball_mask), a=a_ball, dt=dt)
-        return jnp.where(ball, ub[None], un), jnp.where(ball, vb[None], vn)
+        mean = lambda f: rigid_mean(f, ball_mask, segments)  # noqa: E731
+        ub, vb = apply_target(form.ball_target, points=mean(points), u=mean(u), v=mean(v), a=a_ball, dt=dt)
+        return jnp.where(ball, per_body(ub, segments), un), jnp.where(ball, per_body(vb, segments), vn)
     ub, vb = apply_target(form.ball_target, points=points, u=u, v=v, a=a, dt=dt)
     return jnp.where(ball, ub, un), jnp.where(ball, vb, vn)

@@ -21,8 +21,9 @@ How the two edge sets ride in the GraphsTuple (graphcast "typed graph" style, ke
 The contact set has a fixed capacity C with a padding ``mask`` (padded slots point at node 0 and are
 ignored by the model); overflow is detected in :mod:`pcmgn_jax.mgn.contact`, never truncated silently.
 Features here are raw SI values; normalisation wraps the model (:mod:`pcmgn_jax.mgn.normalization`).
-Batches of designs with the same topology are *stacked* (leading axis, ``jax.vmap``), not
-``jraph.batch``-ed.
+Many designs (any meshes) are one graph: the padded disjoint union of :mod:`pcmgn_jax.mgn.batching`
+(``jraph.batch`` + ``jraph.pad_with_graphs``); :func:`build_graph` then takes its ``layout`` (per-graph
+``n_node`` / ``n_edge`` and the mesh-edge padding mask). A stacked batch of one topology still vmaps.
 
 Precision: world relative positions are formed as (X_i - X_j) + (u_i - u_j) (reference difference
 plus displacement difference), so µm motion is not lost on mm coordinates in float32.
@@ -180,7 +181,7 @@ def contact_edge_features(points, displacement, senders, receivers, mask) -> jnp
 
 
 def build_graph(topology: Topology, *, points, displacement, velocity, contact,
-                features: str = "paper") -> jraph.GraphsTuple:
+                features: str = "paper", layout=None) -> jraph.GraphsTuple:
     """Pure graph builder (jittable, vmappable).
 
     points:       (N, 2) reference coordinates [m]
@@ -188,11 +189,13 @@ def build_graph(topology: Topology, *, points, displacement, velocity, contact,
     velocity:     (N, 2) [m/s] world velocity
     contact:      a :class:`pcmgn_jax.mgn.contact.ContactEdges` (senders, receivers, mask) of capacity C
     features:     'paper' | 'strain' (see :func:`node_features`, :func:`mesh_edge_features`)
+    layout:       None (one graph), or a padded disjoint union's :class:`pcmgn_jax.mgn.batching.Layout`
     """
     n = topology.n_node
+    mesh_mask = jnp.ones(topology.mesh_senders.shape, bool) if layout is None else jnp.asarray(layout.edge_mask)
     mesh = EdgeSet(features=mesh_edge_features(topology, points, displacement, features),
                    senders=jnp.asarray(topology.mesh_senders), receivers=jnp.asarray(topology.mesh_receivers),
-                   mask=jnp.ones(topology.mesh_senders.shape, bool))
+                   mask=mesh_mask)
     cont = EdgeSet(features=contact_edge_features(points, displacement, contact.senders,
                                                   contact.receivers, contact.mask),
                    senders=contact.senders, receivers=contact.receivers, mask=contact.mask)
@@ -200,5 +203,6 @@ def build_graph(topology: Topology, *, points, displacement, velocity, contact,
         nodes=node_features(topology, points, displacement, velocity, features),
         edges={"mesh": mesh, "contact": cont},
         senders=mesh.senders, receivers=mesh.receivers,
-        n_node=jnp.array([n], jnp.int32), n_edge=jnp.array([mesh.senders.shape[0]], jnp.int32),
+        n_node=jnp.array([n], jnp.int32) if layout is None else jnp.asarray(layout.n_node),
+        n_edge=jnp.array([mesh.senders.shape[0]], jnp.int32) if layout is None else jnp.asarray(layout.n_edge),
         globals=None)

@@ -13,6 +13,7 @@ inside the scan; every frame reports contact-buffer overflow (callers grow the b
 from __future__ import annotations
 
 import functools
+import time
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -22,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from pcmgn_jax.mgn import contact as contact_lib
+from pcmgn_jax.mgn.batching import GraphBatch, Layout, batch_graphs, split, split_graphs, to_union
 from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, integrate, rigidify
 from pcmgn_jax.mgn.graphs import Topology, build_graph
 from pcmgn_jax.mgn.normalization import Stats, denormalize_output, normalize_graph
@@ -52,12 +54,21 @@ def ball_mask(topology: Topology):
     return jnp.asarray(topology.node_type) == BALL_PART
 
 
-def ball_output(topology: Topology, out):
-    """The rigid ball's normalised output (2,): softmax(score)-weighted mean of the ball nodes' a_x, a_y."""
+def ball_output(topology: Topology, out, layout: Layout | None = None):
+    """The rigid ball's normalised output: softmax(score)-weighted mean of the ball nodes' a_x, a_y.
+
+    One graph (``layout`` None): (2,). A disjoint union: (G, 2), the softmax taken over each graph's own
+    ball nodes (0 for a graph without any, e.g. padding).
+    """
     ball = ball_mask(topology)
+    node_graph, n_graph = (jnp.zeros(ball.shape, jnp.int32), 1) if layout is None else layout.segments
     score = jnp.where(ball, out[:, 3], -jnp.inf)
-    w = jax.nn.softmax(jnp.where(jnp.any(ball), score, 0.0))
-    return jnp.sum(w[:, None] * out[:, :2], axis=0)
+    top = jax.lax.stop_gradient(jax.ops.segment_max(score, node_graph, num_segments=n_graph))
+    w = jnp.where(ball, jnp.exp(score - jnp.where(jnp.isfinite(top), top, 0.0)[node_graph]), 0.0)
+    total = jax.ops.segment_sum(w, node_graph, num_segments=n_graph)
+    pooled = jax.ops.segment_sum(w[:, None] * out[:, :2], node_graph, num_segments=n_graph)
+    pooled = pooled / jnp.where(total > 0, total, 1.0)[:, None]
+    return pooled[0] if layout is None else pooled
 
 
 def impose_bc(topology: Topology, field):
@@ -69,33 +80,41 @@ def impose_bc(topology: Topology, field):
 # ---- one step -------------------------------------------------------------------------------
 
 def predict(spec: Spec, params, stats: Stats, topology: Topology, index: contact_lib.ContactIndex,
-            points, u, v):
-    """Normalised model output (N, 3) and the contact edges used. Pure; jit/vmap/grad compose."""
+            points, u, v, layout: Layout | None = None):
+    """Normalised model output (N, 3) and the contact edges used. Pure; jit/vmap/grad compose.
+
+    ``layout``: None for one graph; for a disjoint union (:mod:`pcmgn_jax.mgn.batching`) the contact
+    search runs per graph (``index`` per graph) and the graph carries the padding masks.
+    """
     points = jnp.asarray(points, jnp.float32)
     u = jnp.asarray(u, jnp.float32)
-    edges = contact_lib.update(index, points + u)
+    search = contact_lib.update if layout is None else contact_lib.update_graphs
+    edges = search(index, points + u)
     graph = build_graph(topology, points=points, displacement=u, velocity=v, contact=edges,
-                        features=spec.formulation.features)
+                        features=spec.formulation.features, layout=layout)
     graph = normalize_graph(stats, graph, topology.node_type)
     return spec.model.apply(params, graph), edges
 
 
-def step(spec: Spec, params, stats: Stats, topology: Topology, index, points, u, v):
+def step(spec: Spec, params, stats: Stats, topology: Topology, index, points, u, v, layout: Layout | None = None):
     """One frame forward: (u, v) -> (u_next, v_next, vm_next, contact edges)."""
-    out, edges = predict(spec, params, stats, topology, index, points, u, v)
-    u_next, v_next, vm = integrate_output(spec, stats, topology, points, u, v, out)
+    out, edges = predict(spec, params, stats, topology, index, points, u, v, layout)
+    u_next, v_next, vm = integrate_output(spec, stats, topology, points, u, v, out, layout)
     return u_next, v_next, vm, edges
 
 
-def integrate_output(spec: Spec, stats: Stats, topology: Topology, points, u, v, out):
-    """Normalised model output (N, k) -> next (u, v) with boundary conditions, and von Mises (N,) [Pa]."""
+def integrate_output(spec: Spec, stats: Stats, topology: Topology, points, u, v, out,
+                     layout: Layout | None = None):
+    """Normalised model output (N, k) -> next (u, v) with boundary conditions, and von Mises (N,) [Pa].
+    With a ``layout`` (disjoint union) the rigid ball is one body per graph."""
     form = spec.formulation
     phys = denormalize_output(stats, topology.node_type, out)
     a_ball = None
     if form.rigid_ball:
-        a_ball = ball_output(topology, out) * stats.ball_std + stats.ball_mean
+        a_ball = ball_output(topology, out, layout) * stats.ball_std + stats.ball_mean
     u_next, v_next = integrate(form, ball_mask(topology), points=jnp.asarray(points, jnp.float32), u=u, v=v,
-                               a=phys[:, :2], a_ball=a_ball, dt=spec.dt)
+                               a=phys[:, :2], a_ball=a_ball, dt=spec.dt,
+                               segments=None if layout is None else layout.segments)
     return impose_bc(topology, u_next), impose_bc(topology, v_next), phys[:, 2]
 
 
@@ -105,18 +124,20 @@ def jitted_step(spec: Spec, params, stats, topology, index, points, u, v):
     return step(spec, params, stats, topology, index, points, u, v)
 
 
-def _rollout(spec: Spec, n_steps: int, params, stats, topology, index, points, u0, v0, vm0):
+def _rollout(spec: Spec, n_steps: int, params, stats, topology, index, points, u0, v0, vm0,
+             layout: Layout | None = None):
     points = jnp.asarray(points, jnp.float32)
 
     def body(carry, _):
         u, v = carry
-        u_next, v_next, vm, edges = step(spec, params, stats, topology, index, points, u, v)
+        u_next, v_next, vm, edges = step(spec, params, stats, topology, index, points, u, v, layout)
         return (u_next, v_next), (u_next, v_next, vm, edges.overflow, edges.count)
 
     u0 = impose_bc(topology, jnp.asarray(u0, jnp.float32))
     v0 = jnp.asarray(v0, jnp.float32)
     if spec.formulation.rigid_ball:
-        u0, v0 = rigidify(u0, ball_mask(topology)), rigidify(v0, ball_mask(topology))
+        segments = None if layout is None else layout.segments
+        u0, v0 = (rigidify(a, ball_mask(topology), segments) for a in (u0, v0))
     _, (us, vs, vms, ovf, cnt) = jax.lax.scan(body, (u0, v0), None, length=n_steps)
     cat = lambda a, b: jnp.concatenate([a[None], b], axis=0)  # noqa: E731
     return Rollout(cat(u0, us), cat(v0, vs), cat(jnp.asarray(vm0, jnp.float32), vms), ovf, cnt)
@@ -137,15 +158,23 @@ def rollout_batch(spec: Spec, n_steps: int, params, stats, topology, index, poin
     return jax.vmap(fn)(points, u0, v0, vm0)
 
 
-def rollout_checked(spec: Spec, n_steps: int, params, stats, topology, index, points, u0, v0, vm0,
-                    *, batched: bool = False, max_grow: int = 6):
-    """Rollout that grows the contact buffer (outside jit) and re-runs until nothing overflows.
+@functools.partial(jax.jit, static_argnames=("spec", "n_steps"))
+def rollout_union(spec: Spec, n_steps: int, params, stats, batch: GraphBatch, u0, v0, vm0):
+    """``rollout`` of a padded disjoint union of designs (:func:`pcmgn_jax.mgn.batching.batch_graphs`).
 
-    Returns (Rollout, index actually used).
+    u0, v0 (N, 2), vm0 (N,): the union's initial frame (:func:`pcmgn_jax.mgn.batching.to_union`).
+    Returns :class:`Rollout` over the union's N nodes, with ``overflow`` / ``contact_count`` [T, G-1]
+    per graph slot. One compilation per (spec, n_steps, size bucket): another mesh or batch in the
+    same bucket reuses it.
     """
-    fn = rollout_batch if batched else rollout
+    return _rollout(spec, n_steps, params, stats, batch.topology, batch.index, batch.points, u0, v0, vm0,
+                    batch.layout)
+
+
+def _until_no_overflow(run, index, max_grow: int):
+    """``run(index)`` -> Rollout, growing the contact buffer (outside jit) until nothing overflows."""
     for _ in range(max_grow + 1):
-        res = fn(spec, n_steps, params, stats, topology, index, points, u0, v0, vm0)
+        res = run(index)
         if not bool(np.any(np.asarray(res.overflow))):
             return res, index
         needed = int(np.max(np.asarray(res.contact_count)))
@@ -155,3 +184,67 @@ def rollout_checked(spec: Spec, n_steps: int, params, stats, topology, index, po
         index = new
     raise RuntimeError(f"contact buffer overflow persists (capacity {index.capacity}, "
                        f"needed {int(np.max(np.asarray(res.contact_count)))})")
+
+
+def rollout_checked(spec: Spec, n_steps: int, params, stats, topology, index, points, u0, v0, vm0,
+                    *, batched: bool = False, max_grow: int = 6):
+    """Rollout that grows the contact buffer (outside jit) and re-runs until nothing overflows.
+
+    ``batched``: the vmap path (:func:`rollout_batch`). Returns (Rollout, index actually used).
+    """
+    fn = rollout_batch if batched else rollout
+    return _until_no_overflow(lambda idx: fn(spec, n_steps, params, stats, topology, idx, points, u0, v0, vm0),
+                              index, max_grow)
+
+
+def rollout_union_checked(spec: Spec, n_steps: int, params, stats, batch: GraphBatch, u0, v0, vm0,
+                          *, max_grow: int = 6):
+    """:func:`rollout_union` growing the per-graph contact buffer until nothing overflows.
+
+    Returns (Rollout over the union, the batch actually used)."""
+    res, index = _until_no_overflow(
+        lambda idx: rollout_union(spec, n_steps, params, stats, batch.replace(index=idx), u0, v0, vm0),
+        batch.index, max_grow)
+    return res, batch.replace(index=index)
+
+
+def unbatch(batch: GraphBatch, res: Rollout) -> list[Rollout]:
+    """A union rollout -> one NumPy :class:`Rollout` per real design (padding dropped)."""
+    fields = [split(batch, getattr(res, k), axis=1) for k in ("displacement", "velocity", "von_mises")]
+    flags = [split_graphs(batch, getattr(res, k), axis=1) for k in ("overflow", "contact_count")]
+    return [Rollout(*parts) for parts in zip(*fields, *flags)]
+
+
+class DesignRollouts(NamedTuple):
+    rollouts: list            # one NumPy Rollout per design, in order
+    seconds: float            # wall time of the timed union rollouts [s] (see rollout_designs)
+    capacity: int             # contact edges per graph of the last batch (grown if needed)
+
+
+def rollout_designs(spec: Spec, n_steps: int, params, stats, designs, *, batch_size: int = 8,
+                    max_grow: int = 6, compiled: set | None = None) -> DesignRollouts:
+    """Roll out many designs, each on its own mesh, ``batch_size`` at a time as padded disjoint unions.
+
+    designs: sequence of dicts with ``topology``, ``index`` (its ContactIndex), ``points`` (N_g, 2) [m],
+    ``u0``, ``v0`` (N_g, 2), ``vm0`` (N_g,). A grown contact buffer is kept for the following batches.
+    ``compiled``: size buckets (:meth:`GraphBatch.bucket`) already compiled; a batch of a new bucket runs
+    once untimed first (compilation, buffer sizing) and its bucket is added. ``seconds`` times the
+    rollouts only (host-side batching and splitting excluded).
+    """
+    out, capacity, seconds = [], 0, 0.0
+    for i in range(0, len(designs), batch_size):
+        chunk = designs[i:i + batch_size]
+        batch = batch_graphs([d["topology"] for d in chunk], [d["index"] for d in chunk],
+                             [d["points"] for d in chunk], min_slots=min(batch_size, len(designs)),
+                             min_capacity=capacity)
+        init = [to_union(batch, [d[k] for d in chunk]) for k in ("u0", "v0", "vm0")]
+        if compiled is not None and batch.bucket() not in compiled:
+            _, batch = rollout_union_checked(spec, n_steps, params, stats, batch, *init, max_grow=max_grow)
+            compiled.add(batch.bucket())
+        t0 = time.perf_counter()
+        res, batch = rollout_union_checked(spec, n_steps, params, stats, batch, *init, max_grow=max_grow)
+        jax.block_until_ready(res)
+        seconds += time.perf_counter() - t0
+        capacity = batch.index.capacity
+        out.extend(unbatch(batch, res))
+    return DesignRollouts(out, seconds, capacity)
