@@ -108,3 +108,33 @@ def ensure_dir(path) -> Path:
     p = Path(path)
     p.mkdir(parents=True, exist_ok=True)
     return p
+
+
+def objective_map(path, grid_um, grid_f, feasible, *, title, points_um=None, points_label="population",
+                  paths_um=None, optimum_um=None, solver_um=None, dataset_um=None):
+    """The objective [MPa] over the design box (grid_um (n*n, 2) [µm], grid_f (n*n,), infeasible cells
+    hatched out) with a GA population or gradient paths, the optimum and the solver-checked point."""
+    n = int(round(np.sqrt(len(grid_f))))
+    gx = np.asarray(grid_um)[:, 0].reshape(n, n)
+    gy = np.asarray(grid_um)[:, 1].reshape(n, n)
+    f = np.where(np.asarray(feasible), np.asarray(grid_f, float), np.nan).reshape(n, n)
+    fig, ax = plt.subplots(figsize=(5.6, 4.6))
+    cs = ax.contourf(gx, gy, f, levels=20, cmap="viridis")
+    fig.colorbar(cs, ax=ax, label="objective [MPa]")
+    if dataset_um is not None and len(dataset_um):
+        ax.scatter(*np.asarray(dataset_um).T, s=14, marker="s", facecolors="none", edgecolors="w",
+                   label="dataset designs (solver)")
+    if points_um is not None and len(points_um):
+        ax.scatter(*np.asarray(points_um).T, s=8, c="k", alpha=0.5, label=points_label)
+    for i, p in enumerate(paths_um or []):
+        p = np.asarray(p)
+        ax.plot(p[:, 0], p[:, 1], "-o", ms=2, lw=1, c="tab:orange", label="gradient paths" if i == 0 else None)
+    if optimum_um is not None:
+        ax.plot(*optimum_um, "r*", ms=14, label="optimum (surrogate)")
+    if solver_um is not None:
+        ax.plot(*solver_um, "wx", ms=10, mew=2, label="solver-checked")
+    ax.set(xlabel="T1 (OCA1) [µm]", ylabel="T2 (OCA2) [µm]", title=title)
+    ax.legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,196 @@
+"""Design optimisation: objective readings, the design box, the design->mesh map, GA and gradient search,
+the MGN's exact gradient, and the CLI end to end (the solver re-check on the tiny preset)."""
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from pcmgn_jax.eval import metrics
+from pcmgn_jax.opt import search
+from pcmgn_jax.opt.problem import DesignBox
+
+
+def _rect_mesh(nx, ny, xs=None, ys=None):
+    xs = np.linspace(0, 4e-3, nx + 1) if xs is None else xs
+    ys = np.linspace(0, 1e-3, ny + 1) if ys is None else ys
+    pts = np.array([(x, y) for y in ys for x in xs])
+    cells = np.array([[j * (nx + 1) + i, j * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i]
+                      for j in range(ny) for i in range(nx)])
+    return pts, cells
+
+
+def test_objective_readings_against_hand_computed_values():
+    """A graded 1-row strip, part 1, x in [0, 4] mm, section x <= 3 mm; field s = x (linear)."""
+    xs = np.array([0, 0.5, 1.0, 3.0, 4.0]) * 1e-3                # graded: 3 of 5 columns near the axis
+    pts, cells = _rect_mesh(4, 1, xs=xs, ys=np.array([0, 1e-4]))
+    part = np.ones(len(cells), int)
+    node_part = np.ones(len(pts), int)
+    vm = np.broadcast_to(pts[:, 0] * 1e12, (3, len(pts)))       # [Pa], constant in time: x in mm -> 1000 x MPa
+    w = {r: metrics.objective_weights(pts, cells, part, node_part, part=1, reading=r) for r in metrics.OBJECTIVES}
+    for r in ("area_mean", "node_mean", "disc_mean"):
+        assert w[r].sum() == pytest.approx(1.0)
+    f = {r: float(metrics.oled_objective(vm, w[r], reading=r)) for r in metrics.OBJECTIVES}
+    # node mean over nodes with x < 3 mm: x = 0, 0.5, 1 (mm), twice each -> 0.5 mm -> 500 MPa
+    assert f["node_mean"] == pytest.approx(500.0)
+    # area mean of s = x over [0, 3] mm: 1.5 mm -> 1500 MPa (the linear field is integrated exactly)
+    assert f["area_mean"] == pytest.approx(1500.0)
+    # disc mean: int x * 2 pi x dx / int 2 pi x dx over [0, 3] = 2 mm -> 2000 MPa
+    assert f["disc_mean"] == pytest.approx(2000.0)
+    assert f["peak"] == pytest.approx(1000.0)                  # the section's largest node value (x = 1 mm)
+
+
+def test_area_mean_is_mesh_independent_where_node_mean_is_not():
+    """s = exp(-x / 1 mm) on a uniform and a graded mesh of the same strip: the area mean agrees (shape
+    functions), the node mean does not (it weighs the fine zone by its node count)."""
+    vals = {}
+    for name, xs in (("uniform", np.linspace(0, 3e-3, 31)), ("graded", 3e-3 * np.linspace(0, 1, 31) ** 2)):
+        pts, cells = _rect_mesh(len(xs) - 1, 1, xs=xs, ys=np.array([0, 1e-4]))
+        vm = np.exp(-pts[:, 0] / 1e-3)[None] * 1e6
+        vals[name] = {r: float(metrics.oled_objective(vm, metrics.objective_weights(
+            pts, cells, np.ones(len(cells)), np.ones(len(pts)), part=1, reading=r, x_max=3.1e-3), reading=r))
+            for r in ("area_mean", "node_mean")}
+    exact = (1 - np.exp(-3)) / 3
+    assert vals["uniform"]["area_mean"] == pytest.approx(exact, rel=2e-3)
+    assert vals["graded"]["area_mean"] == pytest.approx(exact, rel=2e-3)
+    assert abs(vals["graded"]["node_mean"] / vals["uniform"]["node_mean"] - 1) > 0.2
+
+
+def test_objective_rejects_empty_sections_and_unknown_readings():
+    pts, cells = _rect_mesh(2, 1)
+    with pytest.raises(ValueError, match="no cell of part 5"):
+        metrics.objective_weights(pts, cells, np.ones(2), np.ones(len(pts)), part=5)
+    with pytest.raises(ValueError, match="reading must be one of"):
+        metrics.objective_weights(pts, cells, np.ones(2), np.ones(len(pts)), part=1, reading="max")
+
+
+def test_projection_is_the_nearest_feasible_point():
+    box = DesignBox()
+    rng = np.random.default_rng(0)
+    d = rng.uniform(0, 250e-6, (40, 2))
+    p = box.project(d)
+    assert np.all(box.violation(p) <= 1e-15)
+    cand = box.project(rng.uniform(40e-6, 160e-6, (4000, 2)))     # feasible points to compare against
+    for x, px in zip(d, p):
+        assert np.linalg.norm(x - px) <= np.linalg.norm(cand - x, axis=1).min() + 1e-12
+    feas = box.starts(5)
+    assert np.allclose(box.project(feas), feas)
+
+
+def test_infeasible_box_is_refused():
+    with pytest.raises(ValueError, match="no design satisfies"):
+        DesignBox(sum_low=400e-6, sum_high=500e-6)
+
+
+class _Quadratic:
+    """f = |d - c|^2 scaled to O(1) with its exact gradient; c outside the sum band."""
+
+    name, n_evals = "quadratic", 0
+    c = np.array([120e-6, 140e-6])
+
+    def __call__(self, d):
+        d = np.atleast_2d(d)
+        self.n_evals += len(d)
+        return np.sum((d - self.c) ** 2, axis=1) * 1e10
+
+    def value_and_grad(self, d):
+        d = np.atleast_2d(d)
+        return self(d), 2 * (d - self.c) * 1e10
+
+
+def test_ga_and_gradient_find_the_constrained_optimum():
+    """The optimum is the projection of c onto T1 + T2 <= 250 µm: (115, 135) µm."""
+    box = DesignBox()
+    g = search.gradient(_Quadratic(), box, progress=False)
+    assert np.allclose(g["x"] * 1e6, [115, 135], atol=0.3)
+    a = search.ga(_Quadratic(), box, pop=40, gens=30, progress=False)
+    assert np.allclose(a["x"] * 1e6, [115, 135], atol=3.0) and box.violation(a["x"])[0] <= 1e-12
+    assert a["n_evals"] <= 40 * 30 and len(a["history"]) == 30
+
+
+def test_design_map_is_the_mesh_builder_at_any_design():
+    from pcmgn_jax.scene import default_scene
+    from pcmgn_jax.sim.design_map import DesignMap, design_mesh
+    scene = default_scene()
+    dm = DesignMap.build(scene, "tiny")
+    for d in ([60e-6, 140e-6], [150e-6, 50e-6]):
+        assert np.abs(dm.points(np.array(d)) - design_mesh(scene, d, "tiny").points).max() < 1e-15
+    import jax.numpy as jnp
+    assert np.allclose(np.asarray(dm.points(jnp.asarray([60e-6, 140e-6]))), dm.points(np.array([60e-6, 140e-6])),
+                       atol=1e-9)
+
+
+def test_field_objective_caches_and_differentiates():
+    from pcmgn_jax.opt.objectives import FieldObjective
+    pts, cells = _rect_mesh(4, 2)
+    mesh = SimpleNamespace(cells=cells, cell_part=np.ones(len(cells), int), node_part=np.ones(len(pts), int))
+    dmap = SimpleNamespace(mesh=mesh, points=lambda d: pts)
+
+    class Lin:  # von Mises = (a . d) * 1e12 everywhere: objective a . d * 1e6 [MPa]
+        name = "lin"
+        calls = 0
+
+        def predict(self, d):
+            self.calls += 1
+            s = (d @ np.array([2.0, -1.0])) * 1e12
+            return None, np.broadcast_to(s[:, None, None], (len(d), 3, len(pts)))
+
+    lin = Lin()
+    obj = FieldObjective(lin, dmap, part=1)
+    d = np.array([[100e-6, 80e-6], [100e-6, 80e-6], [90e-6, 70e-6]])
+    f = obj(d)
+    assert f == pytest.approx((d @ [2.0, -1.0]) * 1e6) and obj.n_evals == 2 and lin.calls == 1
+    obj(d)
+    assert lin.calls == 1                                          # cached
+    _, g = obj.value_and_grad(d[:1])
+    assert g[0] == pytest.approx([2e6, -1e6], rel=1e-6)
+
+
+def test_mgn_objective_gradient_matches_finite_differences(tiny_run, tiny_trajs):
+    """Exact forward-mode gradient of (design -> mesh -> rollout -> objective) on the tiny synthetic run
+    (design: the CG thickness; the CG top and the ball move with it) against central differences."""
+    from pcmgn_jax.eval.surrogates import MGNSurrogate
+    from pcmgn_jax.opt.objectives import MGNObjective
+    from pcmgn_jax.sim.design_map import DesignMap
+    _, workdir, _ = tiny_run
+    ref = tiny_trajs[1]
+    jac = np.zeros((1,) + ref.points.shape)
+    jac[0, :, 1] = ref.points[:, 1] >= 400e-6 + 1e-9                # CG top row and the ball shift with t_cg
+    mesh = SimpleNamespace(cells=ref.cells, cell_part=ref.cell_part, node_part=ref.node_part)
+    t0 = ref.meta["design"]["CG"]
+    dmap = DesignMap(mesh=mesh, d0=np.array([t0]), p0=ref.points, jac=jac)
+    obj = MGNObjective(MGNSurrogate(workdir, ref), dmap, part=1, reading="area_mean")
+    d = np.array([[t0]])
+    f, g = obj.value_and_grad(d)
+    # a barely trained model's rollout is rough at the µm scale (contact edges switch), so the check is
+    # local: 0.1 µm steps (float32 noise in f ~1e-6 relative is ~1e-4 of the difference measured here)
+    h = 1e-7
+    fp, fm = obj(d + h), obj(d - h)
+    assert np.isfinite(g).all() and f[0] == pytest.approx(obj(d)[0], rel=1e-4)
+    assert abs(g[0, 0]) > 0
+    assert g[0, 0] == pytest.approx((fp[0] - fm[0]) / (2 * h), rel=0.15)
+
+
+@pytest.mark.slow
+def test_optimize_cli_end_to_end_on_the_tiny_preset(tmp_path):
+    """Generate a tiny dataset, fit poly2, GA + gradient, solver re-check, JSON and PNG."""
+    from experiments import generate, optimize
+    data = tmp_path / "data"
+    assert generate.main(["--out", str(data), "--preset", "tiny", "--n_train", "8", "--n_test", "1",
+                          "--no_progress"]) == 0
+    run = tmp_path / "run"
+    run.mkdir()
+    from pcmgn_jax.config import TrainConfig
+    cfg = TrainConfig.from_preset("tiny", dataset_dir=str(data), n_train=7, n_val=1, n_test=1)
+    (run / "config.json").write_text(json.dumps(cfg.to_dict()))
+    for method in ("ga", "gradient"):
+        assert optimize.main(["--workdir", str(run), "--surrogate", "poly2", "--method", method, "--pop", "12",
+                              "--gens", "4", "--grid", "5", "--no_progress"]) == 0
+        out = json.loads((run / "optimize" / f"poly2_{method}.json").read_text())
+        assert DesignBox().violation(np.array(out["optimum_um"]) * 1e-6)[0] <= 1e-12
+        assert out["solver_mpa"] > 0 and np.isfinite(out["rel_error_pct"])
+        assert (run / "optimize" / f"poly2_{method}.png").stat().st_size > 1000
+    # the second re-check of the same optimum comes from the cache
+    assert len(list((run / "optimize" / "solver").glob("*.json"))) <= 2
