@@ -44,8 +44,10 @@ def test_oled_objective_node_mean_hand_computed():
     node_part = np.array([oled, oled, oled, 1])  # OLED at x = 1, 2 mm (in), 4 mm (out); CG
     points = np.array([[1e-3, 0.0], [2e-3, 0.0], [4e-3, 0.0], [1e-3, 1e-3]])
     vm = np.array([[[1e6, 3e6, 100e6, 100e6], [3e6, 5e6, 100e6, 100e6]]])  # (B=1, T=2, N=4) Pa
-    obj = metrics.oled_objective_node_mean(node_part, points, vm, part=oled)
+    w = metrics.objective_weights(points, None, None, node_part, part=oled, reading="node_mean")
+    obj = metrics.oled_objective(vm, w, reading="node_mean")
     assert obj == pytest.approx([3.0])  # mean of 1, 3, 3, 5 MPa
     assert metrics.relative_error_pct(obj * 1.5, obj) == pytest.approx([50.0])
-    assert np.isnan(metrics.oled_objective_node_mean(node_part, points, vm, part=9)).all()
+    with pytest.raises(ValueError, match="no node of part 9"):
+        metrics.objective_weights(points, None, None, node_part, part=9, reading="node_mean")
     assert metrics.relative_error_pct(np.array([1.0]), np.array([0.0]))[0] > 1e12  # guarded, finite
