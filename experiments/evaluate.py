@@ -1,8 +1,12 @@
-"""Evaluate a run: ``python -m experiments.evaluate --workdir RUN [--which best|periodic]``.
+"""Evaluate a run on its test split, or on any directory of trajectory files.
 
-Rolls the model out on the run's test split and scores it beside the baselines fitted on its training
-split (nothing moves, nearest training design, per-node quadratic and RBF regression over the design).
-Writes RUN/eval/metrics.json and PNG plots (see pcmgn_jax.eval.evaluate).
+  python -m experiments.evaluate --workdir RUN [--which best|periodic]
+  python -m experiments.evaluate --workdir RUN --data data/cpu/extrap      # -> RUN/eval/extrap/metrics.json
+
+Rolls the model out from frame 0 of each trajectory and scores it beside the baselines fitted on the
+run's training split (nothing moves, nearest training design, per-node quadratic and RBF regression over
+the design). A baseline that needs the training mesh says so (``not_applicable``) when the data's mesh
+differs. Writes RUN/eval[/NAME]/metrics.json (same keys either way) and PNG plots.
 """
 import sys
 from dataclasses import dataclass
@@ -15,6 +19,8 @@ from pcmgn_jax import cli
 class EvaluateArgs:
     workdir: str                               # training run directory (config.json, checkpoints)
     which: Literal["best", "periodic"] = "best"  # checkpoint: best validation or latest periodic
+    data: str = ""                             # directory of trajectory files ("" = the run's test split)
+    name: str = ""                             # output RUN/eval/NAME ("" = the --data folder's name)
 
 
 def main(argv=None) -> int:
@@ -25,10 +31,17 @@ def main(argv=None) -> int:
     from pcmgn_jax.config import TrainConfig
     from pcmgn_jax.data.dataset import load_splits
     cfg = TrainConfig.load(f"{args.workdir}/config.json")
-    train, _, test = load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train, n_val=0, n_test=cfg.n_test)
-    m = evaluation.evaluate(args.workdir, test_trajs=test, train_trajs=train, which=args.which)
+    from pathlib import Path
+    train, _, test = load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train, n_val=0,
+                                 n_test=0 if args.data else cfg.n_test)
+    name = args.name or None
+    if args.data:
+        from pcmgn_jax.data.dataset import load_directory
+        test = load_directory(args.data)
+        name = args.name or Path(args.data).resolve().name
+    m = evaluation.evaluate(args.workdir, test_trajs=test, train_trajs=train, which=args.which, name=name)
     print(evaluation.summary_table(m))
-    print(f"wrote {args.workdir}/eval/metrics.json and PNGs")
+    print(f"wrote {Path(args.workdir) / 'eval' / (name or '')}/metrics.json and PNGs")
     return 0
 
 

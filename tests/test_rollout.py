@@ -79,3 +79,26 @@ def test_evaluate_scores_model_and_baselines(tiny_run, tiny_trajs):
     for png in ("deformed_mesh_pred", "pred_truth_error", "contact_zoom", "mae_vs_frame"):
         assert (workdir / "eval" / f"{png}.png").stat().st_size > 1000
     assert "| MGN |" in evaluation.summary_table(m) and "| nearest |" in evaluation.summary_table(m)
+
+
+def test_evaluate_any_directory_and_baselines_that_need_the_training_mesh(tiny_run, tiny_trajs, tmp_path):
+    """--data path: a directory of trajectory files is read back as written; per-node baselines say they
+    do not apply when the data's mesh differs from the training mesh (here: its cells renumbered)."""
+    import dataclasses
+
+    from pcmgn_jax.data.dataset import DatasetError, load_directory
+    from pcmgn_jax.data.trajectory_io import write_trajectory
+    from pcmgn_jax.eval import evaluate as evaluation
+    _, workdir, _ = tiny_run
+    folder = tmp_path / "extra"
+    for i, t in enumerate(tiny_trajs[2:]):
+        write_trajectory(t, folder / f"x_{i:02d}")
+    got = load_directory(folder)
+    assert len(got) == 2 and np.array_equal(got[1].displacement, tiny_trajs[3].displacement)
+    with pytest.raises(DatasetError, match="no trajectory files"):
+        load_directory(tmp_path)
+    other = [dataclasses.replace(t, cells=t.cells[::-1].copy(), cell_part=t.cell_part[::-1].copy()) for t in got]
+    m = evaluation.evaluate(workdir, test_trajs=other, train_trajs=tiny_trajs[:2], plot=False, name="other")
+    assert "training mesh" in m["baselines"]["nearest"]["not_applicable"]
+    assert np.isfinite(m["position_mae_um"])
+    assert (workdir / "eval" / "other" / "metrics.json").exists()

@@ -46,8 +46,8 @@ from pcmgn_jax.trajectory import Trajectory
 from pcmgn_jax.data.trajectory_io import (TrajectoryFileError, atomic_write_json, read_trajectory,
                                      write_trajectory)
 
-__all__ = ["DatasetError", "MANIFEST", "PRESETS", "ensure_dataset", "lhs_designs", "load_manifest",
-           "load_splits", "parse_designs", "split_stems"]
+__all__ = ["DatasetError", "MANIFEST", "PRESETS", "ensure_dataset", "lhs_designs", "load_directory",
+           "load_manifest", "load_splits", "parse_designs", "split_stems"]
 
 MANIFEST = "manifest.json"
 DATASET_FORMAT = "pcmgn_jax.dataset"
@@ -311,6 +311,19 @@ def _solve_checked(solve, scene: Scene, items, preset: str) -> list[Trajectory]:
     if len(trajs) != len(items):
         raise DatasetError(f"solver returned {len(trajs)} trajectories for {len(items)} designs")
     return trajs
+
+
+def load_directory(path: str | os.PathLike) -> list[Trajectory]:
+    """Every trajectory in a directory of trajectory files (``*.json`` sidecars beside their ``.h5``/
+    ``.xdmf``, e.g. one split of a dataset or an importer's output), sorted by name, hash-verified. Writes
+    nothing. DatasetError naming the directory when it holds none."""
+    folder = Path(path)
+    if not folder.is_dir():
+        raise DatasetError(f"{folder}: not a directory of trajectory files")
+    stems = [p.with_suffix("") for p in sorted(folder.glob("*.json")) if p.with_suffix(".h5").exists()]
+    if not stems:
+        raise DatasetError(f"{folder}: no trajectory files (NAME.json + NAME.h5) here")
+    return [read_trajectory(s) for s in stems]
 
 
 def load_splits(dataset_dir: str | os.PathLike, *, n_train: int, n_val: int, n_test: int):

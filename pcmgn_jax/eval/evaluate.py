@@ -124,6 +124,10 @@ def baseline_metrics(train_trajs, test_trajs, scene, bnodes, pnodes) -> dict:
             t0 = time.perf_counter()
             pu, ps = model.predict(designs)
             seconds = time.perf_counter() - t0
+            if pu.shape[1:] != test_trajs[0].displacement.shape or any(
+                    not np.array_equal(t.cells, train_trajs[0].cells) for t in test_trajs):
+                raise ValueError(f"per-node baselines need the training mesh; the data's mesh "
+                                 f"({test_trajs[0].n_nodes} nodes) differs from it ({train_trajs[0].n_nodes} nodes)")
         except ValueError as err:
             out[kind] = {"not_applicable": str(err)}
             continue
