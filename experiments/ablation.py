@@ -10,14 +10,11 @@ seeds). Runs one job at a time (the machine has two cores).
 """
 from __future__ import annotations
 
-import json
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
+from experiments import cells
 from pcmgn_jax import cli
 
 # cell name -> (what it changes, flags on top of --preset cpu). Noise and lambda are fixed across the
@@ -47,24 +44,8 @@ class AblationArgs:
 
 
 def run_cell(name: str, seed: int, args: AblationArgs) -> dict:
-    from experiments import evaluate, train
-    workdir = Path(args.runs) / f"{name}_s{seed}"
-    metrics = workdir / "eval" / "metrics.json"
-    if not metrics.exists():
-        flags = ["--preset=cpu", f"--workdir={workdir}", f"--num_steps={args.num_steps}", f"--seed={seed}",
-                 "--no_progress", *COMMON, *CELLS[name][1]]
-        resume = (workdir / "checkpoints" / "periodic").is_dir()
-        t0 = time.perf_counter()
-        if train.main(flags + (["--resume"] if resume else [])) != 0:
-            raise RuntimeError(f"training of cell {name} seed {seed} failed")
-        (workdir / "train_seconds.json").write_text(json.dumps({"seconds": time.perf_counter() - t0,
-                                                                "resumed": resume}))
-        if evaluate.main([f"--workdir={workdir}"]) != 0:
-            raise RuntimeError(f"evaluation of cell {name} seed {seed} failed")
-    m = json.loads(metrics.read_text())
-    secs = workdir / "train_seconds.json"
-    m["train_seconds"] = json.loads(secs.read_text())["seconds"] if secs.exists() else float("nan")
-    return m
+    flags = ["--preset=cpu", f"--num_steps={args.num_steps}", f"--seed={seed}", *COMMON, *CELLS[name][1]]
+    return cells.run_cell(Path(args.runs) / f"{name}_s{seed}", flags)
 
 
 def table(results: dict, baselines: dict) -> str:
@@ -72,10 +53,7 @@ def table(results: dict, baselines: dict) -> str:
             "max penetration [µm] | training time [s] |")
     rows = [head, "|---|---|---|---|---|---|---|"]
     for name, per_seed in results.items():
-        cols = []
-        for k in KEYS + ("train_seconds",):
-            v = np.array([m[k] for m in per_seed.values()], float)
-            cols.append(f"{v.mean():.3g} ± {v.std():.2g}" if len(v) > 1 else f"{v.mean():.3g}")
+        cols = [cells.mean_pm(m[k] for m in per_seed.values()) for k in KEYS + ("train_seconds",)]
         rows.append(f"| {name} | {CELLS[name][0]} | " + " | ".join(cols) + " |")
     for name, b in baselines.items():
         rows.append(f"| baseline: {name} | fitted on the 12 training designs | "

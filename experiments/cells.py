@@ -1,0 +1,46 @@
+"""One resumable training-and-evaluation cell, shared by the ablation and the study runner.
+
+A cell is ``experiments.train`` with some flags into ``workdir``, then ``experiments.evaluate`` on the
+run's test split (and optionally on other directories). It never retrains a finished cell (its
+``eval/metrics.json`` exists) and a killed training resumes from its last checkpoint.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def run_cell(workdir: str | Path, flags: list[str], *, extra_data: dict[str, str] | None = None) -> dict:
+    """Train (unless finished) and evaluate; return the test metrics plus ``train_seconds`` and, for each
+    ``extra_data`` {name: directory}, the metrics of ``evaluate --data`` under ``eval_<name>``."""
+    from experiments import evaluate, train
+    workdir = Path(workdir)
+    metrics = workdir / "eval" / "metrics.json"
+    if not metrics.exists():
+        resume = (workdir / "checkpoints" / "periodic").is_dir()
+        t0 = time.perf_counter()
+        if train.main([f"--workdir={workdir}", "--no_progress", *flags] + (["--resume"] if resume else [])) != 0:
+            raise RuntimeError(f"training of {workdir} failed")
+        secs = workdir / "train_seconds.json"
+        if not (resume and secs.exists()):
+            secs.write_text(json.dumps({"seconds": time.perf_counter() - t0, "resumed": resume}))
+        if evaluate.main([f"--workdir={workdir}"]) != 0:
+            raise RuntimeError(f"evaluation of {workdir} failed")
+    m = json.loads(metrics.read_text())
+    secs = workdir / "train_seconds.json"
+    m["train_seconds"] = json.loads(secs.read_text())["seconds"] if secs.exists() else float("nan")
+    for name, folder in (extra_data or {}).items():
+        out = workdir / "eval" / name / "metrics.json"
+        if not out.exists() and evaluate.main([f"--workdir={workdir}", f"--data={folder}", f"--name={name}"]) != 0:
+            raise RuntimeError(f"evaluation of {workdir} on {folder} failed")
+        m[f"eval_{name}"] = json.loads(out.read_text())
+    return m
+
+
+def mean_pm(values) -> str:
+    """'mean ± std' over seeds (population std), or the value alone for one seed."""
+    v = np.asarray(list(values), float)
+    return f"{v.mean():.3g} ± {v.std():.2g}" if len(v) > 1 else f"{v.mean():.3g}"

@@ -1,0 +1,170 @@
+"""The paper's studies (its Tables 3-7 and §4.6), in its formulation and in the project's default.
+
+  python -m experiments.study --name lambda                 # ~1 h on 2 CPU cores (trimmed steps, 2 seeds)
+  python -m experiments.study --name extrapolation --formulations default --seeds 0
+
+Studies: lambda (penetration weight), degree (polynomial degrees of the boundary fits), noise_sigma
+(noise magnitude, all parts), noise_parts (which bodies get 0.3 µm noise), target (what the model
+predicts), extrapolation (λ = 0 vs 10, evaluated on the paper's four designs outside the training box,
+data/cpu/extrap, generated on first use). Every cell is ``experiments.train --preset cpu`` with the
+formulation's base flags, the cell's flags and ``--num_steps`` (trimmed so a study fits in about an
+hour: steps, not seeds, are cut), then ``experiments.evaluate``. Resumable: finished cells are never
+retrained and a killed training resumes (experiments/cells.py). Writes results/studies/<name>.{json,md}
+(a table beside the paper's numbers, mean ± std over seeds) and <name>_per_frame.png (per-frame position
+MAE per cell, like the paper's Figure 7).
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from experiments import cells
+from pcmgn_jax import cli
+
+# base flags per formulation: the paper's settings (0.3 µm noise on all nodes, lambda = 10) and the
+# project's default (cpu preset: per-part relative noise on the panel, lambda = 10)
+BASE = {"paper": ["--formulation=paper", "--noise_std=3e-7", "--noise_rel=0", "--noise_parts=all", "--lambda_pen=10"],
+        "default": ["--formulation=default", "--lambda_pen=10"]}
+
+# study -> (paper table, default steps, [(cell, flags, paper (position MAE µm, stress MAE MPa) of the
+# physics-constrained MGN, of the vanilla MGN or None)])
+STUDIES = {
+    "lambda": ("Table 5", 1000, [
+        ("none (0)", ["--lambda_pen=0"], (0.704, 0.9775), None),
+        ("0.1", ["--lambda_pen=0.1"], (0.783, 0.826), None),
+        ("1", ["--lambda_pen=1"], (0.830, 0.717), None),
+        ("10", ["--lambda_pen=10"], (0.309, 0.547), None),
+        ("30", ["--lambda_pen=30"], (0.583, 0.964), None)]),
+    "degree": ("Table 4", 500, [
+        (f"B.{b}/P.{p}", [f"--poly_ball={b}", f"--poly_panel={p}"], v, None) for (b, p), v in {
+            (2, 3): (1.420, 1.314), (2, 5): (0.539, 1.111), (2, 7): (1.273, 1.276), (4, 3): (0.471, 1.033),
+            (4, 5): (0.626, 1.162), (4, 7): (0.909, 1.054), (6, 5): (0.309, 0.547), (6, 7): (0.545, 0.718)}.items()]),
+    "noise_sigma": ("Table 6", 1000, [
+        (f"{s} µm", [f"--noise_std={s * 1e-6:g}", "--noise_rel=0", "--noise_parts=all"], c, v)
+        for s, c, v in ((0.1, (1.203, 1.685), (3.458, 2.588)), (0.3, (0.309, 0.547), (0.704, 0.978)),
+                        (0.7, (1.421, 1.786), (0.915, 0.953)), (1.5, (1.504, 1.815), (1.806, 1.551)))]),
+    "noise_parts": ("Table 7", 1000, [
+        (p, ["--noise_std=3e-7", "--noise_rel=0", f"--noise_parts={p}"], c, v)
+        for p, c, v in (("none", (3.826, 4.465), (2.536, 4.431)), ("ball", (3.020, 4.747), (6.456, 4.119)),
+                        ("panel", (7.166, 5.380), (6.685, 4.397)), ("all", (0.309, 0.547), (0.704, 0.978)))]),
+    "target": ("Table 8 (output quantity)", 1500, [
+        (t, [f"--target={t}"], c, v)
+        for t, c, v in (("position", (1318.342, 34.451), (1458.494, 59.638)),
+                        ("displacement", (0.485, 0.797), (1.051, 1.130)),
+                        ("velocity", (0.309, 0.547), (0.704, 0.978)))]),
+    "extrapolation": ("§4.6 (figure only: no numbers)", 2000, [
+        ("vanilla (λ = 0)", ["--lambda_pen=0"], None, None),
+        ("constrained (λ = 10)", ["--lambda_pen=10"], None, None)]),
+}
+EXTRAP_DESIGNS_UM = "40,40;40,160;160,40;160,160"   # the paper's §4.6
+KEYS = ("position_mae_um", "stress_mae_mpa", "oled_objective_area_rel_error_pct_mean", "penetration_max_um")
+
+
+@dataclass(frozen=True)
+class StudyArgs:
+    name: str                                   # lambda | degree | noise_sigma | noise_parts | target | extrapolation
+    formulations: str = "paper,default"         # comma-separated: paper, default
+    seeds: str = "0,1"                          # training seeds (same data for all)
+    num_steps: int = 0                          # 0: the study's trimmed default (see STUDIES)
+    runs: str = "runs/studies"                  # cell run directories: RUNS/<name>/<formulation>/<cell>_s<seed>
+    out: str = "results/studies"                # tables and plots
+    data: str = "data/cpu"                      # the cpu preset's dataset (extrap split added for extrapolation)
+
+
+def _slug(s: str) -> str:
+    return "".join(c if c.isalnum() else "_" for c in s).strip("_")
+
+
+def main(argv=None) -> int:
+    args = cli.parse(StudyArgs, argv, description=__doc__, prog="python -m experiments.study")
+    if args.name not in STUDIES:
+        raise ValueError(f"--name must be one of {list(STUDIES)}, got {args.name!r}")
+    forms = [f for f in args.formulations.split(",") if f]
+    bad = sorted(set(forms) - set(BASE))
+    if bad:
+        raise ValueError(f"--formulations: unknown {bad}; choose from {list(BASE)}")
+    table_ref, steps, study_cells = STUDIES[args.name]
+    steps = args.num_steps or steps
+    seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
+    extra = None
+    if args.name == "extrapolation":
+        from pcmgn_jax.data.dataset import ensure_dataset, parse_designs
+        ensure_dataset(args.data, preset="cpu", designs=parse_designs(EXTRAP_DESIGNS_UM), split="extrap")
+        extra = {"extrap": str(Path(args.data) / "extrap")}
+    results: dict = {}
+    for form in forms:
+        for label, flags, _, _ in study_cells:
+            for seed in seeds:
+                wd = Path(args.runs) / args.name / form / f"{_slug(label)}_s{seed}"
+                m = cells.run_cell(wd, ["--preset=cpu", f"--dataset_dir={args.data}", f"--num_steps={steps}",
+                                        f"--seed={seed}", *BASE[form], *flags], extra_data=extra)
+                src = m["eval_extrap"] if extra else m
+                results.setdefault(form, {}).setdefault(label, {})[str(seed)] = {
+                    **{k: src.get(k) for k in KEYS}, "train_seconds": m["train_seconds"],
+                    "per_frame_position_mae_um_mean": src["per_frame_position_mae_um_mean"],
+                    "baselines": src.get("baselines", {})}
+                print(f"{args.name} {form} {label} seed {seed}: "
+                      + ", ".join(f"{k}={src.get(k, float('nan')):.4g}" for k in KEYS), flush=True)
+    write(args, table_ref, steps, study_cells, forms, seeds, results, argv)
+    return 0
+
+
+def write(args, table_ref, steps, study_cells, forms, seeds, results, argv) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    command = "python -m experiments.study " + " ".join(sys.argv[1:] if argv is None else argv)
+    where = "the paper's four extrapolation designs (data/cpu/extrap)" if args.name == "extrapolation" else \
+        "the cpu test split (6 designs)"
+    lines = [f"# Study `{args.name}` (paper {table_ref})", "",
+             f"`{command}`: cpu preset, {steps} steps per cell (trimmed to fit about an hour; the paper trained "
+             f"~20 h on a GPU), seeds {seeds}, scored on {where}; mean ± std over seeds. Position and stress MAE "
+             "in µm and MPa; objective error: the section area mean (DESIGN §8). The paper's numbers are "
+             "its physics-constrained MGN (vanilla in brackets) on its data: compare orderings, not values.", "",
+             "| formulation | cell | position MAE | stress MAE | objective error [%] | max penetration [µm] | "
+             "train [s] | paper: position / stress |", "|---|---|---|---|---|---|---|---|"]
+    for form in forms:
+        for label, _, pc, pv in study_cells:
+            per = results[form][label].values()
+            paper = "–" if pc is None else f"{pc[0]:g} / {pc[1]:g}" + ("" if pv is None else f" ({pv[0]:g} / {pv[1]:g})")
+            lines.append(f"| {form} | {label} | " + " | ".join(cells.mean_pm(m[k] for m in per) for k in KEYS)
+                         + f" | {cells.mean_pm(m['train_seconds'] for m in per)} | {paper} |")
+    first = next(iter(next(iter(results.values())).values()))
+    base = next(iter(first.values()))["baselines"]
+    for name, b in base.items():
+        if "not_applicable" not in b:
+            lines.append(f"| baseline | {name} | " + " | ".join(f"{b.get(k, float('nan')):.3g}" for k in KEYS)
+                         + " | – | – |")
+    # the orderings: which cell is best per formulation, and the paper's best
+    for form in forms:
+        mean = {label: np.mean([m["position_mae_um"] for m in results[form][label].values()])
+                for label, *_ in study_cells}
+        best = min(mean, key=mean.get)
+        paper_best = min((c for c in study_cells if c[2] is not None), key=lambda c: c[2][0], default=None)
+        lines.append("")
+        lines.append(f"Best cell by position MAE, {form}: **{best}**"
+                     + (f" (paper: {paper_best[0]})" if paper_best else ""))
+    (out / f"{args.name}.md").write_text("\n".join(lines) + "\n")
+    atomic_write_json(out / f"{args.name}.json", {"command": command, "num_steps": steps, "seeds": seeds,
+                                                  "base_flags": {f: BASE[f] for f in forms}, "results": results})
+    fig, axes = plt.subplots(1, len(forms), figsize=(5.5 * len(forms), 3.8), squeeze=False)
+    for ax, form in zip(axes[0], forms):
+        for label, *_ in study_cells:
+            curves = np.array([m["per_frame_position_mae_um_mean"] for m in results[form][label].values()])
+            ax.plot(curves.mean(0), label=label)
+        ax.set(title=f"{args.name}: {form} formulation", xlabel="frame", ylabel="position MAE [µm]", yscale="log")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / f"{args.name}_per_frame.png", dpi=110)
+    plt.close(fig)
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    sys.exit(cli.run(main))
