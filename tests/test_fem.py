@@ -227,3 +227,18 @@ def test_element_stiffness_invariant_under_rigid_motion_of_mesh():
         np.testing.assert_allclose(k2, k1, rtol=1e-9, atol=1e-9 * np.abs(k1).max())
         np.testing.assert_allclose(m2, m1, rtol=1e-9)
         np.testing.assert_allclose(d2, d1, rtol=1e-9, atol=1e-9 * np.abs(d1).max())
+
+
+# ---- node stencil (the explicit solver's layout of K) -------------------------------------------
+@pytest.mark.parametrize("analysis", ["plane_strain", "axisymmetric"])
+def test_node_stencil_equals_assembled_stiffness(analysis):
+    """(K u)_i = sum_k blocks[k, :, :, i] @ u[neighbours[i, k]] for a batch of two designs."""
+    pts, cells, _ = distorted_grid(5, 4, x0=0.2e-3, seed=3, amp=0.3)
+    ke, _, _ = fem.element_matrices(pts, cells, *_mats(len(cells)), analysis=analysis)
+    neighbours, blocks = fem.node_stencil(cells, np.stack([ke, 2.5 * ke]), len(pts))
+    assert neighbours.shape == (len(pts), 9) and blocks.shape == (2, 9, 2, 2, len(pts))
+    u = np.random.default_rng(0).normal(size=(len(pts), 2))
+    ref = (fem.assemble_csr(cells, ke, len(pts)) @ u.ravel()).reshape(-1, 2)
+    for scale, b in zip((1.0, 2.5), blocks):
+        f = np.einsum("kabn,nkb->na", b, u[neighbours])
+        np.testing.assert_allclose(f, scale * ref, rtol=0, atol=1e-12 * np.abs(ref).max())

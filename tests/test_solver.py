@@ -74,16 +74,17 @@ def _run_bar(analysis, constrained, speed, n_long=400, n_wide=2, h=10e-6, r0=0.0
     v0[:, 1] = speed * 2 * (pts[:, 1] - y0) / width**2 * f  # -c df/dy: moves towards +y
     u0 *= free
     v0 *= free
-    arrays = {"cells": cells, "node_slots": slots, "mass": mass, "free": free,
-              "ball_weight": np.zeros(n), "points": pts,
-              # no contact: one slave over a two-node master segment with zero stiffness
-              "slaves": np.array([idx[-1, 0]]), "masters": idx[0, :2], "k_slave": np.zeros(1),
-              "ke": ke, "db": db, "avg_weight": avg_w}
-    arrays = {k_: jnp.asarray(v, jnp.float32 if np.asarray(v).dtype.kind == "f" else jnp.int32)
-              for k_, v in arrays.items()}
-    us, _, _, es, _ = solver._run(arrays, jnp.asarray(u0, jnp.float32), jnp.asarray(v0, jnp.float32),
-                                  jnp.float32(dt), n_frames=frames, n_sub=n_sub,
+    arrays, layout = solver._device_arrays(
+        points=pts[None], cells=cells, ke=ke[None], db=db[None], mass=mass[None], free=free,
+        ball_weight=np.zeros((1, n)), node_slots=slots, avg_weight=avg_w,
+        # no contact: one slave over a two-node master segment with zero stiffness
+        slaves=np.array([idx[-1, 0]]), masters=idx[0, :2], k_slave=np.zeros((1, 1)),
+        shared_rows=np.ones(n, bool), dtype=jnp.float32)
+    node_major = lambda x: jnp.asarray(x.T[:, None, :], jnp.float32)  # (N,2) -> (2,1,N)
+    us, _, _, es, _ = solver._run(arrays, node_major(u0), node_major(v0), jnp.full((1,), dt, jnp.float32),
+                                  layout=layout, n_frames=frames, n_sub=n_sub,
                                   rigid_x=analysis == "plane_strain")
+    us, es = us[0], es[0]
     col = np.asarray(us, np.float64)[:, idx[:, 0], 1]  # (frames+1, n_long+1) along the axis column
     peaks = []
     for c in col:

@@ -95,6 +95,35 @@ def von_mises(stress: np.ndarray) -> np.ndarray:
     return (3.0 * j2) ** 0.5
 
 
+def node_stencil(cells: np.ndarray, ke: np.ndarray, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """The global stiffness as 2x2 node blocks over each node's neighbours (ELL layout), host
+    NumPy: ``(K u)_i = sum_k blocks[..., k, :, :, i] @ u[neighbours[i, k]]``.
+
+    ke (..., E, 8, 8) [N/m] with any leading batch axes. Returns neighbours (N, W) int64 (the
+    nodes sharing an element with node i, sorted, i itself included; short rows padded with i
+    and a zero block) and blocks (..., W, 2, 2, N) [N/m]. W is the largest neighbour count,
+    9 on a conforming quad mesh. The same sums as :func:`assemble_csr`, arranged so that an
+    explicit solver needs one gather per neighbour slot and no scatter.
+    """
+    n_el = cells.shape[0]
+    rows = np.repeat(cells, 4, axis=1).ravel()          # (E*16,) node a of pair (a, b)
+    cols = np.tile(cells, (1, 4)).ravel()               # node b
+    key = rows.astype(np.int64) * n_nodes + cols
+    uniq, pair = np.unique(key, return_inverse=True)
+    urow, ucol = uniq // n_nodes, uniq % n_nodes
+    first = np.searchsorted(urow, np.arange(n_nodes))
+    slot = np.arange(len(uniq)) - first[urow]
+    width = int(slot.max()) + 1
+    neighbours = np.repeat(np.arange(n_nodes)[:, None], width, axis=1)
+    neighbours[urow, slot] = ucol
+    batch = ke.shape[:-3]
+    kb = ke.reshape(-1, n_el, 4, 2, 4, 2).transpose(1, 2, 4, 3, 5, 0).reshape(n_el * 16, 2, 2, -1)
+    flat = np.zeros((n_nodes * width, 2, 2, kb.shape[-1]))
+    np.add.at(flat, urow[pair] * width + slot[pair], kb)
+    blocks = flat.reshape(n_nodes, width, 2, 2, -1).transpose(4, 1, 2, 3, 0)
+    return neighbours, blocks.reshape(*batch, width, 2, 2, n_nodes)
+
+
 def assemble_csr(cells: np.ndarray, ke: np.ndarray, n_nodes: int):
     """Global sparse stiffness (2N,2N) scipy CSR from element matrices (host, float64)."""
     import scipy.sparse as sp
