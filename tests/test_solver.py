@@ -9,7 +9,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import scipy.sparse.linalg as spla
 
 from pcmgn_jax.sim import fem
 from pcmgn_jax.sim import solver
@@ -57,10 +56,7 @@ def _run_bar(analysis, constrained, speed, n_long=400, n_wide=2, h=10e-6, r0=0.0
     slots, avg_w = solver._node_slots(cells, n, np.zeros(ne, int), np.zeros(n, int))
     # stable step from the largest eigenvalue of M^-1 K on the free dofs, as in solver.prepare
     fd = np.flatnonzero(free.ravel() > 0)
-    k = fem.assemble_csr(cells, ke, n)[fd][:, fd]
-    minv = 1.0 / np.sqrt(np.repeat(mass, 2)[fd])
-    op = spla.LinearOperator(k.shape, matvec=lambda x: minv * (k @ (minv * x)), dtype=float)
-    w2 = float(spla.eigsh(op, k=1, which="LA", return_eigenvectors=False, tol=1e-6)[0])
+    w2 = solver._largest_omega2(fem.assemble_csr(cells, ke, n), 1.0 / np.sqrt(np.repeat(mass, 2)[fd]), fd)
     dt = 0.9 * 2.0 / math.sqrt(w2)
     length = n_long * h
     y0, width = 0.25 * length, 15 * h
@@ -177,6 +173,15 @@ def test_energy_conservation_tiny():
     assert r.energy_error[0] < 0.01
     assert r.energy_error[0] < 1e-3  # actual: ~4e-5
     assert e[-1, 0] < 0.5 * e[0, 0] and e[-1, 1] > 0.3 * e[0, 0]  # energy really went into the panel
+
+
+def test_stable_step_from_coupled_eigenvalue(runs):
+    """dt comes from the largest eigenvalue of M^-1 (K + K_contact): above the mesh's alone and
+    below Weyl's bound mesh + Gershgorin(contact) that DESIGN §3 states."""
+    p = runs["batch"].prepared
+    assert np.all(p.omega2_coupled >= p.omega2_mesh * (1 - 1e-3))
+    assert np.all(p.omega2_coupled <= (p.omega2_mesh + p.omega2_contact) * (1 + 1e-3))
+    assert p.dt_stable == pytest.approx(0.9 * 2.0 / math.sqrt(p.omega2_coupled.max()), rel=1e-12)
 
 
 def test_unstable_step_raises_naming_the_frame():
