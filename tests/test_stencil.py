@@ -95,3 +95,19 @@ def test_float32_keeps_forces_under_large_vertical_translation(tiny):
     shifted[..., 1] += 1e-5
     f = _apply(layout, coefs, shifted, jnp.float32)
     assert np.abs(f - ref).max() < 1e-3 * np.abs(ref).max()
+
+
+def test_rows_scaled_and_zeroed_as_the_solver_does(tiny):
+    """The solver scales each row by -1/m and zeroes fixed dofs (accelerations, not forces);
+    the layout must follow the non-zero pattern of those rows, not of K."""
+    prep, _, _, shared = tiny
+    mesh = prep.mesh
+    free = (~mesh.fixed).astype(float)                              # (N,2)
+    neighbours, blocks = fem.node_stencil(mesh.cells, prep.ke, mesh.n_nodes)
+    blocks = blocks * (-free.T[None, None, :, None, :] / prep.mass[:, None, None, None, :])
+    layout, coefs = stencil.build(neighbours, blocks, shared)
+    u = np.random.default_rng(5).normal(size=(2, mesh.n_nodes, 2)) * 1e-6
+    ref = -_reference(prep, u) / prep.mass[..., None] * free
+    with jax.enable_x64(True):
+        a = _apply(layout, coefs, u, jnp.float64)
+    np.testing.assert_allclose(a, ref, rtol=0, atol=1e-12 * np.abs(ref).max())

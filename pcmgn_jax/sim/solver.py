@@ -258,11 +258,11 @@ def _run(arrays: dict[str, Any], u0, v0, dt, *, layout: stencil.SliceLayout, n_f
     u0, v0 (2,B,N) [m, m/s]; dt (B,) [s]. Returns u, v (B,T,N,2), von Mises (B,T,N) [Pa],
     energies (B,T,3) [J] and per-substep histories (force, approach), each (B,T-1,n_sub)."""
     mass = arrays["mass"]                                           # (1,B,N) [kg]
-    minv = arrays["free"] / mass                                    # (2,B,N) [1/kg], 0 if fixed
     ball_w = arrays["ball_weight"]                                  # (B,N)
     slaves, masters = arrays["slaves"], arrays["masters"]
     ref_s, ref_m = arrays["points"][..., slaves], arrays["points"][..., masters]  # (2,B,S), (2,B,M)
     contact_rows = jnp.concatenate([slaves, masters])
+    contact_scale = arrays["contact_scale"]                         # (2,B,S+M) -free/m [1/kg]
     dt_ = dt[:, None]
 
     def contact(u):
@@ -278,36 +278,45 @@ def _run(arrays: dict[str, Any], u0, v0, dt, *, layout: stencil.SliceLayout, n_f
     # the node state w holds everything else. Kept in one float32 array, the rigid drop would
     # round the ball's ~1e-9 m elastic differences away step after step (stress noise ~1 MPa).
     ball_y = jnp.stack([jnp.zeros_like(ball_w[:1]), (ball_w[:1] > 0).astype(ball_w.dtype)])  # (2,1,N)
+    ball_mass = jnp.sum(mass[0] * ball_y[1], axis=-1)               # (B,) [kg]
+    inv_ball_mass = jnp.where(ball_mass > 0, 1.0 / jnp.where(ball_mass > 0, ball_mass, 1.0), 0.0)
 
     def accel(w, c):
-        """Accelerations of w (ball mean removed) and of c (B,); internal plus contact forces
-        (2,B,N) [N]; contact energy (B,) [J] and the contact force on the ball (B,) [N]."""
+        """Accelerations of w (ball mean removed) and of c (B,); contact energy (B,) [J] and
+        the contact force on the ball (B,) [N]."""
         ec, gc, force = contact(w + c[:, None] * ball_y)
-        # K w + contact gradient (added in the stencil's remainder scatter)
-        f = stencil.apply(w, arrays["stencil"], layout, rigid_x=rigid_x, extra_rows=contact_rows,
-                          extra=gc)
-        a = -f * minv
-        abar = jnp.sum(ball_w * a[1], axis=-1)
-        return a - abar[:, None] * ball_y, abar, f, ec, force
+        # -M^-1 (K w + contact gradient): the stencil rows are scaled by -1/m (zero on fixed
+        # dofs), the contact gradient is added in the stencil's remainder scatter
+        a = stencil.apply(w, arrays["stencil"], layout, rigid_x=rigid_x, extra_rows=contact_rows,
+                          extra=gc * contact_scale)
+        # the ball's mean acceleration is the contact force over its mass: its internal forces
+        # sum to zero (K annihilates a vertical translation of the free ball), so the
+        # mass-weighted mean of a[1] over the ball is this, without a reduction over N
+        abar = force * inv_ball_mass
+        return a - abar[:, None] * ball_y, abar, ec, force
 
     def substep(carry, _):
         w, vh, c, vch = carry
-        a, abar, _, _, force = accel(w, c)
+        a, abar, _, force = accel(w, c)
+        # both updates read (w, vh, a) only, so XLA fuses them into one pass
         vh1 = vh + dt_ * a
+        w1 = w + dt_ * (vh + dt_ * a)
         vch1 = vch + dt * abar
-        approach = jnp.sum(ball_w * w[1], axis=-1) + c            # mass-weighted ball displacement [m]
-        return (w + dt_ * vh1, vh1, c + dt * vch1, vch1), (force, approach)
+        # the ball-weighted mean of w_y is zero (removed from the initial state and from every
+        # acceleration; up to float32 round-off of the ball's internal-force sum), so c is the
+        # mass-weighted ball displacement [m]
+        return (w1, vh1, c + dt * vch1, vch1), (force, c)
 
     def record(w, vh, c, vch):
-        a, abar, _, ec, _ = accel(w, c)
-        fint = stencil.apply(w, arrays["stencil"], layout, rigid_x=rigid_x)
+        a, abar, ec, _ = accel(w, c)
+        a_int = stencil.apply(w, arrays["stencil"], layout, rigid_x=rigid_x)  # -M^-1 K w
         v = vh + 0.5 * dt_ * a + (vch + 0.5 * dt * abar)[:, None] * ball_y
         vfull = vh + vch[:, None] * ball_y
         # leapfrog's discrete kinetic energy 0.5 v_{n-1/2} M v_{n+1/2}: with the potential
         # energy at u_n it is conserved exactly for linear forces (the average-velocity
         # kinetic energy is not, by O(w^2 dt^2) of the high-frequency content)
         ke_ = 0.5 * jnp.sum(mass * vfull * (vfull + dt_ * (a + abar[:, None] * ball_y)), axis=(0, 2))
-        ie = 0.5 * jnp.sum(w * fint, axis=(0, 2))
+        ie = -0.5 * jnp.sum(mass * w * a_int, axis=(0, 2))         # 0.5 w.K w (w = 0 if fixed)
         return w + c[:, None] * ball_y, v, jnp.stack([ke_, ie, ec], axis=-1)
 
     def frame(carry, _):
@@ -319,7 +328,7 @@ def _run(arrays: dict[str, Any], u0, v0, dt, *, layout: stencil.SliceLayout, n_f
     c0 = jnp.sum(ball_w * u0[1], axis=-1)
     vc0 = jnp.sum(ball_w * v0[1], axis=-1)
     w0, vw0 = u0 - c0[:, None] * ball_y, v0 - vc0[:, None] * ball_y
-    a0, abar0, _, _, _ = accel(w0, c0)
+    a0, abar0, _, _ = accel(w0, c0)
     init = (w0, vw0 - 0.5 * dt_ * a0, c0, vc0 - 0.5 * dt * abar0)
     carry, (us, vs, es, ws, hist) = jax.lax.scan(frame, init, None, length=n_frames)
     u_last, v_last, e_last = record(*carry)
@@ -345,17 +354,21 @@ def _device_arrays(*, points, cells, ke, db, mass, free, ball_weight, slaves, ma
     """Host arrays of B designs of one topology (leading axis B, (N,...) node arrays) -> the
     device arrays of :func:`_run` ((2,B,N) node layout) and the static stencil layout.
 
-    ``shared_rows`` (N,) bool marks nodes whose stiffness rows should be the same for every
-    design of the batch; checked here, and if any differs all rows are taken per design."""
+    ``shared_rows`` (N,) bool marks nodes whose stiffness rows and masses should be the same
+    for every design of the batch; checked here, and if any differs all rows are taken per
+    design."""
     n = points.shape[1]
     neighbours, blocks = fem.node_stencil(cells, ke, n)            # (N,W), (B,W,2,2,N)
+    # rows scaled by -1/m and zeroed on fixed dofs: the stencil gives accelerations -M^-1 K w
+    blocks = blocks * (-np.moveaxis(free, -1, 0)[None, None, :, None, :] / mass[:, None, None, None, :])
     shared = np.asarray(shared_rows, bool)
     scale = np.abs(blocks).max()
     if not np.all(np.abs(blocks[..., shared] - blocks[:1, ..., shared]) <= 1e-9 * scale):
         shared = np.zeros(n, bool)
     layout, coefs = stencil.build(neighbours, blocks, shared)
-    host = {"stencil": coefs, "mass": mass[None],
-            "free": np.moveaxis(free, -1, 0)[:, None], "ball_weight": ball_weight,
+    rows = np.concatenate([slaves, masters])
+    host = {"stencil": coefs, "mass": mass[None], "ball_weight": ball_weight,
+            "contact_scale": -np.moveaxis(free[rows], -1, 0)[:, None] / mass[None][..., rows],
             "points": np.moveaxis(points, -1, 0), "slaves": slaves, "masters": masters,
             "k_slave": k_slave, "cells": cells, "node_slots": node_slots,
             "avg_weight": avg_weight, "db": db}

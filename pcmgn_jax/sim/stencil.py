@@ -73,7 +73,7 @@ def build(neighbours: np.ndarray, blocks: np.ndarray, shared_rows: np.ndarray):
     """
     n_design, width, _, _, n = blocks.shape
     rows = np.arange(n)
-    live = np.abs(blocks).reshape(-1, width, n).max(axis=0).T > 0          # (N,W) non-zero entries
+    live = (np.abs(blocks) > 0).any(axis=(0, 2, 3)).T                        # (N,W) non-zero entries
     offsets = [set((neighbours[i, live[i]] - i).tolist()) | {0} for i in rows]
     # 1. runs of rows sharing one row length w (misfit rows stay and feed the remainder)
     runs, start, w_cur = [], 0, None
