@@ -5,7 +5,9 @@
       --length_unit mm --output_dt 4e-6
 
 See pcmgn_jax/data/importers/__init__.py for the file-naming convention of the result tables and the part
-map. MAPDL archives carry no /UNITS line unless one was set: give --length_unit. Nothing is written unless
+map. MAPDL archives carry no /UNITS line unless one was set: give --length_unit. --roi_radius / --roi_depth /
+--roi_ball_height [m] crop the trajectory to the region of interest around the contact before it is written
+(pcmgn_jax.geometry.roi_crop; meta "roi" keeps the node map). Nothing is written unless
 the whole import succeeds (the trajectory is written atomically).
 """
 from __future__ import annotations
@@ -16,8 +18,10 @@ from typing import Optional
 
 from pcmgn_jax import cli
 from pcmgn_jax.data.importers import import_ansys_text, parse_parts, read_mesh
+from pcmgn_jax.geometry import RoiCropError
 from pcmgn_jax.data.trajectory_io import write_trajectory
 from pcmgn_jax.scene import Scene
+from pcmgn_jax.trajectory import crop_trajectory
 
 
 @dataclass(frozen=True)
@@ -46,6 +50,27 @@ class Args:
     """max |location - mesh| [m]"""
     ignore_unmapped: bool = False
     """drop cells that belong to no part"""
+    roi_radius: Optional[float] = None
+    """ROI: keep cells within this radius [m] of the contact (axisymmetric x <= r; plane strain |x - x_c| <= r,
+    x_c = the ball's lowest node); unset: no limit"""
+    roi_depth: Optional[float] = None
+    """ROI: keep panel cells within this depth [m] below the panel top; unset: full thickness"""
+    roi_ball_height: Optional[float] = None
+    """ROI: keep ball cells within this height [m] above the ball's lowest point; unset: whole ball"""
+
+
+def _crop(traj, args: Args):
+    """The trajectory cropped by the --roi_* flags (unchanged if none is given); errors name the flag."""
+    limits = {"radius": args.roi_radius, "depth": args.roi_depth, "ball_height": args.roi_ball_height}
+    if all(v is None for v in limits.values()):
+        return traj
+    full = traj.n_nodes
+    try:
+        traj, _ = crop_trajectory(traj, **{k: float("inf") if v is None else v for k, v in limits.items()})
+    except RoiCropError as err:
+        raise ValueError(f"--roi_{err.param}={limits[err.param]}: {err}") from None
+    print(f"region of interest: kept {traj.n_nodes} of {full} nodes", file=sys.stderr)
+    return traj
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -61,6 +86,7 @@ def main(argv: list[str] | None = None) -> int:
         traj = import_ansys_text(
             mesh, args.results, scene=scene, part_names=names, output_dt=args.output_dt,
             fixed=None if args.fixed == "none" else args.fixed, location_tol=args.location_tol)
+        traj = _crop(traj, args)
         digest = write_trajectory(traj, args.out)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)

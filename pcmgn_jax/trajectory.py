@@ -10,6 +10,8 @@ from typing import Any
 
 import numpy as np
 
+from pcmgn_jax import geometry
+
 # node_type: the node's part id (0 = ball, 1..n = layers top to bottom, see scene.py) for free
 # nodes, and n_parts (one past the last part id) for fixed (clamped) nodes.
 
@@ -80,3 +82,71 @@ class Trajectory:
             raise ValueError(f"{where}: field 'cells' refers to nodes outside 0..{n - 1}")
         if t > 1 and np.any(np.diff(self.times) <= 0):
             raise ValueError(f"{where}: field 'times' must be strictly increasing")
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Region-of-interest crop of a trajectory (the rule itself: pcmgn_jax.geometry.roi_crop)
+# ---------------------------------------------------------------------------------------------------------
+ROI_META_KEY = "roi"
+"""meta[ROI_META_KEY] of a cropped trajectory: radius_m, depth_m, ball_height_m [m] (None = unlimited),
+x_contact_m, y_panel_top_m, y_ball_bottom_m, analysis, n_nodes_full, n_cells_full and node_map (cropped
+node i = node node_map[i] of the full mesh of n_nodes_full nodes; cropping twice composes the maps)."""
+
+
+def contact_ball_part(meta: dict[str, Any]) -> int | None:
+    """Part id of the ball named by the trajectory's scene (its first contact pair), else the part named
+    'ball' in meta['part_names'] (case-insensitive); None when there is none."""
+    names = [str(n).lower() for n in (meta.get("part_names") or [])]
+    scene = meta.get("scene") or {}
+    pairs = scene.get("contact_pairs") or []
+    body = str(pairs[0][0]).lower() if pairs else "ball"
+    return names.index(body) if body in names else None
+
+
+def crop_trajectory(traj: Trajectory, *, radius: float, depth: float = float("inf"),
+                    ball_height: float = float("inf"), x_contact: float | None = None,
+                    ball_part: int | None | str = "scene") -> tuple[Trajectory, np.ndarray]:
+    """Crop ``traj`` to the region of interest around the contact (rule: :func:`geometry.roi_crop`).
+
+    radius [m] around the contact axis (axisymmetric) or point (plane strain; ``x_contact`` [m], default
+    the ball's lowest node), depth [m] below the panel top (inf: full thickness), ball_height [m] above the
+    ball's lowest point (inf: whole ball). The analysis is meta['analysis']; ``ball_part='scene'`` takes the
+    ball from the scene's contact pair or the part named 'ball' (:func:`contact_ball_part`).
+
+    Every per-node field (points, node_part, node_type, displacement, velocity, von_mises, meta['node_ids'])
+    and per-cell field (cells, cell_part) is cropped; fixed nodes stay fixed (node_type kept); nodes on the
+    cut edges are ordinary nodes. meta[ROI_META_KEY] records the crop (see ROI_META_KEY). Returns
+    (cropped trajectory, node_map) with cropped node i = node node_map[i] of ``traj``; put fields back with
+    :func:`geometry.put_back`. Raises ValueError (:class:`geometry.RoiCropError`) if nothing is kept.
+    """
+    meta = dict(traj.meta or {})
+    analysis = meta.get("analysis")
+    if analysis is None:
+        raise ValueError("crop_trajectory: meta['analysis'] is missing (axisymmetric | plane_strain)")
+    part = contact_ball_part(meta) if isinstance(ball_part, str) and ball_part == "scene" else ball_part
+    crop = geometry.roi_crop(traj.points, traj.cells, traj.cell_part, radius=radius, depth=depth,
+                             ball_height=ball_height, analysis=analysis, ball_part=part, x_contact=x_contact)
+    node_map = crop.node_map
+    if meta.get("node_ids") is not None:
+        meta["node_ids"] = np.asarray(meta["node_ids"])[node_map].tolist()
+    previous = meta.get(ROI_META_KEY)
+    full_map = np.asarray(previous["node_map"])[node_map] if previous else node_map
+    meta[ROI_META_KEY] = {
+        "radius_m": float(radius) if np.isfinite(radius) else None,
+        "depth_m": float(depth) if np.isfinite(depth) else None,
+        "ball_height_m": float(ball_height) if np.isfinite(ball_height) else None,
+        "x_contact_m": crop.x_contact,
+        "y_panel_top_m": crop.y_panel_top if np.isfinite(crop.y_panel_top) else None,
+        "y_ball_bottom_m": crop.y_ball_bottom if np.isfinite(crop.y_ball_bottom) else None,
+        "analysis": analysis,
+        "n_nodes_full": int(previous["n_nodes_full"]) if previous else traj.n_nodes,
+        "n_cells_full": int(previous["n_cells_full"]) if previous else int(traj.cells.shape[0]),
+        "node_map": full_map.astype(int).tolist(),
+    }
+    if previous:
+        meta[ROI_META_KEY]["previous"] = {k: v for k, v in previous.items() if k != "node_map"}
+    out = Trajectory(points=traj.points[node_map], cells=crop.cells, cell_part=traj.cell_part[crop.keep_cell],
+                     node_part=traj.node_part[node_map], node_type=traj.node_type[node_map], times=traj.times,
+                     displacement=traj.displacement[:, node_map], velocity=traj.velocity[:, node_map],
+                     von_mises=traj.von_mises[:, node_map], meta=meta)
+    return out, node_map

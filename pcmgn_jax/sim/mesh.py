@@ -296,20 +296,16 @@ def build_mesh(scene: Scene, preset: str | MeshSpec = "paper") -> Mesh:
                 panel_top=panel_top.astype(np.int64), part_names=scene.part_names)
 
 
-def crop_roi(mesh: Mesh, *, roi_x: float, roi_ball_height: float) -> tuple[Mesh, np.ndarray]:
-    """Region-of-interest submesh: cells whose nodes all lie at x <= roi_x and, for ball
-    cells, at y <= ball bottom + roi_ball_height. Returns (submesh, node_map) where
-    ``node_map[i]`` is the full-mesh index of submesh node i."""
-    p = mesh.points
-    ball_bottom = p[mesh.ball_surface, 1].min()
-    keep_node = p[:, 0] <= roi_x * (1 + 1e-9)
-    is_ball = mesh.node_part == 0
-    keep_node &= ~is_ball | (p[:, 1] <= ball_bottom + roi_ball_height * (1 + 1e-9))
-    keep_cell = keep_node[mesh.cells].all(axis=1)
-    if not keep_cell.any():
-        raise ValueError(f"crop_roi: no cell inside roi_x={roi_x}, roi_ball_height={roi_ball_height}")
-    cells = mesh.cells[keep_cell]
-    node_map = np.unique(cells)
+def crop_roi(mesh: Mesh, *, roi_x: float, roi_ball_height: float,
+             depth: float = math.inf) -> tuple[Mesh, np.ndarray]:
+    """Region-of-interest submesh by the one crop rule, :func:`pcmgn_jax.geometry.roi_crop`: cells whose
+    nodes all lie at x <= roi_x [m] (the half model's contact axis is x = 0 in both analyses), ball cells
+    also at y <= ball bottom + roi_ball_height [m], panel cells within ``depth`` [m] of the panel top
+    (default: the full thickness). Returns (submesh, node_map) where ``node_map[i]`` is the full-mesh
+    index of submesh node i; ball_surface / panel_top keep their order, cut to the kept nodes."""
+    crop = geometry.roi_crop(mesh.points, mesh.cells, mesh.cell_part, radius=roi_x, depth=depth,
+                             ball_height=roi_ball_height, analysis="axisymmetric", ball_part=0)
+    node_map = crop.node_map
     inverse = np.full(mesh.n_nodes, -1, np.int64)
     inverse[node_map] = np.arange(len(node_map))
 
@@ -317,7 +313,7 @@ def crop_roi(mesh: Mesh, *, roi_x: float, roi_ball_height: float) -> tuple[Mesh,
         ids = ids[inverse[ids] >= 0]
         return inverse[ids]
 
-    sub = Mesh(points=p[node_map], cells=inverse[cells], cell_part=mesh.cell_part[keep_cell],
+    sub = Mesh(points=mesh.points[node_map], cells=crop.cells, cell_part=mesh.cell_part[crop.keep_cell],
                node_part=mesh.node_part[node_map], node_type=mesh.node_type[node_map],
                fixed=mesh.fixed[node_map], ball_surface=remap_sorted(mesh.ball_surface),
                panel_top=remap_sorted(mesh.panel_top), part_names=mesh.part_names)

@@ -64,6 +64,10 @@ meshio time series (``import_meshio_series``): an XDMF time series or a list of 
 (names configurable), same mesh in every frame. LS-DYNA (``import_d3plot``): optional, needs
 ``pip install -e ".[dyna]"`` (lasso-python); 2D solids are shells in the d3plot.
 
+Region of interest: crop an imported trajectory around the contact with
+``pcmgn_jax.trajectory.crop_trajectory`` (CLI ``--roi_radius`` / ``--roi_depth`` / ``--roi_ball_height``,
+metres); the rule is ``pcmgn_jax.geometry.roi_crop``, shared with the generator's mesh.
+
 Modules: ``units`` (unit factors), ``parts`` (ImportedMesh, part mapping), ``cdb`` (MAPDL archives and
 input files), ``meshes`` (meshio meshes, ``read_mesh`` dispatch), ``ansys_text`` (Mechanical text tables,
 frame discovery, node matching), ``series`` (meshio time series), ``d3plot`` (LS-DYNA), ``build``
