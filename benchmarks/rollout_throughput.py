@@ -1,20 +1,21 @@
-"""Rollout throughput of the surrogate: one 100-frame rollout, and batches of designs (designs/s).
+"""Rollout throughput of the surrogate: one 100-frame rollout, and many designs per call (per-design s).
 
     python -m benchmarks.rollout_throughput [--preset cpu] [--latent 64] [--layers 8] [--frames 100]
-        [--batches 1,8,32,100] [--json PATH] [--md PATH]
+        [--batches 8] [--union 8] [--repeats 3] [--profile] [--json PATH] [--md PATH]
 
 Model: EncodeProcessDecode at the ``cpu`` training preset size (latent 64, 8 steps) with RANDOM
 parameters (timing only: shapes, not values, set the cost; the contact buffer has a fixed capacity,
 so wild random predictions cannot change the work). Graph: the preset's region-of-interest mesh of
-the default scene (``pcmgn_jax.sim.mesh.roi``); designs: OCA1/OCA2 thicknesses on a grid, same topology.
+the default scene (``pcmgn_jax.sim.mesh.roi``); designs: OCA1/OCA2 thicknesses on a grid.
 
-Timed after compilation (AOT ``lower().compile()``, so compile time is reported separately):
-- ``rollout`` (one jitted lax.scan over all frames) for one design, median of ``--repeats``;
-- the same rollout as a Python loop of the jitted single step (``rollout.jitted_step``), one
-  dispatch per frame, blocking only at the end;
-- ``rollout_batch`` (vmap over designs) at each batch size -> designs/s. Big batches get fewer
-  repeats (at least one) so that a run stays within ``--budget`` seconds; the first call of a
-  compiled executable is dropped (one-off set-up) unless it takes > 2 s.
+Timed after compilation (AOT ``lower().compile()``, so compile time is reported separately), all
+interleaved round-robin in one process (machine noise hits every path alike):
+- ``rollout`` (one jitted lax.scan over all frames) for one design: the "one at a time" reference;
+- the same rollout as a Python loop of the jitted single step (``rollout.jitted_step``);
+- ``rollout_union``: ``--union`` designs as one padded disjoint-union graph (``mgn.batching``);
+- ``rollout_batch``: ``--batches`` designs stacked and vmapped (the old path).
+``--profile`` adds a per-op breakdown (jax.profiler trace of one jitted frame step, ops grouped by
+XLA kind) of one design, the union and the vmap batch: where the vmap path loses its time.
 """
 from __future__ import annotations
 
@@ -32,9 +33,10 @@ def _args(argv):
     p.add_argument("--layers", type=int, default=8, help="message-passing steps")
     p.add_argument("--mlp-layers", type=int, default=2)
     p.add_argument("--frames", type=int, default=100, help="rollout steps")
-    p.add_argument("--batches", default="1,8,32,100")
-    p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--budget", type=float, default=150.0, help="soft wall-time budget [s] for batch timing")
+    p.add_argument("--batches", default="8", help="vmap batch sizes (the old path), comma separated")
+    p.add_argument("--union", default="8", help="disjoint-union batch sizes, comma separated")
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--profile", action="store_true", help="per-op breakdown of one frame step (jax.profiler)")
     p.add_argument("--no-loop", action="store_true", help="skip the Python-loop comparison")
     p.add_argument("--json", default=None)
     p.add_argument("--md", default=None)
@@ -113,28 +115,101 @@ def _tile(x, b):
     return np.concatenate([x] * reps)[:b]
 
 
+def union_setup(s: dict, b: int):
+    """``b`` designs of the setup (tiled) as a padded disjoint union: (GraphBatch, u0, v0, vm0)."""
+    from pcmgn_jax.mgn.batching import batch_graphs, to_union
+    pts, u0, v0, vm0 = (_tile(s[k], b) for k in ("points", "u0", "v0", "vm0"))
+    batch = batch_graphs([s["topology"]] * b, [s["index"]] * b, list(pts))
+    return (batch,) + tuple(to_union(batch, list(a)) for a in (u0, v0, vm0))
+
+
+def profile_ops(fn, repeats: int = 3) -> dict:
+    """Device time [ms per call] of ``fn()`` by XLA op kind (fusion names without their number), from a
+    jax.profiler trace read back with ``jax.profiler.ProfileData``."""
+    import collections
+    import glob
+    import re
+    import tempfile
+
+    import jax
+    from jax.profiler import ProfileData
+    fn()
+    d = tempfile.mkdtemp(prefix="rollout_profile_")
+    jax.profiler.start_trace(d)
+    for _ in range(repeats):
+        fn()
+    jax.profiler.stop_trace()
+    tot = collections.Counter()
+    for plane in ProfileData.from_file(glob.glob(d + "/**/*.xplane.pb", recursive=True)[0]).planes:
+        for line in plane.lines:
+            if "XLA" not in line.name:
+                continue
+            for ev in line.events:
+                if not ev.name.startswith(("Thunk", "Slinky", "end:")):
+                    tot[re.sub(r"[._]?\d+$", "", ev.name)] += ev.duration_ns
+    return {k: v / repeats / 1e6 for k, v in tot.most_common()}
+
+
+def _profile(spec, common_args, one, s, b: int) -> dict:
+    """Op-kind breakdown of one frame step: one design, a union of ``b``, a vmap batch of ``b``."""
+    import jax
+    import jax.numpy as jnp
+
+    from pcmgn_jax.mgn.rollout import step
+    # everything passed as arguments (as in the rollouts), so that nothing is constant-folded
+    single = jax.jit(lambda c, p, u, v: step(spec, *c, p, u, v)[:3])
+    batch, ub, vb, _ = union_setup(s, b)
+    union = jax.jit(lambda c, bt, u, v: step(spec, *c, bt.topology, bt.index, bt.points, u, v, bt.layout)[:3])
+    stacked = [jnp.asarray(_tile(s[k], b)) for k in ("points", "u0", "v0")]
+    vmapped = jax.jit(lambda c, p, u, v: jax.vmap(lambda p, u, v: step(spec, *c, p, u, v)[:3])(p, u, v))
+    blk = jax.block_until_ready
+    one = [jnp.asarray(x) for x in one[:3]]
+    out = {"1 design": profile_ops(lambda: blk(single(common_args, *one))),
+           f"union {b}": profile_ops(lambda: blk(union(common_args[:2], batch, ub, vb))),
+           f"vmap {b}": profile_ops(lambda: blk(vmapped(common_args, *stacked)))}
+    return {k: {op: ms / (1 if k == "1 design" else b) for op, ms in v.items()} for k, v in out.items()}
+
+
 def main(argv=None) -> dict:
     a = _args(sys.argv[1:] if argv is None else argv)
     import jax
 
     from benchmarks import common
-    from pcmgn_jax.mgn.rollout import jitted_step, rollout, rollout_batch
+    from pcmgn_jax.mgn.rollout import jitted_step, rollout, rollout_batch, rollout_union
 
     batches = [int(b) for b in a.batches.split(",") if b.strip()]
+    unions = [int(b) for b in a.union.split(",") if b.strip()]
     s = rollout_setup(a.preset, latent=a.latent, layers=a.layers, mlp_layers=a.mlp_layers)
     spec, T = s["spec"], a.frames
     common_args = (s["params"], s["stats"], s["topology"], s["index"])
     one = tuple(x[0] for x in (s["points"], s["u0"], s["v0"], s["vm0"]))
     blk = jax.block_until_ready
 
+    compile_s, fns, per_call = {}, {}, {}
     t0 = time.perf_counter()
     single = rollout.lower(spec, T, *common_args, *one).compile()
-    compile_single = time.perf_counter() - t0
-    t_single = common.time_calls({"scan": lambda: blk(single(*common_args, *one))},
-                                 repeats=a.repeats, warmup=1)["scan"]
-    result = dict(single=dict(rollout_ms=t_single["median_ms"], per_frame_ms=t_single["median_ms"] / T,
-                              compile_s=compile_single, timing=t_single))
-
+    compile_s["single"] = time.perf_counter() - t0
+    fns["single"] = lambda: blk(single(*common_args, *one))
+    per_call["single"] = 1
+    union_info = {}
+    for b in unions:
+        batch, *init = union_setup(s, b)
+        t0 = time.perf_counter()
+        fn = rollout_union.lower(spec, T, s["params"], s["stats"], batch, *init).compile()
+        compile_s[f"union{b}"] = time.perf_counter() - t0
+        fns[f"union{b}"] = (lambda fn=fn, batch=batch, init=init: blk(fn(s["params"], s["stats"], batch, *init)))
+        per_call[f"union{b}"] = b
+        union_info[str(b)] = dict(nodes=int(batch.points.shape[0]), real_nodes=int(batch.n_node.sum()),
+                                  mesh_edges=int(batch.topology.mesh_senders.shape[0]),
+                                  graph_slots=int(batch.layout.n_node.shape[0]),
+                                  contact_capacity_per_graph=int(batch.index.capacity))
+    for b in batches:
+        args = tuple(_tile(x, b) for x in (s["points"], s["u0"], s["v0"], s["vm0"]))
+        t0 = time.perf_counter()
+        fn = rollout_batch.lower(spec, T, *common_args, *args).compile()
+        compile_s[f"vmap{b}"] = time.perf_counter() - t0
+        fns[f"vmap{b}"] = (lambda fn=fn, args=args: blk(fn(*common_args, *args)))
+        per_call[f"vmap{b}"] = b
     if not a.no_loop:
         pts, u, v = (jax.numpy.asarray(x) for x in one[:3])
 
@@ -143,65 +218,60 @@ def main(argv=None) -> dict:
             for _ in range(T):
                 uu, vv, vm, _ = jitted_step(spec, *common_args, pts, uu, vv)
             return blk((uu, vv, vm))
-        loop()
-        t_loop = common.time_calls({"loop": loop, "scan": lambda: blk(single(*common_args, *one))},
-                                   repeats=a.repeats, warmup=1)
-        result["python_loop"] = dict(rollout_ms=t_loop["loop"]["median_ms"],
-                                     scan_rollout_ms_same_rounds=t_loop["scan"]["median_ms"],
-                                     loop_over_scan=t_loop["loop"]["median_ms"] / t_loop["scan"]["median_ms"])
-
-    rows, batch_res = [], {}
-    t_budget = time.perf_counter()
-    for b in batches:
-        args = tuple(_tile(x, b) for x in (s["points"], s["u0"], s["v0"], s["vm0"]))
-        t0 = time.perf_counter()
-        fn = rollout_batch.lower(spec, T, *common_args, *args).compile()
-        comp = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        out = blk(fn(*common_args, *args))
-        first = (time.perf_counter() - t0) * 1e3
-        # the first call carries a one-off ~20 ms (executable / argument set-up): drop it unless the
-        # call is long enough (> 2 s) for that to be noise and repeats would blow the budget
-        times = [first] if first > 2000 else []
-        if not times:
-            for _ in range(a.repeats):
-                t0 = time.perf_counter()
-                blk(fn(*common_args, *args))
-                times.append((time.perf_counter() - t0) * 1e3)
-        spent = time.perf_counter() - t_budget
-        left = a.budget - spent
-        extra = min(a.repeats - len(times), int(max(0.0, left) / max(first * 1e-3, 1e-6) / max(1, len(batches))))
-        for _ in range(max(0, extra)):
-            t0 = time.perf_counter()
-            blk(fn(*common_args, *args))
-            times.append((time.perf_counter() - t0) * 1e3)
-        ms = float(np.median(times))
-        overflow = bool(np.any(np.asarray(out.overflow)))
-        batch_res[str(b)] = dict(batch=b, rollout_ms=ms, designs_per_s=b / (ms * 1e-3), ms_per_design=ms / b,
-                                 repeats=len(times), compile_s=comp, contact_overflow_random_params=overflow)
-        rows.append([b, ms, ms / b, b / (ms * 1e-3), len(times)])
-    result["batched"] = batch_res
-    if "1" in batch_res:
-        for r in batch_res.values():
-            r["speedup_vs_batch1"] = batch_res["1"]["ms_per_design"] / r["ms_per_design"]
+        fns["python_loop"] = loop
+        per_call["python_loop"] = 1
+    load0 = common.machine_info()["load_avg_1min"]
+    times = common.time_calls(fns, repeats=a.repeats, warmup=1)
+    ms = {k: times[k]["median_ms"] / per_call[k] for k in fns}  # per design
+    ref = ms["single"]
+    result = dict(single=dict(rollout_ms=ref, per_frame_ms=ref / T, compile_s=compile_s["single"],
+                              timing=times["single"]))
+    if not a.no_loop:
+        result["python_loop"] = dict(rollout_ms=ms["python_loop"], loop_over_scan=ms["python_loop"] / ref)
+    result["union"] = {str(b): dict(batch=b, ms_per_design=ms[f"union{b}"], designs_per_s=1e3 / ms[f"union{b}"],
+                                    speedup_vs_single=ref / ms[f"union{b}"],
+                                    compile_s=compile_s[f"union{b}"], timing=times[f"union{b}"],
+                                    **union_info[str(b)]) for b in unions}
+    result["batched"] = {str(b): dict(batch=b, rollout_ms=times[f"vmap{b}"]["median_ms"], ms_per_design=ms[f"vmap{b}"],
+                                      designs_per_s=1e3 / ms[f"vmap{b}"], speedup_vs_single=ref / ms[f"vmap{b}"],
+                                      compile_s=compile_s[f"vmap{b}"], timing=times[f"vmap{b}"]) for b in batches}
+    for b in unions:
+        if str(b) in result["batched"]:
+            result["union"][str(b)]["speedup_vs_vmap"] = ms[f"vmap{b}"] / ms[f"union{b}"]
+    if a.profile and unions:
+        result["profile_step_ms_per_design"] = _profile(spec, common_args, one, s, unions[0])
     config = dict(preset=a.preset, n_nodes=s["n_nodes"], n_mesh_edges=s["n_mesh_edges"],
                   contact_capacity=s["contact_capacity"], latent=a.latent, layers=a.layers,
-                  mlp_layers=a.mlp_layers, frames=T, params="random (timing only)",
+                  mlp_layers=a.mlp_layers, frames=T, repeats=a.repeats, params="random (timing only)",
                   command="python -m benchmarks.rollout_throughput " +
                   " ".join(sys.argv[1:] if argv is None else argv))
-    result.update(config=config, machine=common.machine_info())
+    machine = common.machine_info()
+    machine["load_avg_1min_start"] = load0
+    result.update(config=config, machine=machine)
     md = [f"## Surrogate rollout throughput — {a.preset} ROI mesh ({s['n_nodes']} nodes, "
           f"{s['n_mesh_edges']} mesh edges), {a.layers} steps x latent {a.latent}, {T} frames, random params\n",
-          f"`{config['command']}` — {result['machine']['cpu']}, {result['machine']['cores_usable']} cores, "
-          f"jax {result['machine']['jax']}\n\n",
-          f"One rollout (lax.scan): {t_single['median_ms']:.1f} ms ({t_single['median_ms'] / T:.2f} ms/frame; "
-          f"compile {compile_single:.1f} s).\n"]
+          f"`{config['command']}` — {machine['cpu']}, {machine['cores_usable']} cores, jax {machine['jax']}, "
+          f"load {load0:.1f} -> {machine['load_avg_1min']:.1f}; interleaved, median of {a.repeats}\n\n",
+          f"One rollout (lax.scan): {ref:.1f} ms ({ref / T:.2f} ms/frame; compile {compile_s['single']:.1f} s).\n"]
     if "python_loop" in result:
-        pl = result["python_loop"]
-        md.append(f"Python loop of jitted steps: {pl['rollout_ms']:.1f} ms = {pl['loop_over_scan']:.2f}x the "
-                  f"scan rollout ({pl['scan_rollout_ms_same_rounds']:.1f} ms in the same rounds).\n")
-    md.append("\n" + common.md_table(["designs (batch)", "batch rollout ms", "ms / design", "designs / s",
-                                      "repeats"], rows))
+        md.append(f"Python loop of jitted steps: {ms['python_loop']:.1f} ms = "
+                  f"{result['python_loop']['loop_over_scan']:.2f}x the scan rollout.\n")
+    rows = [["1 at a time (`rollout`)", 1, ref / 1e3, 1e3 / ref, 1.0, compile_s["single"]]]
+    rows += [[f"disjoint union (`rollout_union`, {union_info[str(b)]['nodes']} padded nodes)", b,
+              ms[f"union{b}"] / 1e3, 1e3 / ms[f"union{b}"], ref / ms[f"union{b}"], compile_s[f"union{b}"]]
+             for b in unions]
+    rows += [["vmap over a stacked batch (`rollout_batch`)", b, ms[f"vmap{b}"] / 1e3, 1e3 / ms[f"vmap{b}"],
+              ref / ms[f"vmap{b}"], compile_s[f"vmap{b}"]] for b in batches]
+    md.append("\n" + common.md_table(["path", "designs per call", "s / design", "designs / s",
+                                      "speed-up per design vs 1 at a time", "compile s"], rows))
+    if "profile_step_ms_per_design" in result:
+        prof = result["profile_step_ms_per_design"]
+        ops = sorted({op for v in prof.values() for op in v}, key=lambda op: -max(v.get(op, 0) for v in prof.values()))
+        md.append("\nOne frame step by XLA op kind, ms per design (jax.profiler trace; thread time, so it "
+                  "can exceed wall time):\n\n")
+        md.append(common.md_table(["op kind"] + list(prof), [[op] + [prof[k].get(op, 0.0) for k in prof]
+                                                              for op in ops[:10]]
+                                  + [["total"] + [sum(v.values()) for v in prof.values()]]))
     jp, mp = common.default_paths("rollout_throughput", a.json, a.md)
     common.write_outputs(result, jp, mp, "".join(md))
     return result

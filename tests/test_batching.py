@@ -62,8 +62,8 @@ def designs():
 
 def test_bucket_sizes():
     sizes = [batching.bucket_size(n, 1) for n in range(1, 5000)]
-    assert all(s >= n and s <= max(1.25 * n, 4) for n, s in zip(range(1, 5000), sizes))
-    assert len(set(sizes)) < 50 and all(s % 2 == 0 for s in sizes if s >= 8)
+    assert all(s >= n and s <= max(1.125 * n, 8) for n, s in zip(range(1, 5000), sizes))
+    assert len(set(sizes)) <= 8 * 10 and all(s % 2 == 0 for s in sizes if s >= 16)
     assert [batching.design_slots(b) for b in (1, 2, 3, 5, 8, 9)] == [1, 2, 4, 8, 8, 16]
     with pytest.raises(ValueError):
         batching.design_slots(0)

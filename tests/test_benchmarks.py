@@ -74,10 +74,13 @@ def test_rollout_throughput_tiny(tmp_path):
     from benchmarks import rollout_throughput
     out = tmp_path / "r.json"
     rollout_throughput.main(["--preset", "tiny", "--latent", "8", "--layers", "1", "--frames", "3",
-                             "--batches", "1,2", "--repeats", "1", "--json", str(out)])
+                             "--batches", "1,2", "--union", "2", "--repeats", "1", "--profile", "--json", str(out)])
     r = _load(out)
     assert r["single"]["rollout_ms"] > 0 and r["python_loop"]["rollout_ms"] > 0
     assert set(r["batched"]) == {"1", "2"} and r["batched"]["2"]["designs_per_s"] > 0
+    u = r["union"]["2"]
+    assert u["ms_per_design"] > 0 and u["speedup_vs_vmap"] > 0 and u["real_nodes"] < u["nodes"]
+    assert set(r["profile_step_ms_per_design"]) == {"1 design", "union 2", "vmap 2"}
     assert r["config"]["params"].startswith("random")
 
 

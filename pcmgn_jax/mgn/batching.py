@@ -35,13 +35,13 @@ from flax import struct
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.graphs import Topology
 
-BUCKET_STEPS = (4, 5, 6, 7)  # sizes m * 2^k, m in BUCKET_STEPS: at most 25 % padding
+BUCKET_STEPS = tuple(range(8, 16))  # sizes m * 2^k, m in 8..15: 8 sizes per octave, < 12.5 % padding
 
 
 def bucket_size(n: int, minimum: int = 16) -> int:
-    """The smallest static size >= max(n, minimum) of the form m * 2^k with m in 4..7 (even for >= 8)."""
-    n = max(int(n), int(minimum), 4)
-    k = max(0, int(math.floor(math.log2(n))) - 2)
+    """The smallest static size >= max(n, minimum) of the form m * 2^k with m in 8..15 (even for >= 16)."""
+    n = max(int(n), int(minimum), 8)
+    k = max(0, int(math.floor(math.log2(n))) - 3)
     while True:
         for m in BUCKET_STEPS:
             if m << k >= n:
