@@ -76,6 +76,18 @@ def make_synthetic_trajectory(design: float = 1.0, n_frames: int = 12) -> Trajec
     return traj
 
 
+def drop_last_column(t: Trajectory) -> Trajectory:
+    """The trajectory on a mesh without its outermost column of cells (fewer nodes, another topology)."""
+    keep = t.points[:, 0] < t.points[:, 0].max() - 1e-12
+    new = -np.ones(len(keep), int)
+    new[keep] = np.arange(keep.sum())
+    cells_kept = np.all(keep[t.cells], axis=1)
+    return Trajectory(points=t.points[keep], cells=new[t.cells[cells_kept]], cell_part=t.cell_part[cells_kept],
+                      node_part=t.node_part[keep], node_type=t.node_type[keep], times=t.times,
+                      displacement=t.displacement[:, keep], velocity=t.velocity[:, keep],
+                      von_mises=t.von_mises[:, keep], meta=dict(t.meta))
+
+
 @pytest.fixture(scope="session")
 def tiny_trajs():
     """Four synthetic trajectories of one topology (designs 0.8..1.2)."""

@@ -4,7 +4,7 @@ import jax
 import numpy as np
 import pytest
 
-from conftest import CompileCounter, make_synthetic_trajectory
+from conftest import CompileCounter, drop_last_column, make_synthetic_trajectory
 from pcmgn_jax.mgn import batching
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn import rollout as rl
@@ -12,24 +12,11 @@ from pcmgn_jax.mgn.formulation import FORMULATIONS
 from pcmgn_jax.mgn.graphs import build_graph, topology_from_trajectory
 from pcmgn_jax.mgn.model import EncodeProcessDecode
 from pcmgn_jax.mgn.normalization import normalize_graph
-from pcmgn_jax.trajectory import Trajectory
 
 N_STEPS = 8
 
 
-def drop_last_column(t: Trajectory) -> Trajectory:
-    """The trajectory on a mesh without its outermost column of cells (fewer nodes, another topology)."""
-    keep = t.points[:, 0] < t.points[:, 0].max() - 1e-12
-    new = -np.ones(len(keep), int)
-    new[keep] = np.arange(keep.sum())
-    cells_kept = np.all(keep[t.cells], axis=1)
-    return Trajectory(points=t.points[keep], cells=new[t.cells[cells_kept]], cell_part=t.cell_part[cells_kept],
-                      node_part=t.node_part[keep], node_type=t.node_type[keep], times=t.times,
-                      displacement=t.displacement[:, keep], velocity=t.velocity[:, keep],
-                      von_mises=t.von_mises[:, keep], meta=dict(t.meta))
-
-
-def design(t: Trajectory, capacity: int = 16) -> dict:
+def design(t, capacity: int = 16) -> dict:
     topo = topology_from_trajectory(t)
     index = contact_lib.allocate(points=t.points, cells=t.cells, cell_part=t.cell_part, radius=20e-6,
                                  capacity=capacity)

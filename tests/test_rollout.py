@@ -3,7 +3,7 @@ import jax
 import numpy as np
 import pytest
 
-from conftest import CompileCounter
+from conftest import CompileCounter, drop_last_column
 from pcmgn_jax.mgn import rollout as rl
 def _args(t):
     return t.points, t.displacement[0], t.velocity[0], t.von_mises[0]
@@ -102,3 +102,19 @@ def test_evaluate_any_directory_and_baselines_that_need_the_training_mesh(tiny_r
     assert "training mesh" in m["baselines"]["nearest"]["not_applicable"]
     assert np.isfinite(m["position_mae_um"])
     assert (workdir / "eval" / "other" / "metrics.json").exists()
+
+
+def test_surrogate_many_meshes(tiny_run, tiny_trajs):
+    """MGNSurrogate rolls designs of different meshes out in one union batch: the same fields as each
+    alone; stacked arrays when node counts agree, lists when they differ."""
+    from pcmgn_jax.eval.surrogates import MGNSurrogate
+    _, workdir, _ = tiny_run
+    a, b = tiny_trajs[2], drop_last_column(tiny_trajs[3])
+    u, vm = MGNSurrogate(workdir, a).rollout_trajectories([a, b])
+    assert isinstance(u, list) and u[1].shape == b.displacement.shape and vm[0].shape == a.von_mises.shape
+    for t, got_u, got_s in zip((a, b), u, vm):
+        one_u, one_s = MGNSurrogate(workdir, t).rollout_trajectories([t])
+        np.testing.assert_allclose(got_u, one_u[0], rtol=1e-4, atol=1e-5 * np.abs(one_u).max())
+        np.testing.assert_allclose(got_s, one_s[0], rtol=1e-4, atol=1e-5 * np.abs(one_s).max())
+    u, vm = MGNSurrogate(workdir, a).rollout_trajectories(tiny_trajs[:3])
+    assert u.shape == (3,) + a.displacement.shape and vm.shape == (3,) + a.von_mises.shape
