@@ -1,7 +1,7 @@
 """Speed of the built-in explicit FE solver: substeps/s and wall time per default trajectory.
 
     python -m benchmarks.solver_speed [--presets cpu,paper] [--batch 8] [--frames 100]
-        [--probe-frames 5] [--budget 120] [--json PATH] [--md PATH]
+        [--probe-frames 5] [--budget 120] [--designs-per-call 0] [--json PATH] [--md PATH]
 
 For each mesh preset: the full (un-cropped) mesh of the default scene, designs = OCA1/OCA2
 thicknesses spread over 50-150 µm. Each configuration runs ``solver.simulate`` twice with the
@@ -12,7 +12,9 @@ which are reported separately as ``prepare_s``).
 A short ``--probe-frames`` run comes first; when the full ``--frames`` trajectory is predicted to
 take longer than ``--budget`` seconds, the full run is skipped and its wall time is EXTRAPOLATED
 linearly from the probe (explicit dynamics: constant cost per substep), flagged ``extrapolated``.
-Single design and a batch of ``--batch`` designs (vmap) -> throughput ratio.
+Single design and a batch of ``--batch`` designs -> throughput ratio. ``--designs-per-call``
+is ``SolverSettings.designs_per_call`` (0: the solver's default, one design at a time on CPU;
+``--designs-per-call 8`` integrates the batch of 8 in one vectorised call).
 """
 from __future__ import annotations
 
@@ -31,6 +33,8 @@ def _args(argv):
     p.add_argument("--probe-frames", type=int, default=5)
     p.add_argument("--budget", type=float, default=120.0,
                    help="max predicted seconds of one full timed run; longer runs are extrapolated")
+    p.add_argument("--designs-per-call", type=int, default=0,
+                   help="SolverSettings.designs_per_call (0 = the solver's default)")
     p.add_argument("--json", default=None)
     p.add_argument("--md", default=None)
     return p.parse_args(argv)
@@ -41,14 +45,15 @@ def designs(n: int) -> list[tuple[float, float]]:
     return [tuple(x) for x in rng.uniform(50e-6, 150e-6, size=(n, 2))]
 
 
-def timed_simulate(scenes, preset, n_frames: int) -> dict:
+def timed_simulate(scenes, preset, n_frames: int, designs_per_call: int = 0) -> dict:
     """Compile run + timed run; returns timing dict for the batch."""
     from pcmgn_jax.sim import solver
+    settings = solver.SolverSettings(designs_per_call=designs_per_call)
     t0 = time.perf_counter()
-    first = solver.simulate(scenes, preset, n_frames=n_frames)
+    first = solver.simulate(scenes, preset, n_frames=n_frames, settings=settings)
     first_total = time.perf_counter() - t0
     t0 = time.perf_counter()
-    res = solver.simulate(scenes, preset, n_frames=n_frames)
+    res = solver.simulate(scenes, preset, n_frames=n_frames, settings=settings)
     total = time.perf_counter() - t0
     b = len(scenes)
     sub = n_frames * res.n_sub
@@ -75,11 +80,11 @@ def main(argv=None) -> dict:
         res = {}
         for b in (1, a.batch):
             scenes = [base.with_design(*d) for d in designs(b)]
-            probe = timed_simulate(scenes, preset, a.probe_frames)
+            probe = timed_simulate(scenes, preset, a.probe_frames, a.designs_per_call)
             predicted = probe["wall_s"] * frames / a.probe_frames
             entry = dict(probe=probe, predicted_full_wall_s=predicted)
             if predicted <= a.budget and frames != a.probe_frames:
-                full = timed_simulate(scenes, preset, frames)
+                full = timed_simulate(scenes, preset, frames, a.designs_per_call)
                 entry.update(full=full, wall_s_trajectory=full["wall_s"], extrapolated=False,
                              substeps_per_s=full["substeps_per_s"])
             else:
@@ -95,7 +100,8 @@ def main(argv=None) -> dict:
         if "1" in res and str(a.batch) in res:
             res["batch_throughput_ratio"] = res["1"]["wall_s_per_design"] / res[str(a.batch)]["wall_s_per_design"]
         out[preset] = res
-    config = dict(presets=presets, batch=a.batch, frames=frames, probe_frames=a.probe_frames, budget_s=a.budget,
+    config = dict(presets=presets, batch=a.batch, designs_per_call=a.designs_per_call, frames=frames,
+                  probe_frames=a.probe_frames, budget_s=a.budget,
                   scene="default_scene (axisymmetric, 8 mm half width, full mesh, 6 layers)",
                   command="python -m benchmarks.solver_speed " + " ".join(sys.argv[1:] if argv is None else argv),
                   total_benchmark_s=time.perf_counter() - t_start)

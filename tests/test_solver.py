@@ -15,6 +15,7 @@ from pcmgn_jax.sim import solver
 from pcmgn_jax.scene import default_scene
 from pcmgn_jax.sim.solver import SolverError, SolverSettings, simulate
 
+VECTORISED = SolverSettings(designs_per_call=2)  # both designs in one compiled call
 N_FRAMES = 12  # 48 us: the ball touches at ~16 us, so 32 us of contact
 S1 = default_scene(t_oca1=50e-6, t_oca2=50e-6)
 S2 = default_scene(t_oca1=150e-6, t_oca2=150e-6)
@@ -130,7 +131,8 @@ def test_bar_wave_speed(analysis, expected):
 def runs():
     out = {"s1": simulate([S1], "tiny", n_frames=N_FRAMES),
            "s2": simulate([S2], "tiny", n_frames=N_FRAMES),
-           "batch": simulate([S1, S2], "tiny", n_frames=N_FRAMES)}
+           "batch": simulate([S1, S2], "tiny", n_frames=N_FRAMES),
+           "batch_vectorised": simulate([S1, S2], "tiny", n_frames=N_FRAMES, settings=VECTORISED)}
     with jax.enable_x64(True):
         out["f64"] = simulate([S1], "tiny", n_frames=N_FRAMES, settings=SolverSettings(dtype="float64"))
     return out
@@ -232,8 +234,9 @@ def test_float32_stress_matches_float64_everywhere(runs):
     assert _rel(runs["s1"].von_mises, runs["f64"].von_mises) < 1e-3
 
 
-def test_batch_equals_single_runs(runs):
-    rb = runs["batch"]
+@pytest.mark.parametrize("batch", ["batch", "batch_vectorised"])
+def test_batch_equals_single_runs(runs, batch):
+    rb = runs[batch]
     for i, key in enumerate(("s1", "s2")):
         r = runs[key]
         assert r.n_sub == rb.n_sub and r.dt == rb.dt
@@ -252,6 +255,8 @@ def test_no_recompilation_for_new_design_same_shapes(runs):
     assert r.n_sub == runs["s1"].n_sub  # same static arguments
     assert solver._run_batch._cache_size() == before
     r = simulate([S2, S3], "tiny", n_frames=N_FRAMES)
+    assert solver._run_batch._cache_size() == before
+    r = simulate([S2, S3], "tiny", n_frames=N_FRAMES, settings=VECTORISED)
     assert solver._run_batch._cache_size() == before
 
 

@@ -23,9 +23,10 @@ Numerics (DESIGN §3):
   non-finite value, raises :class:`SolverError` naming the frame, and nothing is returned.
 
 The whole run is one jitted ``lax.scan`` (frames) over a ``lax.scan`` (substeps), no host sync
-inside; a batch of designs with the same topology runs in the same call, the design axis kept in
-the arrays (node layout (2, B, N)) rather than vmapped, so the stiffness is applied as shifted
-slices of contiguous node rows (:mod:`pcmgn_jax.sim.stencil`).
+inside. The stiffness is applied as shifted slices of contiguous node rows
+(:mod:`pcmgn_jax.sim.stencil`); node arrays are (2, B, N) with a design axis kept in the arrays
+rather than vmapped, so designs of one topology can run in one call
+(``SolverSettings.designs_per_call``; on CPU they run one at a time, which is faster).
 """
 from __future__ import annotations
 
@@ -56,12 +57,16 @@ class SolverSettings:
     """safety: fraction of the stable time step; penalty_factor: k_p = factor * E'/h [N/m^3]
     with E' the plane-strain modulus of the softer contact body and h the master element size;
     energy_tol: allowed |E(t) - E(0)| / KE(0); dtype: 'float32' or 'float64' (float64 needs
-    ``jax.enable_x64``)."""
+    ``jax.enable_x64``); designs_per_call: designs of a batch integrated together in one
+    compiled call (0 = all of them on an accelerator, one at a time on CPU, where the
+    vectorised batch of 8 runs at 0.7-0.8x the per-design throughput of single runs:
+    benchmarks/README §3)."""
 
     safety: float = 0.9
     penalty_factor: float = 1.0
     energy_tol: float = 0.01
     dtype: str = "float32"
+    designs_per_call: int = 0
 
 
 @dataclass
@@ -419,19 +424,30 @@ def simulate(scenes: Sequence[Scene], preset: str | MeshSpec = "cpu", *,
     design_parts = [m0.part_names.index(name) for name in base.design_layers]
     shared_rows = np.ones(m0.n_nodes, bool)
     shared_rows[m0.cells[np.isin(m0.cell_part, design_parts)].ravel()] = False
-    arrays, layout = _device_arrays(
-        points=prep.points, cells=m0.cells, ke=prep.ke, db=prep.db, mass=prep.mass, free=prep.free,
-        ball_weight=ball_w, slaves=prep.slaves, masters=prep.masters, k_slave=prep.k_slave,
-        node_slots=prep.node_slots, avg_weight=prep.avg_weight, shared_rows=shared_rows,
-        dtype=dtype)
+    if settings.designs_per_call < 0:
+        raise ValueError(f"simulate: designs_per_call must be >= 0, got {settings.designs_per_call}")
+    per_call = settings.designs_per_call or (1 if jax.default_backend() == "cpu" else b)
     v0 = np.zeros((2, b, m0.n_nodes))
     v0[1][:, m0.node_part == 0] = -np.array([s.ball.velocity for s in scenes])[:, None]
-    t0 = time.perf_counter()
-    us, vs, vm, es, (force, approach) = jax.block_until_ready(
-        _run(arrays, jnp.zeros((2, b, m0.n_nodes), dtype), jnp.asarray(v0, dtype),
-             jnp.full((b,), dt, dtype), layout=layout, n_frames=n_frames, n_sub=n_sub,
-             rigid_x=base.analysis == "plane_strain"))
-    wall = time.perf_counter() - t0
+    outs, wall = [], 0.0
+    for lo in range(0, b, per_call):
+        part = slice(lo, min(lo + per_call, b))
+        arrays, layout = _device_arrays(
+            points=prep.points[part], cells=m0.cells, ke=prep.ke[part], db=prep.db[part],
+            mass=prep.mass[part], free=prep.free, ball_weight=ball_w[part], slaves=prep.slaves,
+            masters=prep.masters, k_slave=prep.k_slave[part], node_slots=prep.node_slots,
+            avg_weight=prep.avg_weight, shared_rows=shared_rows, dtype=dtype)
+        nb = part.stop - part.start
+        t0 = time.perf_counter()
+        outs.append(jax.block_until_ready(
+            _run(arrays, jnp.zeros((2, nb, m0.n_nodes), dtype), jnp.asarray(v0[:, part], dtype),
+                 jnp.full((nb,), dt, dtype), layout=layout, n_frames=n_frames, n_sub=n_sub,
+                 rigid_x=base.analysis == "plane_strain")))
+        wall += time.perf_counter() - t0
+    # each call returns u, v, von Mises, energy, (force, approach) with the designs leading
+    us, vs, vm, es, force, approach = (
+        np.concatenate([np.asarray(x) for x in per_output])
+        for per_output in zip(*[(u, v, m, e, f, a) for u, v, m, e, (f, a) in outs]))
     us, vs, vm, es = (np.asarray(x, np.float64) for x in (us, vs, vm, es))
     ke0 = es[:, 0, 0]
     total = es.sum(axis=2)
