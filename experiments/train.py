@@ -2,7 +2,9 @@
 
 Every TrainConfig field is a flag (``--key=value``; ``--help`` lists them); ``--preset tiny|cpu|paper``
 fills the defaults (pcmgn_jax.config.PRESETS); plus ``--workdir DIR`` and ``--resume``, which continues the
-run from its last checkpoint and refuses flags that change its saved config.json.
+run from its last checkpoint and refuses flags that change its saved config.json. ``--devices`` splits each
+batch over several devices; ``--coordinator_address``, ``--num_processes``, ``--process_id``: several hosts
+(README, "Several machines").
 On a fresh machine the preset's dataset is generated first (data/<data_preset>, cached).
 """
 import sys
@@ -12,6 +14,7 @@ from pcmgn_jax import cli
 
 def main(argv=None) -> int:
     args = cli.parse_train(argv, description=__doc__, prog="python -m experiments.train")
+    args.initialize_distributed()  # several hosts only (--coordinator_address); before jax computes anything
     cfg, workdir = args.config, args.run_dir
     from pcmgn_jax.data.dataset import ensure_dataset, load_splits
     from pcmgn_jax.train import loop as training

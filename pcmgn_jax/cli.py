@@ -130,10 +130,25 @@ class TrainArgs:
     config: Annotated[TrainConfig, tyro.conf.arg(name="")]   # the flags are its fields, no prefix
     workdir: str = ""        # run directory (checkpoints, metrics.jsonl, config.json); "" -> runs/<preset>
     resume: bool = False     # continue the run in --workdir from its last checkpoint (same config only)
+    # several hosts (README "Several machines"): jax.distributed.initialize before training; not saved
+    coordinator_address: str = ""  # host:port of process 0, reachable from every host; "" -> one host
+    num_processes: int = 1   # processes in the run (one per host)
+    process_id: int = 0      # this process's index, 0 .. num_processes - 1
 
     @property
     def run_dir(self) -> Path:
         return Path(self.workdir or f"runs/{self.config.preset}")
+
+    def initialize_distributed(self) -> None:
+        """``jax.distributed.initialize`` when ``coordinator_address`` is set; call before any jax computation."""
+        if not self.coordinator_address:
+            return
+        if not 0 <= self.process_id < self.num_processes:
+            raise ValueError(f"--process_id={self.process_id} must be in 0 .. num_processes - 1 "
+                             f"(--num_processes={self.num_processes})")
+        import jax
+        jax.distributed.initialize(coordinator_address=self.coordinator_address,
+                                   num_processes=self.num_processes, process_id=self.process_id)
 
 
 def config_diff(old: TrainConfig, new: TrainConfig) -> dict[str, tuple[Any, Any]]:

@@ -59,8 +59,9 @@ class TrainConfig:
     lr_decay_steps: int = 0          # 0 -> total number of steps (lr ends at lr0 * rate)
     epochs: int = 20                 # passes over all (trajectory, frame) pairs
     num_steps: int = 0               # >0 overrides epochs: total optimiser steps
-    batch_graphs: int = 1            # graphs per step (same topology, stacked + vmapped); paper: 1
+    batch_graphs: int = 1            # graphs per step over all devices (same topology, stacked + vmapped); paper: 1
     steps_per_dispatch: int = 25     # optimiser steps per jitted call (lax.scan)
+    devices: int = 1                 # data-parallel devices splitting each batch (0 = all); divides batch_graphs
     # ---- bookkeeping ------------------------------------------------------------------------
     log_every: int = 100             # steps between metrics.jsonl lines (rounded to the dispatch)
     ckpt_every: int = 1000           # steps between periodic checkpoints (rounded to the dispatch)
@@ -84,13 +85,15 @@ class TrainConfig:
                      "log_every", "ckpt_every", "val_every", "max_to_keep", "epochs"):
             if getattr(self, name) < 1:
                 bad(name, "must be >= 1")
-        for name in ("n_val", "n_test", "message_passing_steps", "num_steps", "lr_decay_steps"):
+        for name in ("n_val", "n_test", "message_passing_steps", "num_steps", "lr_decay_steps", "devices"):
             if getattr(self, name) < 0:
                 bad(name, "must be >= 0")
         if self.contact_radius < 0 or self.noise_std < 0 or self.noise_rel < 0 or self.lambda_pen < 0:
             bad("contact_radius/noise_std/noise_rel/lambda_pen", "must be >= 0")
         if not 0 < self.learning_rate < 1:
             bad("learning_rate", "must be in (0, 1)")
+        if self.devices:  # 0 (all devices) is checked once jax knows how many (train.sharding)
+            check_batch_split(self.batch_graphs, self.devices)
 
     # ---- construction ------------------------------------------------------------------------
     @classmethod
@@ -143,6 +146,14 @@ class TrainConfig:
     @property
     def resolved_dataset_dir(self) -> str:
         return self.dataset_dir or f"data/{self.data_preset}"
+
+
+def check_batch_split(batch_graphs: int, devices: int) -> None:
+    """Data parallelism splits every batch evenly: ``ValueError`` unless ``devices`` divides ``batch_graphs``."""
+    if batch_graphs % devices:
+        raise ValueError(f"config: batch_graphs={batch_graphs} is not divisible by devices={devices}; each "
+                         f"device takes batch_graphs / devices graphs of every step (e.g. --batch_graphs="
+                         f"{devices * max(1, round(batch_graphs / devices))})")
 
 
 PRESETS: dict[str, dict[str, Any]] = {

@@ -9,11 +9,14 @@
   :func:`pcmgn_jax.eval.metrics.position_mae_um`; the best one is kept in ``checkpoints/best``.
 - ``--resume`` continues from the latest periodic checkpoint with its statistics and buffer size; the
   data order is a pure function of (seed, step), so the result equals an uninterrupted run.
+- ``devices`` > 1 (or 0: all): data parallelism (:mod:`pcmgn_jax.train.sharding`); the state and the
+  setup's arrays are replicated on a 'data' mesh, each chunk's batch is split over it along B.
 """
 from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from pathlib import Path
 from typing import Sequence
@@ -31,6 +34,7 @@ from pcmgn_jax.mgn.normalization import normalize_graph
 from pcmgn_jax.mgn.rollout import rollout_checked
 from pcmgn_jax.train.sampling import gather, pair_table, sample_ids
 from pcmgn_jax.train.setup import Setup, prepare
+from pcmgn_jax.train.sharding import DataParallel, data_parallel
 from pcmgn_jax.train.step import init_state, learning_rate, train_chunk
 
 
@@ -67,6 +71,12 @@ def validation_mae_um(setup: Setup, params, trajs) -> tuple[float, bool]:
     return mae, bool(np.isfinite(mae))
 
 
+def replicated(dp: DataParallel, setup: Setup) -> Setup:
+    """``setup`` with its array fields (the jitted step's inputs) replicated on ``dp``'s mesh."""
+    fields = ("stats", "topology", "index", "sigma", "pen_nodes", "weights")
+    return setup._replace(**dp.replicate({k: getattr(setup, k) for k in fields}))
+
+
 def _meta(cfg: TrainConfig, setup: Setup, **extra) -> dict:
     return dict(config=cfg.to_dict(), contact_radius=setup.index.radius, contact_capacity=setup.index.capacity,
                 dt=setup.spec.sim.dt, total_steps=setup.total_steps, **extra)
@@ -79,6 +89,7 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
     workdir.mkdir(parents=True, exist_ok=True)
     if resume:
         check_resume(cfg, workdir)  # a resumed run keeps its config.json; a changed config is refused
+    dp = data_parallel(cfg.devices, cfg.batch_graphs)  # None on one device; checks the batch split first
     periodic_dir = workdir / "checkpoints" / "periodic"
     periodic = checkpoint.manager(periodic_dir, cfg.max_to_keep)
     best_mgr = checkpoint.manager(workdir / "checkpoints" / "best", 1)
@@ -98,34 +109,43 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
         state = init_state(setup.spec, init_params(setup, train_trajs[0], cfg.seed))
         best_val = float("inf")
         mode = "w"
-    cfg.save_json(workdir / "config.json")
+    if dp is not None:
+        state, setup = dp.replicate(state), replicated(dp, setup)
+    primary = jax.process_index() == 0  # on several hosts one process writes the files (orbax: checkpoints)
+    if primary:
+        cfg.save_json(workdir / "config.json")
     form = setup.spec.sim.formulation
     table = pair_table(train_trajs)
     K, B = cfg.steps_per_dispatch, cfg.batch_graphs
     every = lambda n: K * max(1, math.ceil(n / K))  # noqa: E731
     log_every, ckpt_every, val_every = every(cfg.log_every), every(cfg.ckpt_every), every(cfg.val_every)
     seed_key = jax.random.PRNGKey(cfg.seed + 1)
+    rows = slice(None)  # the batch columns this process gathers: all, except on several hosts
+    if dp is not None:
+        seed_key, rows = dp.replicate(seed_key), dp.local_rows(K, B)
     step = int(state["step"])
     total = setup.total_steps
     end = total if stop_after is None else min(total, step + stop_after)
     last_good = periodic.latest_step()
 
     bar = None
-    if cfg.progress:
+    if cfg.progress and primary:
         from tqdm import tqdm
         bar = tqdm(total=total, initial=step, desc="train", dynamic_ncols=True)
     t_start, rate = time.perf_counter(), float("nan")
-    with open(workdir / "metrics.jsonl", mode) as log:
+    with open(workdir / "metrics.jsonl" if primary else os.devnull, mode) as log:
         while step < end:
             t_chunk = time.perf_counter()
-            ids = sample_ids(cfg.seed, step, K, B, setup.n_pairs)
+            ids = sample_ids(cfg.seed, step, K, B, setup.n_pairs)[:, rows]
             batch = gather(form, train_trajs, table, ids, dt=setup.spec.sim.dt, previous=cfg.pushforward)
+            if dp is not None:
+                batch = dp.put_batch(batch, B)
             new_state, m = train_chunk(setup.spec, state, setup.stats, setup.topology, setup.index, setup.sigma,
                                        setup.pen_nodes, setup.weights, batch, seed_key)
             m = jax.device_get(m)
             if np.any(m["overflow"]):
                 need = int(np.max(m["contact_count"]))
-                setup = setup._replace(index=contact_lib.grow(setup.index, need))
+                setup = setup._replace(index=contact_lib.grow(setup.index, need))  # static size only
                 print(f"contact buffer overflow at step {step} (needed {need}); grown to "
                       f"{setup.index.capacity} and the chunk is re-run")
                 continue
