@@ -20,8 +20,9 @@ Every per-graph quantity is segment-wise over ``layout.node_graph``: the rigid b
 mean motion (:func:`pcmgn_jax.mgn.rollout.ball_output`, :func:`pcmgn_jax.mgn.formulation.rigid_mean`);
 the contact search runs per graph slot (:func:`pcmgn_jax.mgn.contact.update_graphs`); normalisation is
 per node / edge. Padding nodes have no contact candidates and no edges to real nodes, so they never
-contribute. Why a union and not ``vmap`` over a stacked batch: see ``benchmarks/README.md`` (rollout
-throughput).
+contribute (``jraph.zero_out_padding`` is not used: it calls the removed ``jax.tree_map``; padding is
+typed fixed and masked instead). Why a union and not ``vmap`` over a stacked batch: see
+``benchmarks/README.md`` (rollout throughput).
 """
 from __future__ import annotations
 
@@ -100,7 +101,8 @@ def batch_graphs(topologies: Sequence[Topology], indices: Sequence[contact_lib.C
 
     Sizes are bucketed: nodes (plus one padding node), mesh edges, contact candidates and capacity by
     :func:`bucket_size`; graph slots by :func:`design_slots` (at least ``min_slots``) plus one padding
-    graph. ``min_capacity``: contact edges per graph at least (e.g. a buffer grown by an earlier batch). Designs must share the node types (the model's one-hot width) and the contact radius.
+    graph. ``min_capacity``: contact edges per graph at least (e.g. a buffer grown by an earlier batch).
+    Designs must share the node types (the model's one-hot width) and the contact radius.
     """
     if not (len(topologies) == len(indices) == len(points)) or not topologies:
         raise ValueError(f"need one topology, contact index and points array per design, got "
