@@ -90,7 +90,8 @@ def objective_weights(points, cells, cell_part, node_part, *, part: int, reading
     - ``peak``       max over the section's nodes (and frames, see :func:`oled_objective`)
     Weights come from the reference coordinates (small strains). ValueError when the section is empty.
     """
-    from pcmgn_jax.sim.fem import GAUSS_2x2, shape_functions
+    # the element integration weights (det J, x 2 pi r for the disc) are the solver's own (sim.fem)
+    from pcmgn_jax.sim.fem import GAUSS_2x2, _b_matrices
 
     if reading not in OBJECTIVES:
         raise ValueError(f"objective reading must be one of {OBJECTIVES}, got {reading!r}")
@@ -109,12 +110,8 @@ def objective_weights(points, cells, cell_part, node_part, *, part: int, reading
     xy = pts[cells[keep]]                                  # (E, 4, 2)
     w = np.zeros((len(xy), 4))
     for xi, eta in GAUSS_2x2:                              # Gauss weights are 1 for the 2x2 rule
-        shp, dn = shape_functions(xi, eta)
-        jac = np.einsum("ak,ekb->eab", dn, xy)
-        det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
-        if reading == "disc_mean":
-            det = det * 2.0 * np.pi * (xy[:, :, 0] @ shp)
-        w += det[:, None] * shp[None, :]
+        _, dvol, shp = _b_matrices(xy, xi, eta, axisymmetric=reading == "disc_mean")
+        w += dvol[:, None] * shp[None, :]
     out = np.zeros(n)
     np.add.at(out, cells[keep].ravel(), w.ravel())
     total = out.sum()
