@@ -91,7 +91,7 @@ def objective_weights(points, cells, cell_part, node_part, *, part: int, reading
     Weights come from the reference coordinates (small strains). ValueError when the section is empty.
     """
     # the element integration weights (det J, x 2 pi r for the disc) are the solver's own (sim.fem)
-    from pcmgn_jax.sim.fem import GAUSS_2x2, _b_matrices
+    from pcmgn_jax.sim.fem import GAUSS_2x2, b_matrices
 
     if reading not in OBJECTIVES:
         raise ValueError(f"objective reading must be one of {OBJECTIVES}, got {reading!r}")
@@ -110,7 +110,7 @@ def objective_weights(points, cells, cell_part, node_part, *, part: int, reading
     xy = pts[cells[keep]]                                  # (E, 4, 2)
     w = np.zeros((len(xy), 4))
     for xi, eta in GAUSS_2x2:                              # Gauss weights are 1 for the 2x2 rule
-        _, dvol, shp = _b_matrices(xy, xi, eta, axisymmetric=reading == "disc_mean")
+        _, dvol, shp = b_matrices(xy, xi, eta, axisymmetric=reading == "disc_mean")
         w += dvol[:, None] * shp[None, :]
     out = np.zeros(n)
     np.add.at(out, cells[keep].ravel(), w.ravel())

@@ -33,8 +33,12 @@ def elasticity_matrix(youngs: np.ndarray, poisson: np.ndarray) -> np.ndarray:
     return lam * base + mu * diag
 
 
-def _b_matrices(xy: np.ndarray, xi: float, eta: float, axisymmetric: bool):
-    """B (E,4,8), integration weight (E,) without the Gauss weight, N (4,) at (xi, eta)."""
+def b_matrices(xy: np.ndarray, xi: float, eta: float, axisymmetric: bool):
+    """B (E,4,8), integration weight (E,) without the Gauss weight, N (4,) at (xi, eta).
+
+    Public: the solver's element operators and the objective's element integration
+    (:func:`pcmgn_jax.eval.metrics.objective_weights`) share this one definition of det J and 2 pi r.
+    """
     n, dn = shape_functions(xi, eta)
     jac = np.einsum("ak,ekb->eab", dn, xy)  # (E,2,2): d(x,y)/d(xi,eta)
     det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
@@ -76,12 +80,12 @@ def element_matrices(points: np.ndarray, cells: np.ndarray, youngs: np.ndarray,
     ke = np.zeros((len(cells), 8, 8))
     mass = np.zeros((len(cells), 4))
     for xi, eta in GAUSS_2x2:
-        b, w, n = _b_matrices(xy, xi, eta, axi)
+        b, w, n = b_matrices(xy, xi, eta, axi)
         if not axi:
             b[:, 3, :] = 0.0
         ke += np.einsum("eki,ekl,elj->eij", b, d, b) * w[:, None, None]
         mass += np.asarray(density)[:, None] * n[None, :] * w[:, None]
-    bc, _, _ = _b_matrices(xy, 0.0, 0.0, axi)
+    bc, _, _ = b_matrices(xy, 0.0, 0.0, axi)
     if not axi:
         bc[:, 3, :] = 0.0
     db = np.einsum("ekl,elj->ekj", d, bc)
