@@ -19,7 +19,7 @@ from pcmgn_jax.mgn.formulation import FORMULATIONS, NOISE_PARTS, Formulation
 @dataclass(frozen=True)
 class TrainConfig:
     # ---- data -------------------------------------------------------------------------------
-    preset: str = "cpu"              # which preset filled the defaults (tiny | cpu | paper)
+    preset: str = "cpu"              # which preset filled the defaults (tiny | cpu | paper | family | family_tiny)
     data_preset: str = "cpu"         # mesh/solver preset handed to dataset.ensure_dataset
     dataset_dir: str = ""            # dataset root; "" -> data/<data_preset>
     n_train: int = 12                # training trajectories
@@ -42,6 +42,7 @@ class TrainConfig:
     normalization: str = ""          # per_part (default) | global (paper: one normaliser for all nodes)
     features: str = ""               # strain (default: deformation channels of their own) | paper
     loss_weighting: str = ""         # parts (default: every part counts alike) | nodes (paper)
+    scene_features: str = ""         # comma list of per-scene node inputs: ball_radius, ball_velocity (family presets: ball_radius)
     # ---- loss -------------------------------------------------------------------------------
     lambda_pen: float = 0.0          # weight of the penetration term (0 = vanilla MGN; paper: 10)
     poly_ball: int = 6               # polynomial degree of the ball boundary fit (penetration term)
@@ -59,7 +60,7 @@ class TrainConfig:
     lr_decay_steps: int = 0          # 0 -> total number of steps (lr ends at lr0 * rate)
     epochs: int = 20                 # passes over all (trajectory, frame) pairs
     num_steps: int = 0               # >0 overrides epochs: total optimiser steps
-    batch_graphs: int = 1            # graphs per step over all devices (same topology, stacked + vmapped); paper: 1
+    batch_graphs: int = 1            # graphs per step over all devices (any meshes: one padded disjoint union per device); paper: 1
     steps_per_dispatch: int = 25     # optimiser steps per jitted call (lax.scan)
     devices: int = 1                 # data-parallel devices splitting each batch (0 = all); divides batch_graphs
     # ---- bookkeeping ------------------------------------------------------------------------
@@ -141,6 +142,8 @@ class TrainConfig:
             kw.setdefault("panel_target", self.target)
         if self.ball_model:
             kw["rigid_ball"] = self.ball_model == "rigid"
+        if self.scene_features:
+            kw["scene_features"] = tuple(f.strip() for f in self.scene_features.split(",") if f.strip())
         return FORMULATIONS[self.formulation].replace(**kw)
 
     @property
@@ -172,4 +175,16 @@ PRESETS: dict[str, dict[str, Any]] = {
                   message_passing_steps=15, epochs=100, num_steps=0, steps_per_dispatch=50,
                   log_every=500, ckpt_every=10000, val_every=10000, formulation="paper",
                   lambda_pen=10.0, noise_std=3e-7, noise_parts="all"),  # the paper's best: B.6/P.5, λ=10
+    # scene family (issue 12; pcmgn_jax.data.dataset.FAMILIES): ball radius, drop speed, OCA1/OCA2/POL
+    # thicknesses vary, every scene on its own mesh; the cpu preset's model and loss, 2 graphs per step,
+    # the ball radius as a node input (the speed is in the velocity state)
+    "family": dict(data_preset="family", n_train=22, n_val=2, n_test=8, latent_size=64,
+                   message_passing_steps=8, epochs=1, num_steps=4000, steps_per_dispatch=25, batch_graphs=2,
+                   log_every=100, ckpt_every=1000, val_every=1000, formulation="default",
+                   lambda_pen=10.0, noise_std=0.0, noise_rel=1.0, noise_parts="panel", scene_features="ball_radius"),
+    # tests and smoke checks of the family path: a handful of tiny scenes, a small model, seconds
+    "family_tiny": dict(data_preset="family_tiny", n_train=4, n_val=1, n_test=2, latent_size=32,
+                        message_passing_steps=3, epochs=1, num_steps=60, steps_per_dispatch=20, batch_graphs=2,
+                        log_every=20, ckpt_every=60, val_every=60, formulation="default", lambda_pen=10.0,
+                        noise_rel=1.0, noise_parts="panel", scene_features="ball_radius"),
 }

@@ -221,6 +221,30 @@ class Scene:
         return cls.from_dict(data, where=str(path))
 
 
+SCENE_PARAMETERS = ("ball.radius", "ball.velocity")
+"""Scene parameters besides layer thicknesses: the ball's radius [m] and its downward impact speed [m/s].
+Any layer name is a parameter too (that layer's thickness [m]); see :func:`with_parameters`."""
+
+
+def with_parameters(scene: Scene, params: Mapping[str, float]) -> Scene:
+    """The scene with parameters replaced: ``'ball.radius'`` [m], ``'ball.velocity'`` [m/s] (downward speed),
+    or a layer name -> that layer's thickness [m]. ValueError naming an unknown parameter."""
+    layers = {layer.name: layer for layer in scene.layers}
+    ball = {}
+    thick = {}
+    for name, value in params.items():
+        if name in SCENE_PARAMETERS:
+            ball[name.split(".", 1)[1]] = float(value)
+        elif name in layers:
+            thick[name] = float(value)
+        else:
+            raise ValueError(f"scene parameter {name!r} is unknown; use one of {list(SCENE_PARAMETERS)} or a "
+                             f"layer name {list(layers)} (its thickness [m])")
+    new_layers = tuple(dataclasses.replace(layer, thickness=thick[layer.name]) if layer.name in thick else layer
+                       for layer in scene.layers)
+    return dataclasses.replace(scene, layers=new_layers, ball=dataclasses.replace(scene.ball, **ball))
+
+
 def default_scene(*, t_oca1: float = 100e-6, t_oca2: float = 100e-6, **overrides: Any) -> Scene:
     """The paper's scene with the given OCA thicknesses [m]."""
     return dataclasses.replace(Scene(layers=paper_layers(t_oca1, t_oca2)), **overrides)

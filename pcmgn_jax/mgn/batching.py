@@ -96,13 +96,15 @@ class GraphBatch:
 
 def batch_graphs(topologies: Sequence[Topology], indices: Sequence[contact_lib.ContactIndex],
                  points: Sequence[np.ndarray], *, min_nodes: int = 64, min_edges: int = 256,
-                 min_slots: int = 1, min_capacity: int = 16) -> GraphBatch:
+                 min_slots: int = 1, min_capacity: int = 16, min_ball: int = 8, min_panel: int = 8) -> GraphBatch:
     """Host-side: the padded union of designs (their topology, contact index, reference points [m]).
 
     Sizes are bucketed: nodes (plus one padding node), mesh edges, contact candidates and capacity by
     :func:`bucket_size`; graph slots by :func:`design_slots` (at least ``min_slots``) plus one padding
-    graph. ``min_capacity``: contact edges per graph at least (e.g. a buffer grown by an earlier batch).
-    Designs must share the node types (the model's one-hot width) and the contact radius.
+    graph. ``min_capacity``: contact edges per graph at least (e.g. a buffer grown by an earlier batch);
+    ``min_ball`` / ``min_panel``: contact candidates per graph at least (a fixed training bucket).
+    Designs must share the node types (the model's one-hot width), the contact radius and whether they
+    carry scene features (the topology's ``scene_features``, concatenated like the other node arrays).
     """
     if not (len(topologies) == len(indices) == len(points)) or not topologies:
         raise ValueError(f"need one topology, contact index and points array per design, got "
@@ -110,6 +112,9 @@ def batch_graphs(topologies: Sequence[Topology], indices: Sequence[contact_lib.C
     widths = {t.n_node_types for t in topologies}
     if len(widths) != 1:
         raise ValueError(f"designs of one batch must share the node types, got n_node_types {sorted(widths)}")
+    widths_sf = {None if t.scene_features is None else np.shape(t.scene_features)[1] for t in topologies}
+    if len(widths_sf) != 1:
+        raise ValueError(f"designs of one batch must carry the same scene features, got widths {widths_sf}")
     graphs = []
     for t, p in zip(topologies, points):
         p = np.asarray(p, np.float32)
@@ -117,6 +122,8 @@ def batch_graphs(topologies: Sequence[Topology], indices: Sequence[contact_lib.C
             raise ValueError(f"points {p.shape} do not match a topology of {t.n_node} nodes")
         nodes = dict(node_type=np.asarray(t.node_type, np.int32), fixed=np.asarray(t.fixed, bool),
                      axis=np.asarray(t.axis, bool), points=p)
+        if t.scene_features is not None:
+            nodes["scene_features"] = np.asarray(t.scene_features, np.float32)
         e = len(t.mesh_senders)
         graphs.append(jraph.GraphsTuple(nodes=nodes, edges=np.zeros((e, 0), np.float32),
                                         senders=np.asarray(t.mesh_senders, np.int32),
@@ -136,15 +143,16 @@ def batch_graphs(topologies: Sequence[Topology], indices: Sequence[contact_lib.C
     topology = Topology(node_type=np.where(node_mask, nodes["node_type"], n_types - 1).astype(np.int32),
                         n_node_types=n_types, mesh_senders=np.asarray(padded.senders, np.int32),
                         mesh_receivers=np.asarray(padded.receivers, np.int32),
-                        fixed=nodes["fixed"] | ~node_mask, axis=nodes["axis"] & node_mask)
+                        fixed=nodes["fixed"] | ~node_mask, axis=nodes["axis"] & node_mask,
+                        scene_features=nodes.get("scene_features"))
     layout = Layout(n_node=n_node, n_edge=np.asarray(padded.n_edge, np.int32),
                     node_graph=np.repeat(np.arange(len(n_node), dtype=np.int32), n_node),
                     node_mask=node_mask, edge_mask=edge_mask)
     offsets = np.concatenate([[0], np.cumsum(n_node)[:-1]])
     index = contact_lib.stack(
         indices, offsets[:n_real], n_slots=slots,
-        n_ball=bucket_size(max(len(i.ball_nodes) for i in indices), 8),
-        n_panel=bucket_size(max(len(i.panel_nodes) for i in indices), 8),
+        n_ball=bucket_size(max(len(i.ball_nodes) for i in indices), min_ball),
+        n_panel=bucket_size(max(len(i.panel_nodes) for i in indices), min_panel),
         capacity=bucket_size(max(max(i.capacity for i in indices), min_capacity), 16))
     return GraphBatch(topology=topology, layout=layout, index=index, points=nodes["points"],
                       n_designs=np.asarray(n_real, np.int32))

@@ -29,6 +29,13 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
   channel of its own instead of 0.01 % of x_ij).
 - ``loss_weighting``: ``nodes`` (the paper: mean over nodes) or ``parts`` (mean over parts of each
   part's node mean, so 388 ball nodes or the big plate do not outvote the 30 µm OLED).
+- ``scene_features``: scene parameters given to every node as extra input channels (after the velocity),
+  normalised like the other node channels (per node type with ``per_part``): ``ball_radius`` [m] sets the
+  rigid ball's mass (∝ R³) and curvature, which the region-of-interest graph (the ball's lowest 0.5 mm)
+  cannot show; ``ball_velocity`` [m/s] (the impact speed) is available but redundant: the speed is
+  already the ball's velocity state. Node channels, not a graph-level global, because the processor has
+  no global block and every node of a scene carries the same value (a broadcast global); empty (the
+  default) for single-scene datasets, where the channel would be constant.
 
 Noise (training): Gaussian n on the input displacement of the noised nodes (one shared sample for a
 rigid ball); the velocity input is derived from the noisy displacement (v~ = v + n/dt, as in a
@@ -49,6 +56,22 @@ NORMALIZATIONS = ("global", "per_part")
 FEATURES = ("paper", "strain")
 LOSS_WEIGHTINGS = ("nodes", "parts")
 NOISE_PARTS = ("none", "ball", "panel", "all")
+SCENE_FEATURES = {"ball_radius": ("ball", "radius"), "ball_velocity": ("ball", "velocity")}  # -> scene dict keys
+
+
+def scene_feature_values(scene: dict, names) -> np.ndarray:
+    """(k,) float32 values [SI] of the scene features ``names`` (:data:`SCENE_FEATURES`) of a scene dict
+    (``Scene.to_dict()``, e.g. a trajectory's meta['scene'])."""
+    out = []
+    for name in names:
+        if name not in SCENE_FEATURES:
+            raise ValueError(f"scene feature {name!r} must be one of {sorted(SCENE_FEATURES)}")
+        group, key = SCENE_FEATURES[name]
+        try:
+            out.append(float(scene[group][key]))
+        except (KeyError, TypeError):
+            raise ValueError(f"scene feature {name!r}: the scene has no {group}.{key}") from None
+    return np.asarray(out, np.float32)
 BALL_PART = 0  # scene convention: part 0 is the ball, 1.. the layers from the top (scene.py)
 
 
@@ -62,8 +85,12 @@ class Formulation:
     normalization: str = "per_part"
     features: str = "strain"
     loss_weighting: str = "parts"
+    scene_features: tuple = ()
 
     def __post_init__(self):
+        bad = [f for f in self.scene_features if f not in SCENE_FEATURES]
+        if bad:
+            raise ValueError(f"formulation: scene_features {bad} must be among {sorted(SCENE_FEATURES)}")
         for name, allowed in (("ball_target", TARGETS), ("panel_target", TARGETS),
                               ("normalization", NORMALIZATIONS), ("features", FEATURES),
                               ("loss_weighting", LOSS_WEIGHTINGS)):
@@ -201,17 +228,18 @@ def training_sample(form: Formulation, ball_mask, *, points, u_prev, u, u_next, 
     return dict(u=u, v=(u - u_prev) / dt, target=np.concatenate([a, f(vm_next)[:, None]], axis=-1), ball=rigid)
 
 
-def add_noise(form: Formulation, ball_mask, sample: dict, noise, dt: float) -> dict:
+def add_noise(form: Formulation, ball_mask, sample: dict, noise, dt: float, segments=None) -> dict:
     """``sample`` (from :func:`training_sample`, JAX arrays) with ``noise`` (N, 2) [m] on the input
     displacement, the velocity input v + noise/dt, and targets corrected (module docstring). With a
-    rigid ball the caller passes one shared noise vector on all ball rows."""
+    rigid ball the caller passes one shared noise vector on all ball rows (of each graph: ``segments``
+    of a disjoint union, see :func:`rigid_mean`; the ball target is then (G, 2))."""
     ball = jnp.asarray(ball_mask)[:, None]
     corr = jnp.where(ball, noise_correction(form.ball_target, noise, dt),
                      noise_correction(form.panel_target, noise, dt))
     out = dict(sample, u=sample["u"] + noise, v=sample["v"] + noise / dt,
                target=jnp.asarray(sample["target"]).at[:, :2].add(corr))
     if form.rigid_ball:
-        out["ball"] = sample["ball"] + noise_correction(form.ball_target, rigid_mean(noise, ball_mask), dt)
+        out["ball"] = sample["ball"] + noise_correction(form.ball_target, rigid_mean(noise, ball_mask, segments), dt)
     return out
 
 

@@ -60,6 +60,8 @@ class Topology:
     mesh_receivers: [E]   int32
     fixed:          [N]   bool    node_type == n_parts: displacement held at 0
     axis:           [N]   bool    nodes on the symmetry axis x = 0: u_x held at 0
+    scene_features: [N, k] float32 per-scene node inputs [SI] (Formulation.scene_features; each node
+                                  carries its scene's values), or None (k = 0)
     """
 
     node_type: np.ndarray
@@ -68,6 +70,7 @@ class Topology:
     mesh_receivers: np.ndarray
     fixed: np.ndarray
     axis: np.ndarray
+    scene_features: np.ndarray | None = None
 
     @property
     def n_node(self) -> int:
@@ -90,10 +93,11 @@ def quad_edges(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def make_topology(*, points: np.ndarray, cells: np.ndarray, node_type: np.ndarray, n_parts: int,
-                  axis_tol: float = 1e-9) -> Topology:
+                  axis_tol: float = 1e-9, scene_features=None) -> Topology:
     """Build the static topology. ``points`` (N,2) [m] reference; ``n_parts`` = ball + layers.
 
     Axis nodes are those with reference x <= ``axis_tol`` [m] (half model, symmetry axis x = 0).
+    ``scene_features``: (k,) values [SI] every node carries (:func:`with_scene_features`), or None.
     """
     node_type = np.asarray(node_type, dtype=np.int32)
     if node_type.min() < 0 or node_type.max() > n_parts:
@@ -101,15 +105,28 @@ def make_topology(*, points: np.ndarray, cells: np.ndarray, node_type: np.ndarra
                          f"{node_type.min()}..{node_type.max()}")
     s, r = quad_edges(cells)
     points = np.asarray(points, dtype=np.float64)
-    return Topology(node_type=node_type, n_node_types=int(n_parts) + 1, mesh_senders=s,
+    topo = Topology(node_type=node_type, n_node_types=int(n_parts) + 1, mesh_senders=s,
                     mesh_receivers=r, fixed=node_type == n_parts,
                     axis=(np.abs(points[:, 0]) <= axis_tol) & (node_type != n_parts))
+    return topo if scene_features is None else with_scene_features(topo, scene_features)
 
 
-def topology_from_trajectory(traj) -> Topology:
-    """Topology of a :class:`pcmgn_jax.trajectory.Trajectory` (n_parts from its scene/part names)."""
+def with_scene_features(topology: Topology, values) -> Topology:
+    """``topology`` whose every node carries the scene feature ``values`` (k,) [SI] (None or k = 0: none)."""
+    if values is None or len(values) == 0:
+        return topology.replace(scene_features=None)
+    vals = np.asarray(values, np.float32)
+    return topology.replace(scene_features=np.broadcast_to(vals, (topology.n_node, len(vals))).copy())
+
+
+def topology_from_trajectory(traj, scene_features: tuple = ()) -> Topology:
+    """Topology of a :class:`pcmgn_jax.trajectory.Trajectory` (n_parts from its scene/part names), with the
+    scene features ``scene_features`` (names, :data:`pcmgn_jax.mgn.formulation.SCENE_FEATURES`) read from
+    its meta['scene']."""
+    from pcmgn_jax.mgn.formulation import scene_feature_values
+    values = scene_feature_values(traj.meta["scene"], scene_features) if scene_features else None
     return make_topology(points=traj.points, cells=traj.cells, node_type=traj.node_type,
-                         n_parts=n_parts_of(traj))
+                         n_parts=n_parts_of(traj), scene_features=values)
 
 
 def n_parts_of(traj) -> int:
@@ -134,15 +151,18 @@ def node_features(topology: Topology, points, displacement, velocity, features: 
     'paper':  [one_hot(type), x^w, xdot^w]          (k = 4; x^w = X + u, the paper's Table 1)
     'strain': [one_hot(type), X, u, xdot^w]         (k = 6; reference position and displacement apart,
               so the µm displacement is not a 1e-3 fraction of a mm coordinate)
+
+    followed by the topology's ``scene_features`` (N, k') [SI] when it has them.
     """
     one_hot = jnp.eye(topology.n_node_types, dtype=jnp.float32)[jnp.asarray(topology.node_type)]
     points = jnp.asarray(points, jnp.float32)
     displacement = jnp.asarray(displacement, jnp.float32)
     velocity = jnp.asarray(velocity, jnp.float32)
+    extra = [] if topology.scene_features is None else [jnp.asarray(topology.scene_features, jnp.float32)]
     if features == "paper":
-        return jnp.concatenate([one_hot, points + displacement, velocity], axis=-1)
+        return jnp.concatenate([one_hot, points + displacement, velocity] + extra, axis=-1)
     if features == "strain":
-        return jnp.concatenate([one_hot, points, displacement, velocity], axis=-1)
+        return jnp.concatenate([one_hot, points, displacement, velocity] + extra, axis=-1)
     raise ValueError(f"features must be 'paper' or 'strain', got {features!r}")
 
 

@@ -4,7 +4,10 @@ Coordinates [m]: x >= 0 is the radius (axisymmetric) or the half width (plane st
 symmetry axis is x = 0, y is the height with the plate bottom at y = 0. The ball is a half
 disk meshed with the elliptical square-to-disk map, so its bottom pole (the contact point)
 sits in the middle of a well-shaped, graded patch. Element counts per layer are fixed by the
-:class:`MeshSpec`, so every design (OCA thicknesses) of a scene has the same topology.
+:class:`MeshSpec`, so every design (OCA thicknesses) of a scene has the same topology -- except in the
+scene-family presets (``thickness_elems``), where the layers not listed in ``layer_elems`` get
+ceil(thickness / h_layer) elements: there the node count changes with the layer thicknesses (and, as in
+every preset, with the ball radius, whose arc is meshed at the contact size).
 """
 from __future__ import annotations
 
@@ -35,6 +38,8 @@ class MeshSpec:
     roi_x:        region-of-interest radius for the graph (panel and ball nodes x <= roi_x);
                   3 mm covers the design objective (OLED stress at x < 3 mm)
     roi_ball_height: ball nodes with y <= (ball bottom + this) are kept in the ROI
+    thickness_elems: layers missing from layer_elems (design layers included) get
+                  ceil(thickness / h_layer) elements: the topology follows the design (scene families)
     """
 
     h_contact: float = 10e-6
@@ -47,6 +52,7 @@ class MeshSpec:
     bottom_growth: float = 1.3
     roi_x: float = 1.5e-3
     roi_ball_height: float = 0.8e-3
+    thickness_elems: bool = False
 
 
 MESH_PRESETS: dict[str, MeshSpec] = {
@@ -63,6 +69,15 @@ MESH_PRESETS: dict[str, MeshSpec] = {
     "paper": MeshSpec(fine_radius=0.4e-3, fine_depth=0.08e-3, growth=1.2,
                       layer_elems={"CG": 10, "OCA1": 5, "POL": 4, "OCA2": 5, "OLED": 3, "PLATE": 8},
                       roi_x=3.0e-3, roi_ball_height=0.5e-3),
+    # scene families (pcmgn_jax.data.dataset.FAMILIES): OCA1, POL, OCA2 get ceil(t / h_layer) elements, so
+    # meshes differ between scenes. 'family': between tiny and cpu (35 um at the contact), the objective's
+    # 3 mm section in the ROI; 'family_tiny': the tiny mesh, for tests and smoke runs
+    "family": MeshSpec(h_contact=35e-6, fine_radius=0.45e-3, fine_depth=0.1e-3, growth=1.3,
+                       layer_elems={"CG": 3, "OLED": 1, "PLATE": 5}, h_layer=35e-6, bottom_growth=1.5,
+                       roi_x=3.0e-3, roi_ball_height=0.5e-3, thickness_elems=True),
+    "family_tiny": MeshSpec(h_contact=50e-6, fine_radius=0.4e-3, fine_depth=0.1e-3, growth=1.4,
+                            layer_elems={"CG": 2, "OLED": 1, "PLATE": 3}, h_layer=50e-6, bottom_growth=1.6,
+                            roi_x=1.0e-3, roi_ball_height=0.5e-3, thickness_elems=True),
 }
 
 
@@ -128,7 +143,7 @@ def _layer_counts(scene: Scene, spec: MeshSpec) -> list[int]:
             counts.append(0)  # graded automatically in _panel_y
             continue
         if n is None:
-            if layer.name in scene.design_layers:
+            if layer.name in scene.design_layers and not spec.thickness_elems:
                 raise ValueError(
                     f"mesh: design layer {layer.name!r} needs a fixed element count in "
                     "MeshSpec.layer_elems (the topology must not depend on the design)")
