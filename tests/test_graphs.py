@@ -97,3 +97,19 @@ def test_bad_inputs_raise():
         graphs.quad_edges(np.zeros((3, 3), int))
     with pytest.raises(ValueError):
         contact.allocate(points=POINTS, cells=CELLS, cell_part=np.array([0, 1]), radius=-1.0)
+
+
+def test_mesh_receivers_sorted_alone_and_in_a_union():
+    """The model sums mesh messages with indices_are_sorted=True: quad_edges and the padded disjoint
+    union (offset designs, padding edges on the padding node) keep the mesh receivers ascending."""
+    from conftest import drop_last_column, make_synthetic_trajectory
+    from pcmgn_jax.mgn import batching
+    trajs = [make_synthetic_trajectory(0.9), drop_last_column(make_synthetic_trajectory(1.2))]
+    trajs = trajs + trajs[::-1]
+    topos = [graphs.topology_from_trajectory(t) for t in trajs]
+    assert all(np.all(np.diff(t.mesh_receivers) >= 0) for t in topos)
+    idx = [contact.allocate(points=t.points, cells=t.cells, cell_part=t.cell_part, radius=20e-6, capacity=16)
+           for t in trajs]
+    b = batching.batch_graphs(topos, idx, [t.points for t in trajs])
+    assert (~b.layout.edge_mask).any()  # padding edges present
+    assert np.all(np.diff(b.topology.mesh_receivers) >= 0)

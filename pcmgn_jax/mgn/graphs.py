@@ -57,7 +57,8 @@ class Topology:
     node_type:      [N]   int32   part id, or n_parts for fixed nodes
     n_node_types:   int           n_parts + 1 (one-hot width)
     mesh_senders:   [E]   int32   both directions of every quad side
-    mesh_receivers: [E]   int32
+    mesh_receivers: [E]   int32   sorted ascending (quad_edges; kept by the padded union): the model's
+                                  mesh segment sum is told so (indices_are_sorted)
     fixed:          [N]   bool    node_type == n_parts: displacement held at 0
     axis:           [N]   bool    nodes on the symmetry axis x = 0: u_x held at 0
     scene_features: [N, k] float32 per-scene node inputs [SI] (Formulation.scene_features; each node

@@ -7,6 +7,11 @@
   set, sum aggregation at the receivers (padded contact edges masked out), a node function on
   [v_i, sum_mesh, sum_contact], and residuals on nodes and edges. Parameters are not shared between
   steps.
+- Aggregation is ``jax.ops.segment_sum``; for the edge sets in ``sorted_receivers`` (default: "mesh")
+  it is told the receivers are sorted ascending (``indices_are_sorted=True``), which
+  :func:`pcmgn_jax.mgn.graphs.quad_edges` and the disjoint union of :mod:`pcmgn_jax.mgn.batching`
+  guarantee (tests/test_graphs.py). Contact edges come in slot order, not sorted: plain sum. XLA:CPU
+  gives the same code either way (benchmarks/README.md §1); accelerators use it for sorted scatters.
 - The first layer of each processor edge MLP uses the concat trick: W [v_s, v_r, e] =
   W_s v_s + W_r v_r + W_e e; W_s v and W_r v are computed once per node and gathered by senders /
   receivers instead of projecting the concatenated (E, 3L) matrix.
@@ -70,6 +75,7 @@ class EncodeProcessDecode(nn.Module):
     mlp_layers: int = 2
     message_passing_steps: int = 15
     edge_sets: Sequence[str] = EDGE_SETS
+    sorted_receivers: Sequence[str] = ("mesh",)
 
     def setup(self):
         if self.latent_size < 1 or self.message_passing_steps < 0 or self.mlp_layers < 1:
@@ -98,7 +104,8 @@ class EncodeProcessDecode(nn.Module):
             es = graph.edges[k]
             upd = self.edge_fns[i][k](v, e[k], es.senders, es.receivers)
             msg = jnp.where(es.mask[:, None], upd, 0.0)
-            aggregated.append(jax.ops.segment_sum(msg, es.receivers, num_segments=n))
+            aggregated.append(jax.ops.segment_sum(msg, es.receivers, num_segments=n,
+                                                  indices_are_sorted=k in self.sorted_receivers))
             new_e[k] = e[k] + upd
         v = v + self.node_fns[i](jnp.concatenate([v] + aggregated, axis=-1))
         return v, new_e
