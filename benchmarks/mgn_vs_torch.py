@@ -15,7 +15,11 @@ Timed (after warm-up, interleaved round-robin, median of ``--repeats``):
   forward under torch.inference_mode; train step = zero_grad + forward + MSE + backward + Adam.step.
 - PyTorch ``torch.compile`` (inductor) of the concat variant, when ``--compile`` and it works offline.
 The reference figure is the fastest PyTorch variant. Also measured: dense 1024^2 float32 matmul rate
-(jnp.dot and torch.mm) and the achieved MLP-matmul FLOP rate as a fraction of it.
+(jnp.dot and torch.mm) and the achieved MLP-matmul FLOP rate as a fraction of it, XLA's scratch
+buffer per call (``memory_analysis().temp_size_in_bytes``) and, per call of every timed function,
+minor page faults and user / system CPU time (getrusage; the per-dispatch overhead of issue 14 was
+the page faults of that scratch buffer, see pcmgn_jax/heap.py: ``PCMGN_KEEP_HEAP=0`` measures the
+old behaviour).
 """
 from __future__ import annotations
 
@@ -102,7 +106,12 @@ def prepare_jax(g: dict, a) -> tuple[dict, dict]:
     fns = {"jax/forward": lambda: blk(fwd(params, graph)), "jax/train_step": lambda: blk(one()),
            "jax/train_chunk": lambda: blk(k_steps())}
     n_params = sum(x.size for x in jax.tree.leaves(params))
-    return fns, dict(scan_steps_per_dispatch=a.scan, compile_s=compile_s, n_params=int(n_params))
+    temp_mb = {name: f.lower(*args).compile().memory_analysis().temp_size_in_bytes / 1e6
+               for name, f, args in (("forward", fwd, (params, graph)),
+                                     ("train_step", train, (params, st["s"][1], graph, target)),
+                                     ("train_chunk", train_k, (params, st["k"][1], graph, target)))}
+    return fns, dict(scan_steps_per_dispatch=a.scan, compile_s=compile_s, n_params=int(n_params),
+                     xla_temp_mb=temp_mb)
 
 
 def jax_results(t: dict, meta: dict) -> dict:
@@ -172,6 +181,26 @@ def prepare_torch(g: dict, a, threads: int) -> tuple[dict, dict, dict]:
     return fns, variants, info
 
 
+def os_profile(fns: dict, meta: dict, calls: int = 3) -> dict:
+    """Per step (a lax.scan chunk divided by its steps): median minor page faults, user and system CPU
+    ms over ``calls`` calls (getrusage of the whole process: XLA's and torch's threads included)."""
+    import resource
+    import statistics
+    out = {}
+    for name, f in fns.items():
+        per = meta["scan_steps_per_dispatch"] if name == "jax/train_chunk" else 1
+        rows = []
+        for _ in range(calls):
+            r0 = resource.getrusage(resource.RUSAGE_SELF)
+            f()
+            r1 = resource.getrusage(resource.RUSAGE_SELF)
+            rows.append(((r1.ru_minflt - r0.ru_minflt) / per, (r1.ru_utime - r0.ru_utime) * 1e3 / per,
+                         (r1.ru_stime - r0.ru_stime) * 1e3 / per))
+        out[name] = dict(zip(("minor_faults", "user_ms", "sys_ms"),
+                             (statistics.median(r[i] for r in rows) for i in range(3))))
+    return out
+
+
 def torch_results(t: dict, variants: dict, info: dict, threads: int) -> dict:
     import torch
     torch.set_num_threads(threads)
@@ -220,7 +249,11 @@ def main(argv=None) -> dict:
     # one interleaved round-robin over every implementation: load changes hit all alike
     t = common.time_calls(fns, repeats=a.repeats, warmup=a.warmup)
     jres = jax_results(t, jmeta)
+    jres["per_call_os"] = os_profile({k: f for k, f in fns.items() if k.startswith("jax/")}, jmeta)
     tres = torch_results(t, variants, tinfo, threads) if have_torch else None
+    if tres:
+        best = {f"{tres['forward_variant']}/forward", f"{tres['train_step_variant']}/train_step"}
+        tres["per_call_os"] = os_profile({k: f for k, f in fns.items() if k in best}, jmeta)
     mm_torch = common.matmul_gflops_torch() if have_torch else None
     mm_jax2 = common.matmul_gflops_jax()  # again after, to see drift
     peak = max(mm_jax, mm_jax2)
@@ -253,7 +286,8 @@ def main(argv=None) -> dict:
             ratios["forward_best_any_threads_torch_over_jax"] >= 2 and
             ratios["train_step_best_any_threads_torch_over_jax"] >= 2)
     machine = common.machine_info(threads if have_torch else None)
-    machine.update(threads=threads, matmul_1024_gflops_jax=mm_jax, matmul_1024_gflops_jax_after=mm_jax2,
+    from pcmgn_jax import heap
+    machine.update(keep_heap=heap.applied(), threads=threads, matmul_1024_gflops_jax=mm_jax, matmul_1024_gflops_jax_after=mm_jax2,
                    matmul_1024_gflops_torch=mm_torch)
     config = dict(nodes_requested=a.nodes, layers=a.layers, latent=a.latent, mlp_layers=a.mlp_layers,
                   repeats=a.repeats, warmup=a.warmup, command="python -m benchmarks.mgn_vs_torch " +
@@ -283,6 +317,14 @@ def main(argv=None) -> dict:
                   f"{'met' if ratios['goal_2x_met'] else 'NOT met'} (same thread count). Against the fastest "
                   f"PyTorch at any thread count: forward {ratios['forward_best_any_threads_torch_over_jax']:.2f}x, "
                   f"train step {ratios['train_step_best_any_threads_torch_over_jax']:.2f}x.\n")
+    prof = dict(jres["per_call_os"], **(tres or {}).get("per_call_os", {}))
+    md.append("\nXLA scratch buffer per call (MB): " + ", ".join(
+        f"{k} {v:.1f}" for k, v in jmeta["xla_temp_mb"].items()) +
+        f"; freed heap kept (pcmgn_jax.heap): {machine['keep_heap']}. Per step, median of 3 calls "
+        "(process getrusage):\n")
+    md.append(common.md_table(["call", "minor page faults", "user CPU ms", "system CPU ms"],
+                              [[k, v["minor_faults"], v["user_ms"], v["sys_ms"]] for k, v in prof.items()]))
+    if tres:
         if "compile_error" in tres:
             md.append(f"\ntorch.compile failed: {tres['compile_error']}\n")
     jp, mp = common.default_paths(f"mgn_vs_torch_n{a.nodes}_l{a.layers}_h{a.latent}", a.json, a.md)
