@@ -64,6 +64,11 @@ meshio time series (``import_meshio_series``): an XDMF time series or a list of 
 (names configurable), same mesh in every frame. LS-DYNA (``import_d3plot``): optional, needs
 ``pip install -e ".[dyna]"`` (lasso-python); 2D solids are shells in the d3plot.
 
+A folder of runs (``EXPORTS/<split>/<run>/model.cdb + results/ [+ scene.json, run.json]``, what
+``pcmgn_jax.data.exporters`` / ``python -m experiments.export_ansys`` write) -> ``OUT/<split>/<run>``
+trajectory files: ``import_ansys_dataset`` (module ``runs``; CLI ``python -m experiments.import_ansys
+--exports EXPORTS --out OUT``), atomic per run, resumable, one-line errors naming the run folder.
+
 Region of interest: crop an imported trajectory around the contact with
 ``pcmgn_jax.trajectory.crop_trajectory`` (CLI ``--roi_radius`` / ``--roi_depth`` / ``--roi_ball_height``,
 metres); the rule is ``pcmgn_jax.geometry.roi_crop``, shared with the generator's mesh.
@@ -71,7 +76,7 @@ metres); the rule is ``pcmgn_jax.geometry.roi_crop``, shared with the generator'
 Modules: ``units`` (unit factors), ``parts`` (ImportedMesh, part mapping), ``cdb`` (MAPDL archives and
 input files), ``meshes`` (meshio meshes, ``read_mesh`` dispatch), ``ansys_text`` (Mechanical text tables,
 frame discovery, node matching), ``series`` (meshio time series), ``d3plot`` (LS-DYNA), ``build``
-(node parts / types, Trajectory assembly), ``errors`` (InputFileError, text reading).
+(node parts / types, Trajectory assembly), ``errors`` (InputFileError, text reading), ``runs`` (folders of runs -> a dataset folder).
 """
 from __future__ import annotations
 
@@ -84,11 +89,14 @@ from pcmgn_jax.data.importers.d3plot import (D3plotPart, d3plot_parts, decode_ti
 from pcmgn_jax.data.importers.errors import InputFileError
 from pcmgn_jax.data.importers.meshes import is_mapdl_file, read_mesh, read_meshio_mesh
 from pcmgn_jax.data.importers.parts import ImportedMesh, Mesh, parse_parts
+from pcmgn_jax.data.importers.runs import (ImportReport, apply_roi, find_runs, import_ansys_dataset,
+                                           import_ansys_run, run_settings)
 from pcmgn_jax.data.importers.series import import_meshio_series
 from pcmgn_jax.data.importers.units import (ANSYS_UNIT_SYSTEMS, LENGTH_UNITS, STRESS_UNITS, TIME_UNITS,
                                             length_factor, stress_factor, time_factor, velocity_factor)
 
-__all__ = ["ANSYS_UNIT_SYSTEMS", "AnsysTable", "D3plotPart", "FRAME_KEYS", "ImportedMesh", "InputFileError",
+__all__ = ["ANSYS_UNIT_SYSTEMS", "AnsysTable", "D3plotPart", "FRAME_KEYS", "ImportReport", "ImportedMesh",
+           "InputFileError", "apply_roi", "find_runs", "import_ansys_dataset", "import_ansys_run", "run_settings",
            "LENGTH_UNITS", "Mesh", "RESULT_KINDS", "STRESS_UNITS", "TIME_UNITS", "build_trajectory",
            "d3plot_parts", "decode_title", "fixed_mask", "fortran_layout", "import_ansys_text", "import_d3plot",
            "import_meshio_series", "is_mapdl_file", "length_factor", "node_part", "parse_parts",
