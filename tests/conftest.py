@@ -124,6 +124,17 @@ class CompileCounter:
         self._ctx.__exit__(*exc)
 
 
+def one_union(setup, trajs, pairs, graph_ids=None):
+    """The training union (train.sampling.union_batch) of the (trajectory, frame) ``pairs`` of ``trajs``
+    (the setup's training trajectories), sized for exactly these graphs."""
+    from pcmgn_jax.train.sampling import union_batch
+    from pcmgn_jax.train.setup import union_sizes
+    sizes = union_sizes(setup.graphs, per_union=len(pairs), capacity=setup.sizes.capacity)
+    ids = np.arange(len(pairs)) if graph_ids is None else graph_ids
+    return union_batch(setup.spec.sim.formulation, trajs, setup.graphs, [tuple(p) for p in pairs],
+                       dt=setup.spec.sim.dt, sizes=sizes, graph_ids=ids)
+
+
 def tiny_config(**kw):
     from pcmgn_jax.config import TrainConfig
     base = dict(num_steps=160, steps_per_dispatch=20, log_every=20, ckpt_every=40, val_every=80,

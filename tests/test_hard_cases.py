@@ -32,7 +32,9 @@ from pcmgn_jax.mgn.rollout import rollout_checked
 from pcmgn_jax.scene import Scene, default_scene
 from pcmgn_jax.sim.solver import solve_designs
 from pcmgn_jax.train import loop as training
-from pcmgn_jax.train.sampling import gather, pair_table
+from conftest import one_union
+from pcmgn_jax.train.sampling import pair_table
+from pcmgn_jax.train.setup import prepare
 from pcmgn_jax.train.step import loss_fn
 
 N_FRAMES = 16  # frames after the initial one (4 µs each): contact starts at ~16 µs = frame 4
@@ -115,23 +117,17 @@ def test_loss_and_gradient_finite_on_extrapolated_frames(solver_trajs, hard_run)
     cfg, _, summary = hard_run
     setup, params = summary["setup"], summary["state"]["params"]
     spec = setup.spec
-    assert spec.cfg.lambda_pen == 10.0 and spec.cfg.noise_std == 3e-7 and setup.sigma.any()
+    assert spec.cfg.lambda_pen == 10.0 and spec.cfg.noise_std == 3e-7 and setup.graphs[0].sigma.any()
     table = pair_table(extra)
-    batch = gather(spec.sim.formulation, extra, table, np.arange(len(table))[None], dt=spec.sim.dt)
-    batch = {k: v[0] for k, v in batch.items()}
     keys = jax.random.split(jax.random.PRNGKey(7), len(table))
-    ball_part, panel_part = contact_lib.contact_parts(setup.scene)
-    ref = extra[0]  # contact buffer sized on the extrapolated frames (same radius as training)
-    index = contact_lib.allocate(points=ref.points, cells=ref.cells, cell_part=ref.cell_part, ball_part=ball_part,
-                                 panel_part=panel_part, radius=setup.index.radius,
-                                 positions=[t.positions for t in extra])
+    # the extrapolated designs' graphs (contact buffer sized on their frames), the training radius and statistics
+    xsetup = prepare(cfg, extra, radius=setup.radius, stats=setup.stats)
+    batch = jax.tree.map(lambda *xs: np.stack(xs), *[one_union(xsetup, extra, [p]) for p in table])
 
     @jax.jit
-    def per_sample(params, index, batch, keys):
+    def per_sample(params, batch, keys):
         def one(sample, key):
-            return jax.value_and_grad(loss_fn, has_aux=True)(
-                params, spec, setup.stats, setup.topology, index, setup.sigma, setup.pen_nodes, setup.weights,
-                sample, key)
+            return jax.value_and_grad(loss_fn, has_aux=True)(params, spec, setup.stats, sample, key)
         (loss, aux), grads = jax.vmap(one)(batch, keys)
         gmax = jnp.max(jnp.stack([jnp.max(jnp.abs(g).reshape(g.shape[0], -1), axis=1)
                                   for g in jax.tree_util.tree_leaves(grads)]), axis=0)
@@ -141,7 +137,7 @@ def test_loss_and_gradient_finite_on_extrapolated_frames(solver_trajs, hard_run)
     assert contact.any() and (~contact).any()  # both kinds of frames are covered
 
     def check(batch, what):
-        loss, aux, gmax = jax.device_get(per_sample(params, index, batch, keys))
+        loss, aux, gmax = jax.device_get(per_sample(params, batch, keys))
         assert not np.any(aux["overflow"])
         for name, a in (("loss", loss), ("loss_data", aux["loss_data"]), ("loss_pen", aux["loss_pen"]),
                         ("max |grad|", gmax)):
@@ -153,7 +149,8 @@ def test_loss_and_gradient_finite_on_extrapolated_frames(solver_trajs, hard_run)
     check(batch, "solver frames")
     # The trained model's predictions may not penetrate at all (then only the zero branch of L_pen is
     # exercised): push the ball 5 µm into the glass on the contact frames so the penetration term is active.
-    ball = extra[0].node_part == 0
+    ball = np.zeros(batch["u"].shape[1], bool)  # the union's nodes: the trajectory's, then padding
+    ball[:extra[0].n_nodes] = extra[0].node_part == 0
     pushed = dict(batch, u=batch["u"].copy())
     pushed["u"][np.ix_(contact, ball, [1])] -= 5e-6
     pen = check(pushed, "ball pushed 5 µm into the glass")

@@ -37,7 +37,7 @@ def test_relative_noise_scales_with_each_parts_motion():
     trajs = [make_synthetic_trajectory(d) for d in (0.8, 1.2)]
     t = trajs[0]
     n_types = int(t.node_type.max()) + 1
-    rms = motion_rms(trajs, t.node_type, n_types)
+    rms = motion_rms(trajs, n_types)
     du = np.concatenate([np.diff(tr.displacement, axis=0) for tr in trajs], axis=0)
     for k in range(n_types):  # NumPy reference, per type, both components pooled
         np.testing.assert_allclose(rms[k], np.sqrt(np.mean(du[:, t.node_type == k] ** 2)), rtol=1e-12)
@@ -67,7 +67,8 @@ def test_training_loss_runs_the_noise(tiny_trajs):
     """The training step's loss changes with the key exactly when noise is configured."""
     from conftest import tiny_config
     from pcmgn_jax.train.loop import init_params
-    from pcmgn_jax.train.sampling import gather, pair_table
+    from conftest import one_union
+    from pcmgn_jax.train.sampling import pair_table
     from pcmgn_jax.train.setup import prepare
     from pcmgn_jax.train.step import loss_fn
 
@@ -75,9 +76,6 @@ def test_training_loss_runs_the_noise(tiny_trajs):
         cfg = tiny_config(noise_std=noise, noise_parts="all")
         setup = prepare(cfg, tiny_trajs[:2])
         params = init_params(setup, tiny_trajs[0], 0)
-        batch = gather(setup.spec.sim.formulation, tiny_trajs[:2], pair_table(tiny_trajs[:2]), np.array([[5]]),
-                       dt=setup.spec.sim.dt)
-        smp = {k: v[0, 0] for k, v in batch.items()}
-        f = lambda key: float(loss_fn(params, setup.spec, setup.stats, setup.topology, setup.index,  # noqa
-                                      setup.sigma, setup.pen_nodes, setup.weights, smp, key)[0])
+        batch = one_union(setup, tiny_trajs[:2], [pair_table(tiny_trajs[:2])[5]])
+        f = lambda key: float(loss_fn(params, setup.spec, setup.stats, batch, key)[0])  # noqa: E731
         assert (f(jax.random.PRNGKey(0)) != f(jax.random.PRNGKey(1))) == differs

@@ -39,7 +39,7 @@ def test_target_statistics_match_numpy_reference(tiny_trajs, name):
     cfg = tiny_config(formulation=name, noise_std=0.0)
     setup = prepare(cfg, tiny_trajs[:3])
     form = FORMULATIONS[name]
-    topo = setup.topology
+    topo = setup.graphs[0].topology  # one mesh: every trajectory shares it
     node_type = np.asarray(topo.node_type)
     free = ~np.asarray(topo.fixed)
     moving = free & ~(is_ball(node_type) & form.rigid_ball)

@@ -26,9 +26,9 @@ import jax
 import numpy as np
 from conftest import CompileCounter, make_synthetic_trajectory, tiny_config
 from pcmgn_jax.train import loop
-from pcmgn_jax.train.sampling import gather, pair_table, sample_ids
+from pcmgn_jax.train.sampling import gather_unions, pair_table, sample_ids
 from pcmgn_jax.train.sharding import data_parallel
-from pcmgn_jax.train.step import _batch_loss, train_chunk
+from pcmgn_jax.train.step import batch_loss, train_chunk
 
 assert jax.device_count() == 8, jax.devices()
 trajs = [make_synthetic_trajectory(d, n_frames=8) for d in (0.8, 1.0, 1.2)]
@@ -40,30 +40,30 @@ for devices in (1, 8):
         runs[devices] = loop.train(cfg, wd, train_trajs=trajs)
         losses[devices] = [json.loads(l)["loss"] for l in open(wd + "/metrics.jsonl")]
 
-# one more chunk through train_chunk itself, from the same state: per-step losses, no recompilation
+# one more chunk through train_chunk itself, from the same state: per-step losses, no recompilation.
+# One device: one union of 16 graphs per step; 8 devices: 8 unions of 2 (one per device)
 cfg, K, B = runs[8]["setup"].spec.cfg, 10, 16
 ids = sample_ids(cfg.seed, 20, K, B, runs[1]["setup"].n_pairs)
-host = gather(runs[1]["setup"].spec.sim.formulation, trajs, pair_table(trajs), ids, dt=runs[1]["setup"].spec.sim.dt)
+hosts = {d: gather_unions(runs[d]["setup"].spec.sim.formulation, trajs, runs[d]["setup"].graphs, pair_table(trajs),
+                          ids, dt=runs[d]["setup"].spec.sim.dt, sizes=runs[d]["setup"].sizes, shards=d)
+         for d in (1, 8)}
 dp = data_parallel(8, B)
 key = jax.random.PRNGKey(cfg.seed + 1)
 chunk = {}
+placements = ((1, hosts[1], key, lambda t: t), (8, dp.put_batch(hosts[8], 8), dp.replicate(key), dp.replicate))
 with CompileCounter("train_chunk") as compiles:
-    for devices, batch, k, put in ((1, host, key, lambda t: t), (8, dp.put_batch(host, B), dp.replicate(key),
-                                                                 dp.replicate)):
+    for devices, batch, k, put in placements:
         s = runs[devices]["setup"]
-        state, m = train_chunk(s.spec, put(runs[1]["state"]), s.stats, s.topology, s.index, s.sigma,
-                               s.pen_nodes, s.weights, batch, k)
+        state, m = train_chunk(s.spec, put(runs[1]["state"]), put(s.stats), batch, k)
         chunk[devices] = (state, jax.device_get(m))
-sharded = dp.put_batch(host, B)["u"]
+sharded = dp.put_batch(hosts[8], 8)["u"]
 # gradients of one batch from the same parameters: what the all-reduce must reproduce
 spec = runs[1]["setup"].spec
-grad = jax.jit(jax.grad(lambda p, *args: _batch_loss(p, spec, *args)[0]))
+grad = jax.jit(jax.grad(lambda p, *args: batch_loss(p, spec, *args)[0]))
 grads = {}
-placements = ((1, host, key, lambda t: t), (8, dp.put_batch(host, B), dp.replicate(key), dp.replicate))
 for devices, batch, k, put in placements:
     s = runs[devices]["setup"]
-    grads[devices] = grad(put(runs[1]["state"]["params"]), s.stats, s.topology, s.index, s.sigma, s.pen_nodes,
-                          s.weights, {name: v[0] for name, v in batch.items()}, k)
+    grads[devices] = grad(put(runs[1]["state"]["params"]), put(s.stats), jax.tree.map(lambda v: v[0], batch), k)
 flat = lambda t: np.concatenate([np.ravel(np.asarray(x)) for x in jax.tree.leaves(t)])  # noqa: E731
 diff = lambda a, b: np.abs(flat(a) - flat(b))  # noqa: E731
 p1, p8 = runs[1]["state"]["params"], runs[8]["state"]["params"]
@@ -103,7 +103,7 @@ cfg = tiny_config(devices=0, batch_graphs=16, num_steps=20, steps_per_dispatch=1
                   ckpt_every=20, noise_rel=0.5, noise_parts="panel")
 res = loop.train(cfg, workdir, train_trajs=trajs, val_trajs=trajs[:1])
 losses = [json.loads(l)["loss"] for l in open(workdir + "/metrics.jsonl")] if pid == 0 else []
-print(json.dumps(dict(rows=data_parallel(0, 16).local_rows(10, 16).tolist(), losses=losses,
+print(json.dumps(dict(rows=data_parallel(0, 16).local_rows(10, 8).tolist(), losses=losses,
                       val=res["best_val_position_mae_um"])))
 '''
 
@@ -136,15 +136,18 @@ def test_parameters_agree_but_for_float_noise_gradients(eight_devices):
     """Adam's step g / (sqrt(v) + eps) is about ±lr for any gradient far above eps = 1e-8, including
     the float noise of a gradient that is exactly 0 in exact arithmetic (the rigid ball's softmax score
     bias: softmax is shift-invariant); such an entry differs by up to lr per step, and the first steps'
-    differences spread a little through the network; all but a few entries agree to float rounding."""
+    differences spread a little through the network; all but a few entries agree to float rounding.
+    One device sums one padded union of 16 graphs, eight devices one union of 2 each: the reductions run
+    in another order, and after 10 Adam steps ~1 % of the entries (0.1 % with the old stacked batches)
+    sit beyond 1e-6, each within a few lr; the losses and one step's gradients agree to rounding above."""
     r = eight_devices
-    assert r["param_off_chunk"] < 1e-3 and r["param_max_chunk"] <= 10 * r["lr"], r
+    assert r["param_off_chunk"] < 2e-2 and r["param_max_chunk"] <= 10 * r["lr"], r
     assert r["param_p99_train"] < 1e-4 and r["param_max_train"] <= 20 * r["lr"], r
 
 
 def test_batch_is_split_and_state_replicated(eight_devices):
     r = eight_devices
-    assert r["batch_devices"] == 8 and r["shard_shapes"] == [[10, 2, r["shard_shapes"][0][2], 2]]
+    assert r["batch_devices"] == 8 and r["shard_shapes"] == [[10, 1, r["shard_shapes"][0][2], 2]]
     assert r["params_devices"] == 8 and r["params_replicated"]
     assert r["recompiles"] == 0  # both executables were compiled by the training runs
 
@@ -171,7 +174,8 @@ def test_devices_flag():
 @pytest.mark.slow
 def test_two_processes_of_four_devices(eight_devices, tmp_path):
     """The several-hosts path on one machine: jax.distributed.initialize, 2 processes x 4 CPU devices
-    (gloo collectives), each gathering its own half of the batch, one shared run directory."""
+    (gloo collectives), each gathering its own half of the batch (the unions of its 4 devices), one
+    shared run directory."""
     with socket.socket() as s:
         s.bind(("localhost", 0))
         port = str(s.getsockname()[1])
@@ -186,7 +190,7 @@ def test_two_processes_of_four_devices(eight_devices, tmp_path):
             p.kill()
         assert p.returncode == 0, err[-6000:]
         outs.append(json.loads(out.strip().splitlines()[-1]))
-    assert outs[0]["rows"] == list(range(8)) and outs[1]["rows"] == list(range(8, 16))
+    assert outs[0]["rows"] == list(range(4)) and outs[1]["rows"] == list(range(4, 8))  # one union per device
     a, b = eight_devices["losses_1"], outs[0]["losses"]
     assert len(b) == 2 and max(abs(x - y) / abs(x) for x, y in zip(a, b)) < 1e-5, (a, b)
     assert outs[0]["val"] == outs[1]["val"] and (tmp_path / "checkpoints" / "best").exists()

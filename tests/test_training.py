@@ -9,7 +9,7 @@ from conftest import CompileCounter, tiny_config
 from pcmgn_jax.mgn import checkpoint
 from pcmgn_jax.mgn import rollout as rl
 from pcmgn_jax.train import loop as training
-from pcmgn_jax.train.sampling import gather, pair_table, sample_ids
+from pcmgn_jax.train.sampling import gather_unions, pair_table, sample_ids
 from pcmgn_jax.train.step import train_chunk
 def test_loss_halves(tiny_run):
     _, workdir, _ = tiny_run
@@ -25,20 +25,21 @@ def test_no_recompilation_after_first_step(tiny_run, tiny_trajs):
     setup, state = summary["setup"], summary["state"]
     table = pair_table(tiny_trajs[:3])
     form = setup.spec.sim.formulation
-    args = lambda st, b: (setup.spec, st, setup.stats, setup.topology, setup.index, setup.sigma,  # noqa: E731
-                          setup.pen_nodes, setup.weights, b, jax.random.PRNGKey(0))
+
+    def batch(step):
+        ids = sample_ids(cfg.seed, step, cfg.steps_per_dispatch, 1, setup.n_pairs)
+        return gather_unions(form, tiny_trajs[:3], setup.graphs, table, ids, dt=setup.spec.sim.dt, sizes=setup.sizes)
+
     counter = CompileCounter("train_chunk").__enter__()
     for step in (0, 20, 40):
-        ids = sample_ids(cfg.seed, step, cfg.steps_per_dispatch, 1, setup.n_pairs)
-        batch = gather(form, tiny_trajs[:3], table, ids, dt=setup.spec.sim.dt)
-        state, _ = train_chunk(*args(state, batch))
+        state, _ = train_chunk(setup.spec, state, setup.stats, batch(step), jax.random.PRNGKey(0))
     counter.__exit__(None, None, None)
     assert counter.count == 0  # the training run compiled it once; new data/state -> no recompile
     with CompileCounter("train_chunk") as c2:  # fresh spec with other sizes compiles exactly once
         import dataclasses
         spec2 = dataclasses.replace(setup.spec, decay_steps=setup.spec.decay_steps + 1)
         for _ in range(2):
-            train_chunk(spec2, *args(summary["state"], batch)[1:])
+            train_chunk(spec2, summary["state"], setup.stats, batch(0), jax.random.PRNGKey(0))
     assert c2.count == 1
 
 
@@ -49,7 +50,7 @@ def test_checkpoint_restore_identical_predictions(tiny_run, tiny_trajs):
     args = (t.points, t.displacement[0], t.velocity[0], t.von_mises[0])
     a = rl.rollout(sim.spec, 5, sim.params, sim.stats, sim.topology, sim.index, *args)
     s0 = summary["setup"]
-    b = rl.rollout(s0.spec.sim, 5, summary["state"]["params"], s0.stats, s0.topology, s0.index, *args)
+    b = rl.rollout(s0.spec.sim, 5, summary["state"]["params"], s0.stats, s0.graphs[0].topology, s0.graphs[0].index, *args)
     np.testing.assert_array_equal(np.asarray(a.displacement), np.asarray(b.displacement))
     np.testing.assert_array_equal(np.asarray(a.von_mises), np.asarray(b.von_mises))
 

@@ -8,7 +8,8 @@ Metrics (definitions in :mod:`pcmgn_jax.eval.metrics`; SI in, reports in µm and
   per_frame_*_mean / *_std             per-frame MAE, mean and std across test trajectories
   oled_objective_*                     DESIGN §8's objective in the paper's reading (node mean): truth,
                                        prediction, error; oled_objective_area_*: the section's area mean
-  baselines                            the same summary keys for none / nearest / poly2 / rbf
+  baselines                            the same summary keys for none / nearest / poly2 / rbf, or
+                                       {"not_applicable": why} (per-node regression across meshes)
   penetration_*                        fit-free (ball boundary nodes below the CG top polyline,
                                        pcmgn_jax.eval.metrics.penetration_stats), prediction and truth
   rollout_seconds_per_trajectory       wall time of the batched jitted rollout (compile excluded)
@@ -28,7 +29,7 @@ import numpy as np
 
 from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.eval import metrics, plots
-from pcmgn_jax.eval.surrogates import BASELINES, FieldRegression, MGNSurrogate, design_of
+from pcmgn_jax.eval.surrogates import BASELINES, FieldRegression, MGNSurrogate, NearestScene, design_of
 from pcmgn_jax.geometry import roi_boundary_nodes
 from pcmgn_jax.mgn.contact import contact_parts
 from pcmgn_jax.scene import Scene
@@ -69,27 +70,34 @@ def impact_phases(traj, ball_nodes, panel_nodes, *, contact_tol: float = 0.25e-6
 
 
 def _scores(scene: Scene, trajs, pred_u, pred_vm, bnodes, pnodes) -> dict:
-    """The metrics of one predictor on ``trajs`` (pred_u (B,T,N,2) [m], pred_vm (B,T,N) [Pa])."""
-    true_u = np.stack([np.asarray(t.displacement, np.float64) for t in trajs])
-    true_vm = np.stack([np.asarray(t.von_mises, np.float64) for t in trajs])
+    """The metrics of one predictor on ``trajs``: pred_u (B,T,N,2) [m], pred_vm (B,T,N) [Pa], or lists of
+    per-trajectory arrays when the meshes differ; ``bnodes``/``pnodes``: each trajectory's boundary nodes."""
+    true_u = [np.asarray(t.displacement, np.float64) for t in trajs]
+    true_vm = [np.asarray(t.von_mises, np.float64) for t in trajs]
     out = metrics.field_metrics(pred_u, pred_vm, true_u, true_vm)
     pen = []
     for b, t in enumerate(trajs):
-        xy = np.asarray(t.points)[None] + pred_u[b]
-        pen.append(metrics.penetration_stats(xy[:, bnodes], xy[:, pnodes]))
+        xy = np.asarray(t.points)[None] + np.asarray(pred_u[b])
+        pen.append(metrics.penetration_stats(xy[:, bnodes[b]], xy[:, pnodes[b]]))
     out.update(metrics.penetration_summary(pen))
     if "OLED" in scene.part_names:
         part = scene.part_names.index("OLED")
-        ref = trajs[0]
         # the paper's reading (node average) under the historical keys; the optimiser's default
-        # (section area mean) under oled_objective_area_*
+        # (section area mean) under oled_objective_area_*; each trajectory on its own mesh
         for reading, key in (("node_mean", "oled_objective"), ("area_mean", "oled_objective_area")):
-            truth = metrics.oled_objective_of(ref, true_vm, part=part, reading=reading)
-            pred = metrics.oled_objective_of(ref, pred_vm, part=part, reading=reading)
+            truth = np.array([metrics.oled_objective_of(t, v, part=part, reading=reading) for t, v in zip(trajs, true_vm)])
+            pred = np.array([metrics.oled_objective_of(t, np.asarray(v), part=part, reading=reading)
+                             for t, v in zip(trajs, pred_vm)])
             rel = metrics.relative_error_pct(pred, truth)
             out.update({f"{key}_true_mpa": truth.tolist(), f"{key}_pred_mpa": pred.tolist(),
                         f"{key}_rel_error_pct_mean": float(rel.mean()), f"{key}_rel_error_pct_max": float(rel.max())})
     return out
+
+
+def shared_mesh(trajs) -> bool:
+    """True when every trajectory has the same mesh (node count and cells): per-node baselines apply."""
+    ref = trajs[0]
+    return all(t.n_nodes == ref.n_nodes and np.array_equal(t.cells, ref.cells) for t in trajs)
 
 
 SUMMARY_KEYS = ("position_mae_um", "position_rmse_um", "stress_mae_mpa", "stress_rmse_mpa", "penetration_max_um",
@@ -115,19 +123,34 @@ def summary_table(m: dict) -> str:
 
 def baseline_metrics(train_trajs, test_trajs, scene, bnodes, pnodes) -> dict:
     """Every baseline of :mod:`pcmgn_jax.eval.surrogates` fitted on ``train_trajs``, scored on the test
-    trajectories like the model (a baseline that does not apply says why instead of a number)."""
-    designs = np.stack([design_of(t) for t in test_trajs])
+    trajectories like the model (a baseline that does not apply says why instead of a number).
+
+    One shared mesh (training and test): every baseline, per node. Meshes that differ (a scene family,
+    another mesh): 'none' (zero fields on each test mesh) and 'nearest' (the nearest training scene in
+    normalised scene-parameter space, its fields carried over to the test mesh:
+    :class:`pcmgn_jax.eval.surrogates.NearestScene`); 'poly2' and 'rbf' regress each node's fields over
+    the designs, which needs one node numbering: not applicable."""
+    designs = None
     out = {}
+    shared = shared_mesh(list(train_trajs) + list(test_trajs))
     for kind in BASELINES:
         try:
-            model = FieldRegression(kind, train_trajs)
             t0 = time.perf_counter()
-            pu, ps = model.predict(designs)
+            if shared:
+                designs = np.stack([design_of(t) for t in test_trajs]) if designs is None else designs
+                model = FieldRegression(kind, train_trajs)
+                t0 = time.perf_counter()
+                pu, ps = model.predict(designs)
+            elif kind in ("none", "nearest"):
+                model = NearestScene(train_trajs, zero=kind == "none")
+                t0 = time.perf_counter()
+                pu, ps = model.predict_trajectories(test_trajs)
+            else:
+                n_train = sorted({t.n_nodes for t in train_trajs})
+                raise ValueError(f"per-node regression needs one shared topology (one node numbering for every "
+                                 f"training and predicted design); here the meshes differ (training node counts "
+                                 f"{n_train[0]}..{n_train[-1]}, test {sorted({t.n_nodes for t in test_trajs})})")
             seconds = time.perf_counter() - t0
-            if pu.shape[1:] != test_trajs[0].displacement.shape or any(
-                    not np.array_equal(t.cells, train_trajs[0].cells) for t in test_trajs):
-                raise ValueError(f"per-node baselines need the training mesh; the data's mesh "
-                                 f"({test_trajs[0].n_nodes} nodes) differs from it ({train_trajs[0].n_nodes} nodes)")
         except ValueError as err:
             out[kind] = {"not_applicable": str(err)}
             continue
@@ -148,14 +171,15 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
     mgn = MGNSurrogate(workdir, ref, which=which, batch=batch)
     pu, ps = mgn.rollout_trajectories(test_trajs)
     _, panel_part = contact_parts(scene)
-    bnodes, pnodes = boundary(ref, panel_part)
+    bnodes, pnodes = zip(*[boundary(t, panel_part) for t in test_trajs])
     m = _scores(scene, test_trajs, pu, ps, bnodes, pnodes)
     truth_pen = metrics.penetration_summary(
-        [metrics.penetration_stats(t.positions[:, bnodes], t.positions[:, pnodes]) for t in test_trajs],
+        [metrics.penetration_stats(t.positions[:, b], t.positions[:, p]) for t, b, p in zip(test_trajs, bnodes, pnodes)],
         suffix="_truth")
-    phases = [impact_phases(t, bnodes, pnodes) for t in test_trajs]
+    phases = [impact_phases(t, b, p) for t, b, p in zip(test_trajs, bnodes, pnodes)]
     m.update(truth_pen, rollout_seconds_per_trajectory=mgn.rollout_seconds / len(test_trajs),
-             n_test=len(test_trajs), n_frames=T, n_nodes=ref.n_nodes, checkpoint=which,
+             n_test=len(test_trajs), n_frames=T, n_nodes=ref.n_nodes,
+             n_nodes_per_trajectory=[t.n_nodes for t in test_trajs], checkpoint=which,
              contact_capacity=int(mgn.sim.index.capacity),
              phases=[{k: list(v) for k, v in p.items()} for p in phases],
              window_has_all_phases=all(v[0] is not None for p in phases for v in p.values()))
@@ -164,7 +188,7 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
     out = plots.ensure_dir(workdir / "eval" / name if name else workdir / "eval")
     atomic_write_json(out / "metrics.json", m)
     if plot:
-        _plots(out, test_trajs[0], pu[0], ps[0], bnodes, pnodes, m, phases[0])
+        _plots(out, test_trajs[0], np.asarray(pu[0]), np.asarray(ps[0]), bnodes[0], pnodes[0], m, phases[0])
     return m
 
 

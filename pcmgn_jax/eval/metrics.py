@@ -43,16 +43,32 @@ def stress_errors_mpa(pred_vm, true_vm) -> np.ndarray:
     return np.abs(pred - true)[:, 1:] * 1e-6
 
 
+def _per_trajectory(fn, pred, true) -> list[np.ndarray]:
+    """``fn`` on each trajectory of (B, T, N, ...) arrays or of lists of (T, N_b, ...) arrays (meshes that
+    differ between trajectories): one error array per trajectory."""
+    if len(pred) != len(true):
+        raise ValueError(f"{len(pred)} predicted trajectories for {len(true)} true ones")
+    return [fn(np.asarray(p)[None], np.asarray(t)[None])[0] for p, t in zip(pred, true)]
+
+
+def _pooled(errors: list[np.ndarray]) -> np.ndarray:
+    return np.concatenate([e.ravel() for e in errors])
+
+
 def position_mae_um(pred_u, true_u) -> float:
-    return float(position_errors_um(pred_u, true_u).mean())
+    """Pooled over every (trajectory, frame >= 1, node, component); stacked arrays or per-trajectory lists."""
+    return float(_pooled(_per_trajectory(position_errors_um, pred_u, true_u)).mean())
 
 
 def field_metrics(pred_u, pred_vm, true_u, true_vm) -> dict:
-    """Position and stress MAE / RMSE and their per-frame curves (see the module docstring)."""
-    pe = position_errors_um(pred_u, true_u)
-    se = stress_errors_mpa(pred_vm, true_vm)
-    pf_pos = np.concatenate([np.zeros((pe.shape[0], 1)), pe.mean(axis=(2, 3))], axis=1)
-    pf_s = np.concatenate([np.zeros((se.shape[0], 1)), se.mean(axis=2)], axis=1)
+    """Position and stress MAE / RMSE and their per-frame curves (see the module docstring). Stacked
+    (B, T, N, ...) arrays, or lists of per-trajectory arrays when the meshes differ (then every node of
+    every trajectory counts once in the pooled means; the per-frame curves are per-trajectory means)."""
+    pe_b = _per_trajectory(position_errors_um, pred_u, true_u)
+    se_b = _per_trajectory(stress_errors_mpa, pred_vm, true_vm)
+    pe, se = _pooled(pe_b), _pooled(se_b)
+    pf_pos = np.stack([np.concatenate([[0.0], e.mean(axis=(1, 2))]) for e in pe_b])
+    pf_s = np.stack([np.concatenate([[0.0], e.mean(axis=1)]) for e in se_b])
     return dict(position_mae_um=float(pe.mean()), position_rmse_um=float(np.sqrt(np.mean(pe ** 2))),
                 stress_mae_mpa=float(se.mean()), stress_rmse_mpa=float(np.sqrt(np.mean(se ** 2))),
                 per_frame_position_mae_um_mean=pf_pos.mean(0).tolist(),

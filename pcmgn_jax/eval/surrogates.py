@@ -15,6 +15,11 @@ solver's meshes at a fixed preset, where a design moves nodes but never renumber
 - ``rbf``      per node, frame and channel, ``scipy.interpolate.RBFInterpolator`` (thin-plate spline
                with a linear tail) over the scaled design variables
 
+When the meshes differ (a scene family: ball radius, drop speed and layer thicknesses vary, and with
+them the node count), :class:`NearestScene` gives the two baselines that need no shared node numbering:
+``none`` and ``nearest`` (the nearest training scene in normalised scene-parameter space, its fields
+carried over to the test mesh); ``poly2`` and ``rbf`` do not apply there.
+
 The MGN surrogate rolls the trained model out from each design's initial state, on that design's mesh
 (built by :mod:`pcmgn_jax.sim.mesh` at the training data's preset).
 """
@@ -38,6 +43,120 @@ def design_of(traj) -> np.ndarray:
     if d is None:
         raise ValueError(f"trajectory {traj.meta.get('name', '?')}: meta has no 'design'")
     return np.asarray(d, np.float64)
+
+
+def scene_vector(traj) -> tuple[tuple[str, ...], np.ndarray]:
+    """(names, values [SI]) of what distinguishes a trajectory's scene: meta['scene_params'] of a scene
+    family (ball radius [m], drop speed [m/s], layer thicknesses [m]), else its design (:func:`design_of`)."""
+    params = traj.meta.get("scene_params")
+    if params:
+        names = tuple(sorted(params))
+        return names, np.array([float(params[k]) for k in names])
+    layers = tuple(traj.meta.get("scene", {}).get("design_layers") or ())
+    return layers, design_of(traj)
+
+
+def _layer_bounds(scene: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(bottom, top) heights [m] of the part ids 1.. (layers from the top), plate bottom at y = 0."""
+    t = np.array([layer["thickness"] for layer in scene["layers"]], np.float64)
+    tops = t[::-1].cumsum()[::-1]
+    return tops - t, tops
+
+
+def part_coordinates(points, node_part, scene: dict) -> np.ndarray:
+    """(N, 2) part-relative coordinates of reference ``points`` [m]: a layer node keeps x and gets its
+    height's fraction through its layer's thickness (+ the part id, so layers never mix); a ball node
+    gets its offset from the ball's lowest point divided by the radius. Two scenes' nodes with equal
+    coordinates sit at the same place relative to their parts (the carry-over rule of :class:`NearestScene`)."""
+    pts = np.asarray(points, np.float64)
+    part = np.asarray(node_part)
+    lo, hi = _layer_bounds(scene)
+    out = np.empty_like(pts)
+    ball = part == 0
+    R = float(scene["ball"]["radius"])
+    bottom = hi[0] + float(scene["ball"]["gap"])
+    out[ball] = np.stack([pts[ball, 0] / R, (pts[ball, 1] - bottom) / R], axis=1)
+    k = part[~ball] - 1
+    out[~ball] = np.stack([pts[~ball, 0], part[~ball] + (pts[~ball, 1] - lo[k]) / (hi[k] - lo[k])], axis=1)
+    return out
+
+
+def transfer_fields(src, dst_points, dst_node_part, dst_scene: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Trajectory ``src``'s displacement (T, N, 2) [m] and von Mises (T, N) [Pa] carried over to another
+    mesh of another scene: per part, linear interpolation over ``src``'s nodes in part-relative coordinates
+    (:func:`part_coordinates`, scaled to the part's extent), nearest node outside their hull."""
+    from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator, interp1d
+    from scipy.spatial import QhullError
+
+    a = part_coordinates(src.points, src.node_part, src.meta["scene"])
+    b = part_coordinates(dst_points, dst_node_part, dst_scene)
+    values = np.concatenate([np.asarray(src.displacement, np.float64),
+                             np.asarray(src.von_mises, np.float64)[..., None]], axis=-1)  # (T, N, 3)
+    T = values.shape[0]
+    out = np.zeros((T, len(b), 3))
+    src_part, dst_part = np.asarray(src.node_part), np.asarray(dst_node_part)
+    for k in np.unique(dst_part):
+        s_sel, d_sel = src_part == k, dst_part == k
+        if not s_sel.any():
+            raise ValueError(f"field transfer: part {k} has no nodes in {src.meta.get('name', 'the source')}")
+        lo, span = a[s_sel].min(0), np.maximum(np.ptp(a[s_sel], axis=0), 1e-30)
+        xa, xb = (a[s_sel] - lo) / span, (b[d_sel] - lo) / span
+        vals = values[:, s_sel].transpose(1, 0, 2).reshape(s_sel.sum(), -1)
+        try:
+            got = LinearNDInterpolator(xa, vals)(xb)
+        except QhullError:  # the part's nodes lie on one line (e.g. one row): interpolate along it
+            axis = int(np.argmax(np.ptp(xa, axis=0)))
+            order = np.argsort(xa[:, axis], kind="stable")
+            got = interp1d(xa[order, axis], vals[order], axis=0, bounds_error=False,
+                           fill_value=np.nan, assume_sorted=True)(xb[:, axis]) if len(order) > 1 else \
+                np.full((d_sel.sum(), vals.shape[1]), np.nan)
+        miss = np.isnan(got).any(axis=1)
+        if miss.any():
+            got[miss] = NearestNDInterpolator(xa, vals)(xb[miss])
+        out[:, d_sel] = got.reshape(d_sel.sum(), T, 3).transpose(1, 0, 2)
+    return out[..., :2], out[..., 2]
+
+
+class NearestScene:
+    """Baselines across meshes: the nearest training scene (scene parameters scaled to [-1, 1] over the
+    training box, Euclidean), its fields carried over to each test mesh (:func:`transfer_fields`), or with
+    ``zero`` nothing moves (zero fields on each test mesh)."""
+
+    def __init__(self, train_trajs: Sequence, *, zero: bool = False):
+        if not train_trajs:
+            raise ValueError("a baseline needs at least one training trajectory")
+        t0 = time.perf_counter()
+        self.trajs, self.zero = list(train_trajs), zero
+        names = {scene_vector(t)[0] for t in self.trajs}
+        if len(names) != 1:
+            raise ValueError(f"nearest scene: the training trajectories describe their scenes differently: {names}")
+        self.names = names.pop()
+        self.x = np.stack([scene_vector(t)[1] for t in self.trajs])
+        self.lo, self.hi = self.x.min(0), self.x.max(0)
+        self.fit_seconds = time.perf_counter() - t0
+
+    def _scale(self, d):
+        return 2 * (np.asarray(d, np.float64) - self.lo) / np.where(self.hi > self.lo, self.hi - self.lo, 1.0) - 1
+
+    def nearest(self, traj) -> int:
+        names, v = scene_vector(traj)
+        if names != self.names:
+            raise ValueError(f"nearest scene: {traj.meta.get('name', '?')} has scene parameters {names}, the "
+                             f"training scenes {self.names}")
+        return int(np.argmin(((self._scale(v)[None] - self._scale(self.x)) ** 2).sum(-1)))
+
+    def predict_trajectories(self, trajs) -> tuple[list, list]:
+        """Per test trajectory (on its own mesh): displacement (T, N, 2) [m] and von Mises (T, N) [Pa]."""
+        us, vms = [], []
+        for t in trajs:
+            if self.zero:
+                us.append(np.zeros(np.shape(t.displacement)))
+                vms.append(np.zeros(np.shape(t.von_mises)))
+                continue
+            u, vm = transfer_fields(self.trajs[self.nearest(t)], t.points, t.node_part, t.meta["scene"])
+            us.append(u)
+            vms.append(vm)
+        return us, vms
 
 
 def _fields(trajs) -> np.ndarray:
@@ -123,11 +242,13 @@ class MGNSurrogate:
         self.rollout_seconds = 0.0
         self._compiled: set = set()  # size buckets already compiled (and run once, untimed)
 
-    def _design(self, mesh, u0, v0, vm0) -> dict:
+    def _design(self, mesh, u0, v0, vm0, scene: dict | None = None) -> dict:
         """One design for the union rollout: ``mesh`` (points, cells, cell_part, node_type) and its initial
-        state; the model's topology and contact buffer when it is the reference mesh, else its own."""
+        state; the model's topology and contact buffer when it is the reference mesh, else its own; the
+        scene features (if the model has any) of ``scene`` (a scene dict; default the reference's)."""
         from pcmgn_jax.mgn.checkpoint import contact_index_for
-        from pcmgn_jax.mgn.graphs import make_topology
+        from pcmgn_jax.mgn.formulation import scene_feature_values
+        from pcmgn_jax.mgn.graphs import make_topology, with_scene_features
         from pcmgn_jax.scene import Scene
         s = self.sim
         topology, index = s.topology, s.index
@@ -137,6 +258,9 @@ class MGNSurrogate:
                                      n_parts=s.topology.n_node_types - 1)
             index = contact_index_for(mesh, Scene.from_dict(self.ref.meta["scene"]), radius=s.index.radius,
                                       capacity=s.index.capacity)
+        names = s.spec.formulation.scene_features
+        if names:
+            topology = with_scene_features(topology, scene_feature_values(scene or self.ref.meta["scene"], names))
         return dict(topology=topology, index=index, points=np.asarray(mesh.points, np.float32),
                     u0=np.asarray(u0, np.float32), v0=np.asarray(v0, np.float32), vm0=np.asarray(vm0, np.float32))
 
@@ -164,7 +288,8 @@ class MGNSurrogate:
     def rollout_trajectories(self, trajs):
         """Roll out from frame 0 of each trajectory, each on its own mesh (stacked when the node counts
         agree, else lists)."""
-        return self._rollout([self._design(t, t.displacement[0], t.velocity[0], t.von_mises[0]) for t in trajs])
+        return self._rollout([self._design(t, t.displacement[0], t.velocity[0], t.von_mises[0], t.meta["scene"])
+                              for t in trajs])
 
     def predict(self, designs_m):
         """Designs (B, D) [m] -> fields, each on its own mesh (the training data's scene and preset):
@@ -178,9 +303,10 @@ class MGNSurrogate:
                              "preset); use rollout_trajectories for imported data")
         designs = []
         for d in np.atleast_2d(designs_m):
-            mesh, _ = roi(build_mesh(scene.with_design(*d), preset), preset)
+            one = scene.with_design(*d)
+            mesh, _ = roi(build_mesh(one, preset), preset)
             u0, v0, vm0 = self.initial_state(mesh.points[None], node_part=mesh.node_part)
-            designs.append(self._design(mesh, u0[0], v0[0], vm0[0]))
+            designs.append(self._design(mesh, u0[0], v0[0], vm0[0], one.to_dict()))
         return self._rollout(designs)
 
     def initial_state(self, points, node_part=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

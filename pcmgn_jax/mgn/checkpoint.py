@@ -121,10 +121,10 @@ def load(workdir: str | Path, ref, *, which: str = "best", cfg: TrainConfig | No
     cfg = cfg or TrainConfig.load(workdir / "config.json")
     path = checkpoint_dir(workdir, which)
     step, meta = read_meta(path)
-    topology = topology_from_trajectory(ref)
+    spec = make_spec(cfg, meta["dt"])
+    topology = topology_from_trajectory(ref, spec.formulation.scene_features)
     index = contact_index_for(ref, Scene.from_dict(ref.meta["scene"]), radius=meta["contact_radius"],
                               capacity=meta["contact_capacity"])
-    spec = make_spec(cfg, meta["dt"])
     mgr = manager(path)
     raw = mgr.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(),
                                                     stats=ocp.args.StandardRestore()))

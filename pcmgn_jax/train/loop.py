@@ -9,8 +9,12 @@
   :func:`pcmgn_jax.eval.metrics.position_mae_um`; the best one is kept in ``checkpoints/best``.
 - ``--resume`` continues from the latest periodic checkpoint with its statistics and buffer size; the
   data order is a pure function of (seed, step), so the result equals an uninterrupted run.
+- Batches: each step is one padded disjoint union of ``batch_graphs`` graphs per device
+  (:func:`pcmgn_jax.train.sampling.gather_unions`), the meshes may differ; every union of the dataset
+  has one static size (:class:`pcmgn_jax.train.setup.UnionSizes`), so ``train_chunk`` compiles once.
 - ``devices`` > 1 (or 0: all): data parallelism (:mod:`pcmgn_jax.train.sharding`); the state and the
-  setup's arrays are replicated on a 'data' mesh, each chunk's batch is split over it along B.
+  statistics are replicated on a 'data' mesh, each chunk's unions (K, S, ...) are split over it along S,
+  one union of B/S graphs per device.
 """
 from __future__ import annotations
 
@@ -31,9 +35,9 @@ from pcmgn_jax.mgn import checkpoint
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.graphs import build_graph
 from pcmgn_jax.mgn.normalization import normalize_graph
-from pcmgn_jax.mgn.rollout import rollout_checked
-from pcmgn_jax.train.sampling import gather, pair_table, sample_ids
-from pcmgn_jax.train.setup import Setup, prepare
+from pcmgn_jax.mgn.rollout import rollout_designs
+from pcmgn_jax.train.sampling import gather_unions, pair_table, sample_ids
+from pcmgn_jax.train.setup import Setup, graph_for, prepare
 from pcmgn_jax.train.sharding import DataParallel, data_parallel
 from pcmgn_jax.train.step import init_state, learning_rate, train_chunk
 
@@ -43,23 +47,24 @@ class TrainingDiverged(RuntimeError):
 
 
 def init_params(setup: Setup, example_traj, seed: int):
-    """Fresh model parameters (shapes from one example frame)."""
+    """Fresh model parameters (shapes from one example frame, ``example_traj`` on its own mesh)."""
     t0 = example_traj
-    edges = contact_lib.update(setup.index, np.asarray(t0.points + t0.displacement[0], np.float32))
-    g = build_graph(setup.topology, points=t0.points, displacement=t0.displacement[0],
+    d = graph_for(setup, t0)
+    edges = contact_lib.update(d["index"], np.asarray(t0.points + t0.displacement[0], np.float32))
+    g = build_graph(d["topology"], points=t0.points, displacement=t0.displacement[0],
                     velocity=t0.velocity[0], contact=edges, features=setup.spec.sim.formulation.features)
-    g = normalize_graph(setup.stats, g, setup.topology.node_type)
+    g = normalize_graph(setup.stats, g, d["topology"].node_type)
     return setup.spec.sim.model.init(jax.random.PRNGKey(seed), g)
 
 
 def rollout_frames(setup: Setup, params, trajs):
-    """Rollouts of ``trajs`` from their frame 0: displacement (B, T, N, 2) [m], von Mises (B, T, N) [Pa]."""
-    T = trajs[0].n_frames
-    args = [np.stack([getattr(t, f)[0] if f != "points" else t.points for t in trajs]).astype(np.float32)
-            for f in ("points", "displacement", "velocity", "von_mises")]
-    res, _ = rollout_checked(setup.spec.sim, T - 1, params, setup.stats, setup.topology, setup.index,
-                             *args, batched=True)
-    return np.asarray(res.displacement, np.float64), np.asarray(res.von_mises, np.float64)
+    """Rollouts of ``trajs`` from their frame 0, each on its own mesh (padded disjoint unions):
+    per trajectory displacement (T, N, 2) [m] and von Mises (T, N) [Pa] (lists)."""
+    designs = [dict(graph_for(setup, t), u0=t.displacement[0], v0=t.velocity[0], vm0=t.von_mises[0])
+               for t in trajs]
+    out = rollout_designs(setup.spec.sim, trajs[0].n_frames - 1, params, setup.stats, designs)
+    return ([np.asarray(r.displacement, np.float64) for r in out.rollouts],
+            [np.asarray(r.von_mises, np.float64) for r in out.rollouts])
 
 
 def validation_mae_um(setup: Setup, params, trajs) -> tuple[float, bool]:
@@ -67,18 +72,26 @@ def validation_mae_um(setup: Setup, params, trajs) -> tuple[float, bool]:
     if not trajs:
         return float("nan"), True
     pred_u, _ = rollout_frames(setup, params, trajs)
-    mae = position_mae_um(pred_u, np.stack([t.displacement for t in trajs]))
+    mae = position_mae_um(pred_u, [t.displacement for t in trajs])
     return mae, bool(np.isfinite(mae))
 
 
 def replicated(dp: DataParallel, setup: Setup) -> Setup:
-    """``setup`` with its array fields (the jitted step's inputs) replicated on ``dp``'s mesh."""
-    fields = ("stats", "topology", "index", "sigma", "pen_nodes", "weights")
-    return setup._replace(**dp.replicate({k: getattr(setup, k) for k in fields}))
+    """``setup`` with the jitted step's dataset-wide input (the statistics) replicated on ``dp``'s mesh."""
+    return setup._replace(stats=dp.replicate(setup.stats))
+
+
+def _grown(setup: Setup, needed: int) -> Setup:
+    """``setup`` with a contact buffer (per graph) holding ``needed`` directed edges (host side)."""
+    cap = max(contact_lib.grow(g.index.replace(capacity=setup.sizes.capacity), needed).capacity
+              for g in setup.graphs)
+    cap = max(cap, setup.sizes.capacity + 2)
+    return setup._replace(sizes=setup.sizes._replace(capacity=cap),
+                          graphs=[g._replace(index=g.index.replace(capacity=cap)) for g in setup.graphs])
 
 
 def _meta(cfg: TrainConfig, setup: Setup, **extra) -> dict:
-    return dict(config=cfg.to_dict(), contact_radius=setup.index.radius, contact_capacity=setup.index.capacity,
+    return dict(config=cfg.to_dict(), contact_radius=setup.radius, contact_capacity=setup.sizes.capacity,
                 dt=setup.spec.sim.dt, total_steps=setup.total_steps, **extra)
 
 
@@ -120,9 +133,10 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
     every = lambda n: K * max(1, math.ceil(n / K))  # noqa: E731
     log_every, ckpt_every, val_every = every(cfg.log_every), every(cfg.ckpt_every), every(cfg.val_every)
     seed_key = jax.random.PRNGKey(cfg.seed + 1)
-    rows = slice(None)  # the batch columns this process gathers: all, except on several hosts
+    shards = 1 if dp is None else dp.n_devices  # one union of B / shards graphs per device and step
+    rows = None  # the shards this process gathers: all, except on several hosts
     if dp is not None:
-        seed_key, rows = dp.replicate(seed_key), dp.local_rows(K, B)
+        seed_key, rows = dp.replicate(seed_key), dp.local_rows(K, shards)
     step = int(state["step"])
     total = setup.total_steps
     end = total if stop_after is None else min(total, step + stop_after)
@@ -136,18 +150,18 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
     with open(workdir / "metrics.jsonl" if primary else os.devnull, mode) as log:
         while step < end:
             t_chunk = time.perf_counter()
-            ids = sample_ids(cfg.seed, step, K, B, setup.n_pairs)[:, rows]
-            batch = gather(form, train_trajs, table, ids, dt=setup.spec.sim.dt, previous=cfg.pushforward)
+            ids = sample_ids(cfg.seed, step, K, B, setup.n_pairs)
+            batch = gather_unions(form, train_trajs, setup.graphs, table, ids, dt=setup.spec.sim.dt,
+                                  sizes=setup.sizes, shards=shards, local_shards=rows, previous=cfg.pushforward)
             if dp is not None:
-                batch = dp.put_batch(batch, B)
-            new_state, m = train_chunk(setup.spec, state, setup.stats, setup.topology, setup.index, setup.sigma,
-                                       setup.pen_nodes, setup.weights, batch, seed_key)
+                batch = dp.put_batch(batch, shards)
+            new_state, m = train_chunk(setup.spec, state, setup.stats, batch, seed_key)
             m = jax.device_get(m)
             if np.any(m["overflow"]):
                 need = int(np.max(m["contact_count"]))
-                setup = setup._replace(index=contact_lib.grow(setup.index, need))  # static size only
+                setup = _grown(setup, need)  # static size only
                 print(f"contact buffer overflow at step {step} (needed {need}); grown to "
-                      f"{setup.index.capacity} and the chunk is re-run")
+                      f"{setup.sizes.capacity} and the chunk is re-run")
                 continue
             if not np.all(np.isfinite(m["loss"])):
                 bad = step + int(np.argmin(np.isfinite(m["loss"])))

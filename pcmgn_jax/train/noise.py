@@ -29,12 +29,13 @@ def noise_parts_mask(node_part, parts: str, *, fixed) -> np.ndarray:
     return sel & ~np.asarray(fixed, bool)
 
 
-def motion_rms(trajs, node_type, n_types: int) -> np.ndarray:
-    """(n_types,) RMS per-frame displacement increment |u_{t+1} - u_t| per component [m], per node type."""
+def motion_rms(trajs, n_types: int) -> np.ndarray:
+    """(n_types,) RMS per-frame displacement increment |u_{t+1} - u_t| per component [m], per node type,
+    pooled over ``trajs`` (each on its own mesh, typed by its own ``node_type``)."""
     s = np.zeros(n_types)
     n = np.zeros(n_types)
-    node_type = np.asarray(node_type)
     for tr in trajs:
+        node_type = np.asarray(tr.node_type)
         du = np.diff(np.asarray(tr.displacement, np.float64), axis=0)  # (T-1, N, 2)
         sq = (du ** 2).sum(axis=(0, 2))
         np.add.at(s, node_type, sq)
@@ -57,26 +58,49 @@ def noise_sigma(node_type, node_part, fixed, *, parts: str, noise_std: float = 0
     return np.where(mask, sigma, 0.0).astype(np.float32)
 
 
-def sample_noise(key, sigma, ball_mask, *, rigid_ball: bool):
-    """(N, 2) noise [m]: N(0, sigma_i^2) per node and component; one shared draw on a rigid ball."""
-    k1, k2 = jax.random.split(key)
+_BALL_DRAW = 0x7FFFFFFF  # fold_in data of a graph's shared rigid-ball draw (no node has this index)
+
+
+def sample_noise(key, sigma, ball_mask, *, rigid_ball: bool, segments=None, graph_ids=None):
+    """(N, 2) noise [m]: N(0, sigma_i^2) per node and component; one shared draw per rigid ball.
+
+    Every node draws from its own key, fold_in(fold_in(key, graph id), node index within its graph), so
+    the noise of a graph does not depend on where it sits in a padded disjoint union, on the padding or on
+    the other graphs (nor on how a batch is split over devices). ``segments``: ``(node_graph (N,),
+    n_graph)`` of a union (None: one graph); ``graph_ids`` (n_graph,) int: each graph's id (default its
+    slot). A rigid ball draws once per graph, with that graph's largest ball sigma.
+    """
     sigma = jnp.asarray(sigma)
-    n = sigma[:, None] * jax.random.normal(k1, sigma.shape + (2,), sigma.dtype)
+    n_node = sigma.shape[0]
+    node_graph, n_graph = (jnp.zeros(n_node, jnp.int32), 1) if segments is None else segments
+    ids = jnp.arange(n_graph) if graph_ids is None else jnp.asarray(graph_ids)
+    gkeys = jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, ids)
+    count = jax.ops.segment_sum(jnp.ones(n_node, jnp.int32), node_graph, num_segments=n_graph)
+    first = jnp.cumsum(count) - count  # nodes of a graph are contiguous (jraph.batch)
+    local = jnp.arange(n_node) - first[node_graph]
+    nkeys = jax.vmap(jax.random.fold_in)(gkeys[node_graph], local)
+    draw = lambda k: jax.random.normal(k, (2,), sigma.dtype)  # noqa: E731
+    n = sigma[:, None] * jax.vmap(draw)(nkeys)
     if rigid_ball:
         ball = jnp.asarray(ball_mask)
-        s_ball = jnp.max(jnp.where(ball, sigma, 0.0))
-        n = jnp.where(ball[:, None], s_ball * jax.random.normal(k2, (2,), sigma.dtype)[None], n)
+        s_ball = jax.ops.segment_max(jnp.where(ball, sigma, 0.0), node_graph, num_segments=n_graph)
+        bkeys = jax.vmap(jax.random.fold_in, in_axes=(0, None))(gkeys, _BALL_DRAW)
+        n_ball = s_ball[:, None] * jax.vmap(draw)(bkeys)
+        n = jnp.where(ball[:, None], n_ball[node_graph], n)
     return n
 
 
-def perturb(spec, topology, sample: dict, sigma, key, offset=None) -> dict:
+def perturb(spec, topology, sample: dict, sigma, key, offset=None, layout=None, graph_ids=None) -> dict:
     """``sample`` as the training loss sees it: ``offset`` (N, 2) [m] (e.g. the pushforward deviation)
     plus drawn noise on the input displacement, with the velocity input and targets corrected
-    (:func:`pcmgn_jax.mgn.formulation.add_noise`). One function for the loss and the statistics."""
+    (:func:`pcmgn_jax.mgn.formulation.add_noise`). One function for the loss and the statistics.
+    ``layout``: a padded disjoint union's (the rigid ball is one body per graph), ``graph_ids`` its graphs'
+    noise ids (:func:`sample_noise`)."""
     from pcmgn_jax.mgn.formulation import add_noise
     from pcmgn_jax.mgn.rollout import ball_mask
 
     form = spec.formulation
     ball = ball_mask(topology)
-    n = sample_noise(key, sigma, ball, rigid_ball=form.rigid_ball)
-    return add_noise(form, ball, sample, n if offset is None else n + offset, spec.dt)
+    segments = None if layout is None else layout.segments
+    n = sample_noise(key, sigma, ball, rigid_ball=form.rigid_ball, segments=segments, graph_ids=graph_ids)
+    return add_noise(form, ball, sample, n if offset is None else n + offset, spec.dt, segments=segments)

@@ -1,13 +1,18 @@
 """Data order and host batches: which (trajectory, frame) pairs a training step sees.
 
+Training batches are padded disjoint unions of graphs (:func:`gather_unions`): the meshes of one step
+may differ. :func:`gather` stacks samples of one topology (K, B, N, ...) (benchmarks, tests).
+
 Data order is a pure function of (seed, step): sample k = step * B + b comes from epoch k // n_pairs at
 position k % n_pairs of ``permutation(default_rng([seed, epoch]))``, so ``--resume`` replays exactly what
 an uninterrupted run would have seen.
 """
 from __future__ import annotations
 
+import jax
 import numpy as np
 
+from pcmgn_jax.mgn.batching import batch_graphs, design_slots, to_union
 from pcmgn_jax.mgn.formulation import Formulation, is_ball, previous_displacement, training_sample
 
 
@@ -65,3 +70,78 @@ def gather(form: Formulation, trajs, table, ids: np.ndarray, *, dt: float,
                 out["u_prev_in"][a, b], out["v_prev_in"][a, b] = p["u"], p["v"]
                 out["has_prev"][a, b] = float(t > 0)
     return out
+
+
+def _pad_rows(rows, width: int, fill=0, dtype=np.int32):
+    """A list of 1-D arrays -> (len(rows), width) array and mask (False on padding)."""
+    out = np.full((len(rows), width), fill, dtype)
+    mask = np.zeros((len(rows), width), bool)
+    for g, r in enumerate(rows):
+        out[g, :len(r)] = r
+        mask[g, :len(r)] = True
+    return out, mask
+
+
+def union_batch(form: Formulation, trajs, graphs, pairs, *, dt: float, sizes, graph_ids,
+                previous: bool = False) -> dict:
+    """One training union: the graphs of the (trajectory, frame) ``pairs`` as a padded disjoint union of
+    the static ``sizes`` (:class:`pcmgn_jax.train.setup.UnionSizes`), with everything the loss reads.
+
+    Returns a pytree: ``graph`` (:class:`pcmgn_jax.mgn.batching.GraphBatch`: union topology with the
+    scene features, layout, per-graph contact index, reference points [m]); node arrays [N] / [N, k]
+    zero on padding: u, v [m, m/s] inputs, target (N, 3) [SI], sigma [m], w_motion, w_stress, perturbed;
+    per-graph-slot arrays [G] (G = slots + 1; padding slots zero / False): ball (G, 2) rigid-ball target,
+    w_ball, graph_id (the graph's noise id: its column in the global batch), graph_mask; penetration
+    boundary nodes pen_ball (G, Mb), pen_panel (G, Mp) as union node numbers, with masks; with
+    ``previous`` also u_prev_in, v_prev_in [N, 2] and has_prev [G] (pushforward).
+    """
+    parts = [graphs[i] for i, _ in pairs]
+    gb = batch_graphs([p.topology for p in parts], [p.index for p in parts], [trajs[i].points for i, _ in pairs],
+                      min_nodes=sizes.nodes, min_edges=sizes.edges, min_slots=sizes.slots,
+                      min_capacity=sizes.capacity, min_ball=sizes.ball, min_panel=sizes.panel)
+    got = (gb.points.shape[0], gb.topology.mesh_senders.shape[0], gb.layout.n_node.shape[0] - 1,
+           gb.index.capacity)
+    if got != (sizes.nodes, sizes.edges, design_slots(sizes.slots), sizes.capacity):
+        raise ValueError(f"union of trajectories {[int(i) for i, _ in pairs]} does not fit the dataset's size "
+                         f"bucket {sizes} (got nodes, edges, slots, capacity {got})")
+    smp = [sample(form, trajs[i], int(t), dt) for i, t in pairs]
+    G = gb.layout.n_node.shape[0]
+    n_real = len(pairs)
+    per_graph = lambda vals, dtype=np.float32: np.concatenate(  # noqa: E731
+        [np.asarray(vals, dtype), np.zeros((G - n_real,) + np.shape(vals)[1:], dtype)])
+    offsets = np.concatenate([[0], np.cumsum(gb.layout.n_node)[:-1]])[:n_real]
+    pen_ball, pen_ball_mask = _pad_rows([p.pen_ball + o for p, o in zip(parts, offsets)] + [[]] * (G - n_real),
+                                        sizes.pen_ball)
+    pen_panel, pen_panel_mask = _pad_rows([p.pen_panel + o for p, o in zip(parts, offsets)] + [[]] * (G - n_real),
+                                          sizes.pen_panel)
+    node = lambda vals: to_union(gb, vals)  # noqa: E731
+    out = dict(graph=gb, u=node([s["u"] for s in smp]), v=node([s["v"] for s in smp]),
+               target=node([s["target"] for s in smp]), ball=per_graph([s["ball"] for s in smp]),
+               sigma=node([p.sigma for p in parts]), w_motion=node([p.motion for p in parts]),
+               w_stress=node([p.stress for p in parts]), perturbed=node([p.perturbed for p in parts]),
+               w_ball=per_graph([p.ball for p in parts]),
+               graph_id=np.concatenate([np.asarray(graph_ids, np.int32),
+                                        (1 << 30) + np.arange(G - n_real, dtype=np.int32)]),
+               graph_mask=per_graph([True] * n_real, bool),
+               pen_ball=pen_ball, pen_ball_mask=pen_ball_mask, pen_panel=pen_panel, pen_panel_mask=pen_panel_mask)
+    if previous:
+        prev = [sample(form, trajs[i], int(t) - 1, dt) if t > 0 else s for (i, t), s in zip(pairs, smp)]
+        out.update(u_prev_in=node([p["u"] for p in prev]), v_prev_in=node([p["v"] for p in prev]),
+                   has_prev=per_graph([float(t > 0) for _, t in pairs]))
+    return out
+
+
+def gather_unions(form: Formulation, trajs, graphs, table, ids: np.ndarray, *, dt: float, sizes,
+                  shards: int = 1, local_shards=None, previous: bool = False):
+    """Host batch of K steps: ``ids`` (K, B) global batch columns -> a pytree of (K, S_local, ...) arrays,
+    one padded union (:func:`union_batch`) per step and shard; shard s holds columns
+    [s B/S, (s+1) B/S) of the global batch (``local_shards``: the shards this process feeds, default all).
+    Each graph's noise id is its global column, so the losses do not depend on the shard count."""
+    K, B = ids.shape
+    per = B // shards
+    local = range(shards) if local_shards is None else local_shards
+    unions = [[union_batch(form, trajs, graphs, [table[ids[k, c]] for c in range(s * per, (s + 1) * per)],
+                           dt=dt, sizes=sizes, graph_ids=np.arange(s * per, (s + 1) * per), previous=previous)
+               for s in local] for k in range(K)]
+    return jax.tree.map(lambda *xs: np.stack(xs).reshape((K, len(local)) + np.shape(xs[0])),
+                        *[u for row in unions for u in row])

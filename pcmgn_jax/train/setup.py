@@ -1,11 +1,20 @@
-"""Everything derived once from the training split (host side): topology, contact buffer, statistics,
-noise levels, loss weights and the penetration boundary.
+"""Everything derived once from the training split (host side): per-trajectory graphs (topology, contact
+candidates, noise levels, loss weights, penetration boundary), the union size bucket, the statistics.
 
-    setup = prepare(cfg, train_trajs)        # Setup(spec, topology, index, stats, sigma, ...)
+    setup = prepare(cfg, train_trajs)        # Setup(spec, graphs, sizes, stats, ...)
+
+Trajectories may have different meshes (a scene family, imported data): every quantity that belongs to
+a graph is kept per trajectory (:class:`GraphParts`), and a training step sees a padded disjoint union
+of ``batch_graphs`` of them (:func:`pcmgn_jax.train.sampling.gather_unions`) padded to one static size
+for the whole dataset (:class:`UnionSizes`: the largest graphs of the split, bucketed), so the jitted
+step compiles once. Trajectories with the same mesh (cells and node types) share one topology, contact
+candidate set, penetration boundary and loss weights, taken from the first of them (a single-topology
+dataset: exactly one, as before).
 
 The statistics are computed on exactly what the loss sees: the same :func:`pcmgn_jax.train.noise`
 draws and target corrections as the training step (the paper's target correction −n/Δt is 7× the
-clean x-velocity spread at 0.3 µm noise, so statistics of the clean targets would mis-scale the loss).
+clean x-velocity spread at 0.3 µm noise, so statistics of the clean targets would mis-scale the loss),
+over the real nodes of every training trajectory (never padding).
 """
 from __future__ import annotations
 
@@ -22,7 +31,9 @@ from pcmgn_jax.geometry import roi_boundary_nodes
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.checkpoint import make_spec
 from pcmgn_jax.mgn.formulation import BALL_PART, Formulation
-from pcmgn_jax.mgn.graphs import Topology, build_graph, topology_from_trajectory
+from pcmgn_jax.mgn.batching import bucket_size
+from pcmgn_jax.mgn.graphs import Topology, build_graph, topology_from_trajectory, with_scene_features
+from pcmgn_jax.mgn.formulation import scene_feature_values
 from pcmgn_jax.mgn.normalization import Accumulator, Stats, TypedAccumulator, make_stats
 from pcmgn_jax.mgn.rollout import Spec
 from pcmgn_jax.scene import Scene
@@ -40,17 +51,46 @@ class TrainSpec:
     pen_interval: tuple = (0.0, 1.0)  # [m] fixed fit interval of the penetration term
 
 
-class Setup(NamedTuple):
-    spec: TrainSpec
+class GraphParts(NamedTuple):
+    """One training trajectory's graph quantities (host, NumPy; node arrays over its own N nodes)."""
+
     topology: Topology
     index: contact_lib.ContactIndex
-    stats: Stats
     sigma: np.ndarray        # [N] float32 noise std per node [m] (0: not noised)
-    pen_nodes: dict          # {"ball": [Mb] int32, "panel": [Mp] int32} boundary nodes of the fits
-    weights: dict            # {"motion": [N], "ball": [], "stress": [N]} loss weights, "perturbed": [N] noised parts
+    motion: np.ndarray       # [N] float32 loss weights of the motion channels (sum 1 over the graph)
+    stress: np.ndarray       # [N] float32 loss weights of the stress channel
+    ball: float              # weight of the rigid ball's motion term
+    perturbed: np.ndarray    # [N] float32 1 on the noised parts' free nodes
+    pen_ball: np.ndarray     # [Mb] int32 ball-bottom nodes of the penetration fits
+    pen_panel: np.ndarray    # [Mp] int32 CG-top nodes
+
+
+class UnionSizes(NamedTuple):
+    """The static size of every training union (one bucket per dataset: one compilation)."""
+
+    nodes: int
+    edges: int
+    slots: int               # real graph slots (graphs per union); +1 padding graph
+    ball: int                # contact candidates per graph
+    panel: int
+    capacity: int            # contact edges per graph
+    pen_ball: int            # penetration boundary nodes per graph
+    pen_panel: int
+
+
+class Setup(NamedTuple):
+    spec: TrainSpec
+    graphs: list             # [GraphParts] one per training trajectory (shared objects for one mesh)
+    sizes: UnionSizes
+    stats: Stats
     scene: Scene
     n_pairs: int             # (trajectory, frame) training pairs
     total_steps: int
+
+    @property
+    def radius(self) -> float:
+        """Contact radius r_w [m] (one for the dataset)."""
+        return self.graphs[0].index.radius
 
 
 def output_dt(traj) -> float:
@@ -73,7 +113,7 @@ def penetration_nodes(cfg: TrainConfig, ref, panel_part: int):
 
 
 def loss_weights(form: Formulation, topology: Topology) -> dict:
-    """Per-node loss weights (each channel's weights sum to 1).
+    """Per-node loss weights of one graph (each channel's weights sum to 1).
 
     'nodes': the mean over the free nodes (motion) and all nodes (stress), the paper's MSE.
     'parts': the mean over node types of each type's node mean, so every part counts alike.
@@ -115,75 +155,152 @@ def _noisy_features(spec: Spec, topology, index, sigma, smp, key):
             edges.mask, smp["target"], smp["ball"])
 
 
-def compute_stats(spec: Spec, trajs, topology: Topology, index, sigma, *, max_frames: int = 2000,
+def _per_trajectory(x, n: int, name: str) -> list:
+    """``x`` for each of n trajectories: a list of n, or one object shared by all."""
+    if isinstance(x, (list, tuple)):
+        if len(x) != n:
+            raise ValueError(f"compute_stats: {len(x)} {name} for {n} trajectories")
+        return list(x)
+    return [x] * n
+
+
+def compute_stats(spec: Spec, trajs, topology, index, sigma, *, max_frames: int = 2000,
                   seed: int = 0) -> Stats:
     """Statistics of the inputs and targets the loss sees (noise and correction included), per node
-    type (``per_part``) or over all nodes (``global``); every pair when <= max_frames exist."""
+    type (``per_part``) or over all nodes (``global``); every pair when <= max_frames exist.
+
+    ``topology``, ``index``, ``sigma``: one per trajectory (lists; each trajectory on its own mesh, so no
+    padding enters the sums), or one shared by all (a single-topology dataset)."""
     form = spec.formulation
+    topos = _per_trajectory(topology, len(trajs), "topologies")
+    indices = _per_trajectory(index, len(trajs), "contact indices")
+    sigmas = _per_trajectory(sigma, len(trajs), "sigma arrays")
     pairs = pair_table(trajs)
     if len(pairs) > max_frames:
         pairs = pairs[np.linspace(0, len(pairs) - 1, max_frames).round().astype(int)]
-    T = topology.n_node_types
-    node_type = np.asarray(topology.node_type)
-    n_node = 6 if form.features == "strain" else 4
+    T = topos[0].n_node_types
+    n_node = (6 if form.features == "strain" else 4) + len(form.scene_features)
     acc = dict(node=TypedAccumulator(T, n_node), mesh=TypedAccumulator(T, 6), contact=Accumulator(3),
                motion=TypedAccumulator(T, 2), stress=TypedAccumulator(T, 1), ball=Accumulator(2))
-    # motion targets of the free nodes that move on their own (not a rigid ball's), stress of all nodes
-    free = ~np.asarray(topology.fixed)
-    moving = free & ~((node_type == BALL_PART) & form.rigid_ball)
-    recv_type = node_type[np.asarray(topology.mesh_receivers)]
     key = jax.random.PRNGKey(seed)
     f32 = lambda d: {k: np.asarray(v, np.float32) for k, v in d.items()}  # noqa: E731
     for n, (i, t) in enumerate(pairs):
+        topo = topos[i]
+        node_type = np.asarray(topo.node_type)
+        # motion targets of the free nodes that move on their own (not a rigid ball's), stress of all nodes
+        moving = ~np.asarray(topo.fixed) & ~((node_type == BALL_PART) & form.rigid_ball)
         smp = f32(sample(form, trajs[i], int(t), spec.dt))
-        node, mesh, cont, mask, target, ball = _noisy_features(spec, topology, index, sigma, smp,
+        node, mesh, cont, mask, target, ball = _noisy_features(spec, topo, indices[i], sigmas[i], smp,
                                                                 jax.random.fold_in(key, n))
         acc["node"].add(node, node_type)
-        acc["mesh"].add(mesh, recv_type)
+        acc["mesh"].add(mesh, node_type[np.asarray(topo.mesh_receivers)])
         acc["contact"].add(cont, np.asarray(mask))
         target = np.asarray(target)
         acc["motion"].add(target[:, :2], node_type, moving)
         acc["stress"].add(target[:, 2:], node_type)
         if form.rigid_ball:
             acc["ball"].add(np.asarray(ball)[None])
-    return make_stats(**acc, per_part=form.normalization == "per_part", contact_default_std=index.radius)
+    return make_stats(**acc, per_part=form.normalization == "per_part",
+                      contact_default_std=indices[0].radius)
+
+
+def mesh_key(traj) -> tuple:
+    """Trajectories with equal keys share one mesh topology (cells and node types)."""
+    return (traj.n_nodes, np.asarray(traj.cells).tobytes(), np.asarray(traj.node_type).tobytes())
+
+
+def graph_for(setup: Setup, traj) -> dict:
+    """A trajectory outside the training split as a design for :func:`pcmgn_jax.mgn.rollout.rollout_designs`
+    (its topology with its scene features, a contact index of the training radius and buffer size)."""
+    form = setup.spec.sim.formulation
+    ball_part, panel_part = contact_lib.contact_parts(scene_of(traj))
+    index = contact_lib.allocate(points=traj.points, cells=traj.cells, cell_part=traj.cell_part,
+                                 ball_part=ball_part, panel_part=panel_part, radius=setup.radius,
+                                 capacity=setup.sizes.capacity)
+    return dict(topology=topology_from_trajectory(traj, form.scene_features), index=index,
+                points=np.asarray(traj.points, np.float32))
 
 
 def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 2000,
             capacity: int | None = None, radius: float | None = None, stats: Stats | None = None) -> Setup:
-    """Topology, contact buffer (sized on all training frames), noise levels, loss weights and the
-    normalisation statistics (computed unless ``stats`` is given, e.g. from a checkpoint on resume)."""
+    """Per-trajectory graphs (topology, contact buffer sized on the training frames, noise levels, loss
+    weights, penetration boundary), the union size bucket, and the normalisation statistics (computed
+    unless ``stats`` is given, e.g. from a checkpoint on resume). Trajectories may have different meshes;
+    they must share the scene's parts (node types), the frame interval and the contact pair."""
     if not train_trajs:
         raise ValueError("no training trajectories")
     ref = train_trajs[0]
-    for i, t in enumerate(train_trajs):
-        if t.points.shape != ref.points.shape or not np.array_equal(t.cells, ref.cells) or \
-                not np.array_equal(t.node_type, ref.node_type):
-            raise ValueError(f"training trajectory {i} ({t.meta.get('name', '?')}) has a different topology "
-                             "than trajectory 0; one topology per dataset")
     scene = scene_of(ref)
     dt = output_dt(ref)
-    topology = topology_from_trajectory(ref)
+    for i, t in enumerate(train_trajs):
+        name = t.meta.get("name", "?")
+        if not math.isclose(output_dt(t), dt, rel_tol=1e-9):
+            raise ValueError(f"training trajectory {i} ({name}): output_dt {output_dt(t)} s differs from "
+                             f"trajectory 0's {dt} s; one frame interval per dataset")
+        if scene_of(t).part_names != scene.part_names:
+            raise ValueError(f"training trajectory {i} ({name}): parts {scene_of(t).part_names} differ from "
+                             f"trajectory 0's {scene.part_names}; one set of node types per dataset")
+    form = cfg.formulation_spec()
     ball_part, panel_part = contact_lib.contact_parts(scene)
     r_w = radius or cfg.contact_radius or contact_lib.auto_radius(ref.points, ref.cells, ref.cell_part, panel_part)
-    index = contact_lib.allocate(points=ref.points, cells=ref.cells, cell_part=ref.cell_part,
-                                 ball_part=ball_part, panel_part=panel_part, radius=r_w,
-                                 positions=[t.positions for t in train_trajs],
-                                 capacity_factor=cfg.contact_capacity_factor, capacity=capacity)
+    groups: dict[tuple, list[int]] = {}
+    for i, t in enumerate(train_trajs):
+        groups.setdefault(mesh_key(t), []).append(i)
+    n_types = topology_from_trajectory(ref).n_node_types
+    rms = motion_rms(train_trajs, n_types) if cfg.noise_rel > 0 else None
+    shared, intervals = {}, []
+    for key, members in groups.items():
+        g_ref = train_trajs[members[0]]
+        topo = topology_from_trajectory(g_ref)
+        index = contact_lib.allocate(points=g_ref.points, cells=g_ref.cells, cell_part=g_ref.cell_part,
+                                     ball_part=ball_part, panel_part=panel_part, radius=r_w,
+                                     positions=[train_trajs[i].positions for i in members],
+                                     capacity_factor=cfg.contact_capacity_factor, capacity=capacity)
+        pen_ball, pen_panel = np.zeros(0, np.int32), np.zeros(0, np.int32)
+        if cfg.lambda_pen > 0:
+            bn = penetration_nodes(cfg, g_ref, panel_part)
+            intervals.append(bn.interval)
+            pen_ball, pen_panel = np.asarray(bn.ball, np.int32), np.asarray(bn.panel, np.int32)
+        w = loss_weights(form, topo)
+        sigma = noise_sigma(topo.node_type, g_ref.node_part, topo.fixed, parts=cfg.noise_parts,
+                            noise_std=cfg.noise_std, noise_rel=cfg.noise_rel, rms=rms)
+        shared[key] = GraphParts(topo, index, sigma, w["motion"], w["stress"], float(w["ball"]),
+                                 noise_parts_mask(g_ref.node_part, cfg.noise_parts, fixed=topo.fixed).astype(np.float32),
+                                 pen_ball, pen_panel)
+    # one buffer size per dataset: the largest any mesh needs
+    cap = max(p.index.capacity for p in shared.values())
+    graphs = []
+    for t in train_trajs:
+        p = shared[mesh_key(t)]
+        topo = p.topology
+        if form.scene_features:
+            topo = with_scene_features(topo, scene_feature_values(t.meta["scene"], form.scene_features))
+        graphs.append(p._replace(topology=topo, index=p.index.replace(capacity=cap)))
+    interval = (0.0, 1.0)
+    if intervals:  # one fixed fit interval covering every mesh's boundary (one mesh: its own)
+        interval = (float(min(iv[0] for iv in intervals)), float(max(iv[1] for iv in intervals)))
     sim = make_spec(cfg, dt)
     n_pairs = sum(t.n_frames - 1 for t in train_trajs)
     steps = total_steps(cfg, n_pairs)
-    pen_nodes, interval = {"ball": np.zeros(0, np.int32), "panel": np.zeros(0, np.int32)}, (0.0, 1.0)
-    if cfg.lambda_pen > 0:
-        bn = penetration_nodes(cfg, ref, panel_part)
-        interval = tuple(float(v) for v in bn.interval)
-        pen_nodes = {"ball": np.asarray(bn.ball, np.int32), "panel": np.asarray(bn.panel, np.int32)}
     spec = TrainSpec(sim=sim, cfg=cfg, decay_steps=cfg.lr_decay_steps or steps, pen_interval=interval)
-    rms = motion_rms(train_trajs, topology.node_type, topology.n_node_types) if cfg.noise_rel > 0 else None
-    sigma = noise_sigma(topology.node_type, ref.node_part, topology.fixed, parts=cfg.noise_parts,
-                        noise_std=cfg.noise_std, noise_rel=cfg.noise_rel, rms=rms)
+    from pcmgn_jax.train.sharding import resolve_devices
+    sizes = union_sizes(graphs, per_union=max(1, cfg.batch_graphs // resolve_devices(cfg.devices)), capacity=cap)
     if stats is None:
-        stats = compute_stats(sim, train_trajs, topology, index, sigma, max_frames=stats_max_frames, seed=cfg.seed)
-    weights = dict(loss_weights(sim.formulation, topology),
-                   perturbed=noise_parts_mask(ref.node_part, cfg.noise_parts, fixed=topology.fixed).astype(np.float32))
-    return Setup(spec, topology, index, stats, sigma, pen_nodes, weights, scene, n_pairs, steps)
+        stats = compute_stats(sim, train_trajs, [g.topology for g in graphs], [g.index for g in graphs],
+                              [g.sigma for g in graphs], max_frames=stats_max_frames, seed=cfg.seed)
+    return Setup(spec, graphs, sizes, stats, scene, n_pairs, steps)
+
+
+def union_sizes(graphs: Sequence[GraphParts], *, per_union: int, capacity: int) -> UnionSizes:
+    """The one static size of a training union of ``per_union`` graphs: room for ``per_union`` copies of
+    the dataset's largest graph (a step may draw it that often), bucketed
+    (:func:`pcmgn_jax.mgn.batching.bucket_size`)."""
+    top = lambda vals: per_union * max(vals)  # noqa: E731
+    return UnionSizes(nodes=bucket_size(top([g.topology.n_node for g in graphs]) + 1, 64),
+                      edges=bucket_size(top([len(g.topology.mesh_senders) for g in graphs]), 256),
+                      slots=per_union,
+                      ball=bucket_size(max(len(g.index.ball_nodes) for g in graphs), 8),
+                      panel=bucket_size(max(len(g.index.panel_nodes) for g in graphs), 8),
+                      capacity=bucket_size(capacity, 16),
+                      pen_ball=bucket_size(max(len(g.pen_ball) for g in graphs), 8),
+                      pen_panel=bucket_size(max(len(g.pen_panel) for g in graphs), 8))

@@ -1,14 +1,15 @@
-"""Data parallelism: the graph axis of every training batch split over a 1-D device mesh ('data').
+"""Data parallelism: the union axis of every training batch split over a 1-D device mesh ('data').
 
     dp = data_parallel(cfg.devices, cfg.batch_graphs)    # None: one device, arrays left where jax puts them
-    rows = dp.local_rows(K)                              # global batch columns this process feeds
-    batch = dp.put_batch(gather(..., ids[:, rows], ...)) # (K, B, ...) global array, B split over 'data'
-    state = dp.replicate(state)                          # params, optimiser state, statistics, topology
+    rows = dp.local_rows(K, S)                           # the unions (shards) this process feeds
+    batch = dp.put_batch(gather_unions(..., local_shards=rows), S)  # (K, S, ...), S split over 'data'
+    state = dp.replicate(state)                          # params, optimiser state, statistics
 
-How: the host batch (K, B, ...) gets ``NamedSharding(mesh, P(None, 'data'))`` and everything else a
-replicated ``NamedSharding(mesh, P())``; the one jitted ``train_chunk`` then compiles for these input
-shardings (computation follows the data) and the SPMD partitioner runs each device's B/D graphs of the
-vmapped loss locally and inserts the all-reduce of the batch mean (loss, gradients). The program is
+A step's batch is S = D padded disjoint unions of B/D graphs each (:func:`pcmgn_jax.train.sampling.
+gather_unions`). How: the host batch (K, S, ...) gets ``NamedSharding(mesh, P(None, 'data'))`` and
+everything else a replicated ``NamedSharding(mesh, P())``; the one jitted ``train_chunk`` then compiles
+for these input shardings (computation follows the data) and the SPMD partitioner runs each device's
+union of the vmapped loss locally and inserts the all-reduce of the batch mean (loss, gradients). The program is
 the single-device one, so the losses equal it to float tolerance (reduction order only), and there is
 no second copy of the loss or of its batch reductions (a ``shard_map`` would need an explicit
 ``pmean``/``pmax`` for the loss, gradients and the contact-overflow flags).
@@ -48,18 +49,19 @@ class DataParallel(NamedTuple):
         """``tree`` with every array leaf replicated on the mesh (static fields untouched)."""
         return jax.device_put(tree, self.replicated)
 
-    def local_rows(self, n_steps: int, batch_graphs: int) -> np.ndarray:
-        """Global batch columns (B axis) this process's devices hold, in the order
-        :meth:`put_batch` expects them (all of them on one host)."""
-        idx = self.batch.addressable_devices_indices_map((n_steps, batch_graphs))
-        spans = sorted({(s[1].start or 0, batch_graphs if s[1].stop is None else s[1].stop)
+    def local_rows(self, n_steps: int, columns: int) -> np.ndarray:
+        """Global batch columns (axis 1: the unions, one per device) this process's devices hold, in the
+        order :meth:`put_batch` expects them (all of them on one host)."""
+        idx = self.batch.addressable_devices_indices_map((n_steps, columns))
+        spans = sorted({(s[1].start or 0, columns if s[1].stop is None else s[1].stop)
                         for s in idx.values()})
         return np.concatenate([np.arange(a, b) for a, b in spans])
 
-    def put_batch(self, local: dict, batch_graphs: int) -> dict:
-        """Global (K, B, ...) arrays from this process's columns ``local`` (K, B_local, ...)."""
-        return {k: jax.make_array_from_process_local_data(self.batch, v, (v.shape[0], batch_graphs) + v.shape[2:])
-                for k, v in local.items()}
+    def put_batch(self, local, columns: int):
+        """Global (K, S, ...) arrays (every leaf of the pytree ``local``) from this process's columns
+        (K, S_local, ...)."""
+        return jax.tree.map(lambda v: jax.make_array_from_process_local_data(
+            self.batch, v, (v.shape[0], columns) + v.shape[2:]), local)
 
 
 def resolve_devices(devices: int) -> int:

@@ -1,14 +1,20 @@
 """Loss, optimiser and the module-level jitted ``train_chunk`` (K optimiser steps per dispatch).
 
-Loss of one graph (normalised units)::
+A step's batch is a padded disjoint union of graphs (:func:`pcmgn_jax.train.sampling.union_batch`; the
+graphs may have different meshes). Loss of one graph g (normalised units)::
 
-    loss_data = ( sum_i w_i |e_i,xy|^2  +  w_ball |e_ball|^2  +  sum_i w'_i e_i,vm^2 ) / 3
-    loss      = loss_data + lambda_pen * L_pen
+    loss_data_g = ( sum_i w_i |e_i,xy|^2  +  w_ball,g |e_ball,g|^2  +  sum_i w'_i e_i,vm^2 ) / 3
+    loss_g      = loss_data_g + lambda_pen * L_pen,g
 
-with e the normalised error of each node's [a_x, a_y, von Mises] (rows of its own node type), e_ball
-the rigid ball's, and the weights of :func:`pcmgn_jax.train.setup.loss_weights` (fixed nodes carry no
-motion weight). L_pen is the paper's penetration term (section 2.3) of the predicted next positions,
-the depth d in units of ``pen_length_scale`` (µm by default, so λ = 10 means what it means in the paper).
+summed over g's own nodes i, with e the normalised error of each node's [a_x, a_y, von Mises] (rows of
+its own node type), e_ball,g graph g's rigid ball, and the weights of
+:func:`pcmgn_jax.train.setup.loss_weights` (fixed nodes carry no motion weight; padding nodes none at all).
+L_pen,g is the paper's penetration term (section 2.3) of g's predicted next positions, from g's own
+boundary nodes, the depth d in units of ``pen_length_scale`` (µm by default, so λ = 10 means what it
+means in the paper). The step's loss is the mean of loss_g over the real graphs of the batch: padding
+changes neither the loss nor its gradient, and a graph's loss does not depend on the other graphs.
+Noise is drawn per node from the graph's id (:func:`pcmgn_jax.train.noise.sample_noise`), so it does
+not depend on the union either.
 """
 from __future__ import annotations
 
@@ -39,66 +45,81 @@ def init_state(spec: TrainSpec, params) -> dict:
     return dict(step=jnp.zeros((), jnp.int32), params=params, opt_state=make_optimizer(spec).init(params))
 
 
-def _penetration(spec: TrainSpec, pen_nodes, points, u_next):
+def _penetration(spec: TrainSpec, batch, points, u_next):
+    """(G,) penetration loss of each graph of a union (0 for padding slots: no boundary nodes)."""
     cfg = spec.cfg
     pos = points + u_next
-    d, valid = penetration_depth(pos[pen_nodes["ball"]], pos[pen_nodes["panel"]], degree_ball=cfg.poly_ball,
-                                 degree_panel=cfg.poly_panel, interval=spec.pen_interval)
-    return penetration_loss(d, valid, length_scale=cfg.pen_length_scale)
+
+    def one(b, bm, p, pm):
+        d, valid = penetration_depth(pos[b], pos[p], degree_ball=cfg.poly_ball, degree_panel=cfg.poly_panel,
+                                     interval=spec.pen_interval, ball_mask=bm, panel_mask=pm)
+        return penetration_loss(d, valid, length_scale=cfg.pen_length_scale)
+
+    return jax.vmap(one)(batch["pen_ball"], batch["pen_ball_mask"], batch["pen_panel"], batch["pen_panel_mask"])
 
 
-def loss_fn(params, spec: TrainSpec, stats: Stats, topology, index, sigma, pen_nodes, weights, sample, key):
-    """Loss of one graph. sample: points, u, v (N,2), target (N,3), ball (2,) SI (with ``pushforward``
-    also u_prev_in, v_prev_in (N,2), has_prev ()). Returns (loss, aux)."""
+def loss_fn(params, spec: TrainSpec, stats: Stats, batch, key):
+    """Loss of one padded union (:func:`pcmgn_jax.train.sampling.union_batch`): (mean over its real
+    graphs, aux with the per-graph ``loss_graph`` (G,) and data / penetration parts)."""
     sim = spec.sim
     form = sim.formulation
+    g = batch["graph"]
+    topology, layout, index, points = g.topology, g.layout, g.index, g.points
+    node_graph, n_graph = layout.segments
+    sample = dict(points=points, u=batch["u"], v=batch["v"], target=batch["target"], ball=batch["ball"])
     dev = None
     if spec.cfg.pushforward:
-        pf_mask = weights["perturbed"]
         # the model's own one-step prediction of this frame (from the true previous frame) as the input:
         # its deviation from the truth is exactly an input "noise" n with velocity noise n/dt; only on
         # the perturbed parts (noise_parts): for a body that keeps an acceleration target, landing on the
         # true next frame from a wrong position would need an unphysical one-step acceleration
         frozen = jax.lax.stop_gradient(params)
-        out0, _ = predict(sim, frozen, stats, topology, index, sample["points"], sample["u_prev_in"],
-                          sample["v_prev_in"])
-        u_hat, _, _ = integrate_output(sim, stats, topology, sample["points"], sample["u_prev_in"],
-                                       sample["v_prev_in"], out0)
-        dev = jax.lax.stop_gradient(u_hat - sample["u"]) * (sample["has_prev"] * pf_mask)[:, None]
-    sample = perturb(sim, topology, sample, sigma, key, dev)
-    out, edges = predict(sim, params, stats, topology, index, sample["points"], sample["u"], sample["v"])
+        out0, _ = predict(sim, frozen, stats, topology, index, points, batch["u_prev_in"], batch["v_prev_in"],
+                          layout)
+        u_hat, _, _ = integrate_output(sim, stats, topology, points, batch["u_prev_in"], batch["v_prev_in"],
+                                       out0, layout)
+        on = batch["has_prev"][node_graph] * batch["perturbed"]
+        dev = jax.lax.stop_gradient(u_hat - batch["u"]) * on[:, None]
+    sample = perturb(sim, topology, sample, batch["sigma"], key, dev, layout=layout, graph_ids=batch["graph_id"])
+    out, edges = predict(sim, params, stats, topology, index, points, sample["u"], sample["v"], layout)
     err = (out[:, :3] - normalize_target(stats, topology.node_type, sample["target"])) ** 2
-    loss_data = jnp.sum(weights["motion"] * (err[:, 0] + err[:, 1])) + jnp.sum(weights["stress"] * err[:, 2])
+    per_node = batch["w_motion"] * (err[:, 0] + err[:, 1]) + batch["w_stress"] * err[:, 2]
+    loss_data = jax.ops.segment_sum(per_node, node_graph, num_segments=n_graph)
     if form.rigid_ball:
-        e_ball = (ball_output(topology, out) - (sample["ball"] - stats.ball_mean) / stats.ball_std) ** 2
-        loss_data = loss_data + weights["ball"] * jnp.sum(e_ball)
+        e_ball = (ball_output(topology, out, layout) - (sample["ball"] - stats.ball_mean) / stats.ball_std) ** 2
+        loss_data = loss_data + batch["w_ball"] * jnp.sum(e_ball, axis=-1)
     loss_data = loss_data / 3.0
     if spec.cfg.lambda_pen > 0:
-        u_next, _, _ = integrate_output(sim, stats, topology, sample["points"], sample["u"], sample["v"], out)
-        loss_pen = _penetration(spec, pen_nodes, sample["points"], u_next)
+        u_next, _, _ = integrate_output(sim, stats, topology, points, sample["u"], sample["v"], out, layout)
+        loss_pen = _penetration(spec, batch, points, u_next)
     else:
-        loss_pen = jnp.zeros((), jnp.float32)
+        loss_pen = jnp.zeros(n_graph, jnp.float32)
     loss = loss_data + spec.cfg.lambda_pen * loss_pen
-    return loss, dict(loss_data=loss_data, loss_pen=loss_pen, overflow=edges.overflow, contact_count=edges.count)
+    real = batch["graph_mask"]
+    mean = lambda a: jnp.sum(jnp.where(real, a, 0.0)) / jnp.maximum(jnp.sum(real), 1)  # noqa: E731
+    return mean(loss), dict(loss_data=mean(loss_data), loss_pen=mean(loss_pen), loss_graph=loss,
+                            overflow=jnp.any(edges.overflow), contact_count=jnp.max(edges.count))
 
 
-def _batch_loss(params, spec, stats, topology, index, sigma, pen_nodes, weights, batch, key):
-    keys = jax.random.split(key, batch["u"].shape[0])
-    fn = lambda s, k: loss_fn(params, spec, stats, topology, index, sigma, pen_nodes, weights, s, k)  # noqa
-    loss, aux = jax.vmap(fn)(batch, keys)
+def batch_loss(params, spec, stats, batch, key):
+    """Mean loss of a step's unions (S, ...) (one per device shard, each of B/S real graphs; the same key:
+    noise comes from each graph's global id)."""
+    fn = lambda b: loss_fn(params, spec, stats, b, key)  # noqa: E731
+    loss, aux = jax.vmap(fn)(batch)
     return jnp.mean(loss), dict(loss_data=jnp.mean(aux["loss_data"]), loss_pen=jnp.mean(aux["loss_pen"]),
                                 overflow=jnp.any(aux["overflow"]), contact_count=jnp.max(aux["contact_count"]))
 
 
 @functools.partial(jax.jit, static_argnames=("spec",))
-def train_chunk(spec: TrainSpec, state, stats, topology, index, sigma, pen_nodes, weights, batches, seed_key):
-    """K optimiser steps in one dispatch. batches: dict of (K, B, ...) arrays; returns (state, metrics (K,))."""
+def train_chunk(spec: TrainSpec, state, stats, batches, seed_key):
+    """K optimiser steps in one dispatch. batches: a pytree of (K, S, ...) unions
+    (:func:`pcmgn_jax.train.sampling.gather_unions`); returns (state, metrics (K,)). One compilation per
+    (spec, union size bucket): every batch of a dataset has the same static shapes."""
     tx = make_optimizer(spec)
 
     def one(state, batch):
         key = jax.random.fold_in(seed_key, state["step"])
-        (loss, aux), grads = jax.value_and_grad(_batch_loss, has_aux=True)(
-            state["params"], spec, stats, topology, index, sigma, pen_nodes, weights, batch, key)
+        (loss, aux), grads = jax.value_and_grad(batch_loss, has_aux=True)(state["params"], spec, stats, batch, key)
         updates, opt_state = tx.update(grads, state["opt_state"], state["params"])
         params = optax.apply_updates(state["params"], updates)
         return dict(step=state["step"] + 1, params=params, opt_state=opt_state), dict(loss=loss, **aux)
