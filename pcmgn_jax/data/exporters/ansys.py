@@ -98,7 +98,10 @@ def _atomic_dir(final: Path) -> Iterator[Path]:
     except OSError as err:
         raise ExportError(f"{final}: cannot write: {err.strerror or err}") from None
     try:
-        yield tmp
+        try:
+            yield tmp
+        except ExportError as err:   # name the final path, not the temporary folder
+            raise ExportError(str(err).replace(str(tmp), str(final))) from None
         old = None
         if final.exists():
             if not final.is_dir():

@@ -126,7 +126,7 @@ def run_settings(run_dir: str | os.PathLike, defaults: Mapping[str, Any] | None 
                                  f"(or name it in {RUN_FILE} \"mesh\")")
         mesh = cands[0]
     if not mesh.is_file():
-        raise InputFileError(f"{mesh}: mesh file not found (run folder {run_dir})")
+        raise InputFileError(f"{mesh}: mesh file not found (named by {run_path} \"mesh\")")
     results = run_dir / run.get("results", "results")
     if not results.is_dir():
         raise InputFileError(f"{results}: results folder not found (run folder {run_dir}; the text tables "
