@@ -43,6 +43,7 @@ import numpy as np
 from pcmgn_jax.data.importers.units import (ANSYS_UNIT_SYSTEMS, length_factor, stress_factor,
                                             velocity_factor)
 from pcmgn_jax.data.importers.ansys_text import FRAME_KEYS
+from pcmgn_jax.data.importers.runs import MESH_FILE, OWN_META, RESULTS_DIR, RUN_FILE, SCENE_FILES
 from pcmgn_jax.data.trajectory_io import read_sidecar, read_trajectory, to_jsonable
 from pcmgn_jax.trajectory import Trajectory
 
@@ -51,10 +52,7 @@ __all__ = ["ANALYSIS_KEYOPT3", "EXPORT_FORMAT", "ExportError", "MESH_FILE", "RES
            "part_map", "parts_string", "result_file", "write_cdb", "write_results"]
 
 EXPORT_FORMAT = "pcmgn_jax.ansys_export"
-MESH_FILE = "model.cdb"          # names inside a run folder
-RESULTS_DIR = "results"
-RUN_FILE = "run.json"
-SCENE_FILE = "scene.json"
+SCENE_FILE = SCENE_FILES[0]
 FIXED_COMPONENT = "FIXED"
 ANALYSIS_KEYOPT3 = {"axisymmetric": 1, "plane_strain": 2}
 RESULT_COLUMNS = {"deformation": ("Directional Deformation", "length"),
@@ -296,9 +294,9 @@ def parts_string(part_names: Sequence[str]) -> str:
     return ",".join(f"{name}={mat}" for name, mat in part_map(part_names).items())
 
 
-# meta keys the importer sets itself; everything else is carried over in run.json "meta"
-_IMPORTER_KEYS = frozenset({"units", "source", "analysis", "scene", "design", "output_dt", "solver", "energy",
-                            "part_names", "node_ids", "import", "roi", "n_nodes_full", "node_map", "wall_time_s"})
+# meta keys the importer sets itself (and the solver's wall time); everything else is carried over in
+# run.json "meta"
+_IMPORTER_KEYS = OWN_META | {"wall_time_s"}
 
 
 def _options(length_unit, velocity_unit, stress_unit, units_line) -> dict[str, Any]:

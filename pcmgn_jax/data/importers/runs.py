@@ -48,13 +48,15 @@ from pcmgn_jax.trajectory import Trajectory, crop_trajectory
 __all__ = ["ImportReport", "RUN_SETTINGS", "apply_roi", "find_runs", "import_ansys_dataset", "import_ansys_run",
            "run_settings"]
 
-RUN_FILE = "run.json"
-MESH_NAMES = ("model.cdb",)
+RUN_FILE = "run.json"            # names inside a run folder (the exporter writes the same, from here)
+MESH_FILE = "model.cdb"
+RESULTS_DIR = "results"
+SCENE_FILES = ("scene.json", "scene.toml")
 MESH_SUFFIXES = (".cdb", ".dat")
 RUN_SETTINGS = ("parts", "part_names", "length_unit", "fixed", "output_dt", "location_tol", "ignore_unmapped")
 ROI_PARAMS = ("radius", "depth", "ball_height")
 # meta keys the importer sets; run.json "meta" cannot override them
-_OWN_META = frozenset({"units", "source", "analysis", "scene", "design", "output_dt", "solver", "energy",
+OWN_META = frozenset({"units", "source", "analysis", "scene", "design", "output_dt", "solver", "energy",
                        "part_names", "node_ids", "import", "roi", "n_nodes_full", "node_map"})
 
 
@@ -118,7 +120,7 @@ def run_settings(run_dir: str | os.PathLike, defaults: Mapping[str, Any] | None 
     if run.get("mesh"):
         mesh = run_dir / run["mesh"]
     else:
-        named = [run_dir / n for n in MESH_NAMES if (run_dir / n).is_file()]
+        named = [run_dir / MESH_FILE] if (run_dir / MESH_FILE).is_file() else []
         cands = named or sorted(p for p in run_dir.iterdir() if p.is_file() and p.suffix.lower() in MESH_SUFFIXES)
         if len(cands) != 1:
             what = "no mesh file" if not cands else f"{len(cands)} mesh files {[p.name for p in cands]}"
@@ -127,12 +129,12 @@ def run_settings(run_dir: str | os.PathLike, defaults: Mapping[str, Any] | None 
         mesh = cands[0]
     if not mesh.is_file():
         raise InputFileError(f"{mesh}: mesh file not found (named by {run_path} \"mesh\")")
-    results = run_dir / run.get("results", "results")
+    results = run_dir / run.get("results", RESULTS_DIR)
     if not results.is_dir():
         raise InputFileError(f"{results}: results folder not found (run folder {run_dir}; the text tables "
                              f"go into {run_dir}/results/)")
     # the scene: the run's own file wins over the default
-    scene_file = next((run_dir / n for n in ("scene.json", "scene.toml") if (run_dir / n).is_file()), None)
+    scene_file = next((run_dir / n for n in SCENE_FILES if (run_dir / n).is_file()), None)
     if scene_file is not None:
         try:
             scene = Scene.load(scene_file)
@@ -188,7 +190,7 @@ def import_ansys_run(run_dir: str | os.PathLike, *, defaults: Mapping[str, Any] 
                              output_dt=s["output_dt"], fixed=None if fixed == "none" else fixed,
                              location_tol=s["location_tol"])
     for k, v in s["meta"].items():
-        if k not in _OWN_META:
+        if k not in OWN_META:
             traj.meta[k] = v
     traj.meta["import"]["run"] = str(run_dir)
     traj, note = apply_roi(traj, roi)
