@@ -106,7 +106,13 @@ def _atomic_dir(final: Path) -> Iterator[Path]:
                 raise ExportError(f"{final}: exists and is not a folder; remove it or choose another output")
             old = Path(tempfile.mkdtemp(prefix=f".{final.name}.old-", dir=final.parent))
             os.replace(final, old / final.name)
-        os.replace(tmp, final)
+        try:
+            os.replace(tmp, final)
+        except OSError:
+            if old is not None:          # put the old folder back
+                os.replace(old / final.name, final)
+                shutil.rmtree(old, ignore_errors=True)
+            raise
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
     except OSError as err:
