@@ -5,6 +5,8 @@ layers -- "CG" (part 1, top row) and "PLATE" (part 2, two rows) -- whose bottom 
 (node_type 3). Motion is analytic: the ball dips 15 µm and comes back (so it reaches the CG top), the
 CG top is pushed down under the ball, the panel stress follows the dip. ``design`` scales the dip
 amplitude and the CG thickness so trajectories differ.
+
+Also the session fixture ``family_tiny`` (the one fixture here that runs the solver, for slow tests).
 """
 from __future__ import annotations
 
@@ -150,3 +152,14 @@ def tiny_run(tiny_trajs, tmp_path_factory):
     workdir = tmp_path_factory.mktemp("tiny_run")
     summary = training.train(cfg, workdir, train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:])
     return cfg, workdir, summary
+
+
+@pytest.fixture(scope="session")
+def family_tiny(tmp_path_factory):
+    """The family_tiny dataset through the built-in solver (one call per scene; 5 train + 2 test scenes,
+    each on its own mesh), made once per session for the slow tests that share it (test_family.py,
+    test_imported_dataset.py). Treat it as read-only: its users may only add its ``.cache``."""
+    from experiments import generate
+    out = tmp_path_factory.mktemp("family_tiny")
+    assert generate.main(["--preset", "family_tiny", "--out", str(out), "--no_progress"]) == 0
+    return out

@@ -90,15 +90,6 @@ def test_union_chunk_compiles_once_across_meshes(mixed):
     assert {(0, 1), (1, 2)} & seen and c.count == 0, (seen, c.count)  # unions of both meshes, no recompile
 
 
-@pytest.fixture(scope="module")
-def family_tiny(tmp_path_factory):
-    """The family_tiny dataset through the built-in solver (one call per scene)."""
-    from experiments import generate
-    out = tmp_path_factory.mktemp("family_tiny")
-    assert generate.main(["--preset", "family_tiny", "--out", str(out), "--no_progress"]) == 0
-    return out
-
-
 @pytest.mark.slow
 def test_family_tiny_generation_has_differing_meshes(family_tiny):
     from pcmgn_jax.data.dataset import load_directory, load_manifest

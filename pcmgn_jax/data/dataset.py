@@ -34,6 +34,10 @@ Resuming: a trajectory is skipped when its files read back with a matching conte
 (``read_trajectory(verify=True)``) and its recorded design equals the requested one; anything else is
 (re)generated. A manifest written for other settings (preset, scene, designs of a split) is an error,
 never silently mixed.
+
+Datasets without a manifest (:func:`dataset_source`): ``OUT/train/*.json|.h5|.xdmf`` and
+``OUT/test/...`` as ``python -m experiments.import_ansys --exports EXPORTS --out OUT`` writes them (or any
+trajectory files in that layout) are read as they are; the solver never writes into such a directory.
 """
 from __future__ import annotations
 
@@ -55,10 +59,14 @@ from pcmgn_jax.trajectory import Trajectory
 from pcmgn_jax.data.trajectory_io import (TrajectoryFileError, atomic_write_json, read_trajectory,
                                      write_trajectory)
 
-__all__ = ["DatasetError", "FAMILIES", "MANIFEST", "PRESETS", "SceneFamily", "ensure_dataset", "lhs_designs", "load_directory",
-           "load_manifest", "load_splits", "parse_designs", "split_stems"]
+__all__ = ["DatasetError", "FAMILIES", "GENERATE", "IMPORTED", "MANIFEST", "PRESETS", "SceneFamily", "dataset_source",
+           "ensure_dataset", "lhs_designs", "load_directory", "load_manifest", "load_splits", "parse_designs",
+           "prepare_dataset", "split_stems"]
 
 MANIFEST = "manifest.json"
+GENERATE = "generate"                  # dataset_source: absent directory or generator manifest -> the solver
+IMPORTED = "imported"                  # dataset_source: trajectory files without a manifest -> read as they are
+SPLITS = ("train", "test")             # the splits a directory without a manifest is recognised by
 DATASET_FORMAT = "pcmgn_jax.dataset"
 PRESETS = tuple(MESH_PRESETS)          # mesh resolution / frame count (names: sim.mesh.MESH_PRESETS)
 DESIGN_LOW = 50e-6                     # default design range [m] (paper: 50-150 µm)
@@ -170,6 +178,35 @@ def load_manifest(dataset_dir: str | os.PathLike) -> dict[str, Any] | None:
     return data
 
 
+def _has_trajectory_files(root: Path) -> bool:
+    """True when ``root/train`` or ``root/test`` holds a trajectory sidecar (``NAME.json``)."""
+    return any((root / s).is_dir() and any((root / s).glob("*.json")) for s in SPLITS)
+
+
+def dataset_source(dataset_dir: str | os.PathLike) -> str:
+    """What a dataset directory handed to training is; the one rule for whether the solver may run.
+
+    :data:`GENERATE` -- the directory does not exist, or holds a generator manifest (``manifest.json``):
+        :func:`ensure_dataset` generates the missing trajectories with the solver (resumable, verified).
+    :data:`IMPORTED` -- no manifest, but ``DIR/train/`` or ``DIR/test/`` holds trajectory files
+        (``NAME.json`` + ``.h5`` + ``.xdmf``, as ``experiments.import_ansys --exports EXPORTS --out DIR``
+        writes them): read as they are, never regenerated or added to.
+    Anything else (a directory that exists with neither, e.g. empty, or a folder of ANSYS run folders):
+    a one-line DatasetError naming the directory and what is expected. Reads only; writes nothing.
+    """
+    root = Path(dataset_dir)
+    if not root.exists() or load_manifest(root) is not None:
+        return GENERATE
+    if not root.is_dir():
+        raise DatasetError(f"{root}: not a directory; expected a dataset directory")
+    if _has_trajectory_files(root):
+        return IMPORTED
+    raise DatasetError(f"{root}: no {MANIFEST} and no trajectory files in {root / 'train'} or {root / 'test'}; "
+                       f"expected a generated dataset (python -m experiments.generate --out {root}), trajectories "
+                       f"in train/ and test/ (python -m experiments.import_ansys --exports EXPORTS --out {root}), "
+                       "or a directory that does not exist yet (generated with the solver)")
+
+
 def split_stems(dataset_dir: str | os.PathLike, split: str) -> list[Path]:
     """Path stems (``OUT/split/name``) of a split's trajectories, in manifest order.
 
@@ -263,6 +300,9 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     """
     root = Path(out_dir)
     scene = scene if scene is not None else default_scene()
+    if root.is_dir() and load_manifest(root) is None and _has_trajectory_files(root):
+        raise DatasetError(f"{root}: holds trajectory files in train/ or test/ but no {MANIFEST} (an imported "
+                           "dataset?); the solver does not write into it: use another --out")
     if preset not in PRESETS:
         raise DatasetError(f"preset must be one of {PRESETS}, got {preset!r}")
     if not isinstance(batch, int) or batch < 1:
@@ -419,23 +459,51 @@ def load_directory(path: str | os.PathLike) -> list[Trajectory]:
     return [read_trajectory(s) for s in stems]
 
 
-def load_splits(dataset_dir: str | os.PathLike, *, n_train: int, n_val: int, n_test: int):
-    """(train, val, test) trajectories of a generated dataset (never runs the solver).
+def prepare_dataset(dataset_dir: str | os.PathLike, *, preset: str, n_train: int, n_test: int, seed: int = 0,
+                    **generate) -> tuple[Path, str]:
+    """``(Path(dataset_dir), source)``: the dataset a training run reads, ready to load.
 
-    ``train`` and ``val`` are the first ``n_train`` and next ``n_val`` trajectories of the split
-    ``train``; ``test`` the first ``n_test`` of ``test``. DatasetError naming the directory and the
-    generating command when the dataset is missing or too small.
+    By :func:`dataset_source`: a :data:`GENERATE` directory gets its missing trajectories from the solver
+    (:func:`ensure_dataset` with ``preset``, ``n_train``, ``n_test``, ``seed`` and ``generate``); an
+    :data:`IMPORTED` one is left as it is (the preset's designs and the generation sizes play no part); anything else is
+    the DatasetError of :func:`dataset_source`, before anything is written.
+    """
+    root = Path(dataset_dir)
+    source = dataset_source(root)
+    if source == GENERATE:
+        ensure_dataset(root, preset=preset, n_train=n_train, n_test=n_test, seed=seed, **generate)
+    return root, source
+
+
+def load_splits(dataset_dir: str | os.PathLike, *, n_train: int, n_val: int, n_test: int):
+    """(train, val, test) trajectories of a dataset directory (never runs the solver).
+
+    With a manifest (a generated dataset): ``train`` and ``val`` are the first ``n_train`` and next
+    ``n_val`` trajectories of the split ``train`` (the Latin-hypercube rows are in random order, so both
+    are random subsets).
+    Without one (an imported dataset, :func:`dataset_source`; the trajectories sorted by file name):
+    ``train`` is the first ``n_train`` and ``val`` the LAST ``n_val`` of the split ``train``, so the
+    validation trajectories stay the same whatever ``n_train`` is (and with exactly n_train + n_val
+    trajectories, as ``experiments.generate`` writes them, both rules pick the same ones); trajectories
+    between the two are not used. Name the runs so that the last ones are the validation runs you want.
+    ``test`` is the first ``n_test`` of the split ``test`` either way. Reading builds the memory-mapped
+    cache in ``DIR/.cache/`` (:mod:`pcmgn_jax.data.cache`). DatasetError naming the directory (and the
+    generating command, or the flags) when the dataset is missing or too small.
     """
     from pcmgn_jax.data.cache import load_split
 
     root = Path(dataset_dir)
-    if load_manifest(root) is None and not (root / "train").is_dir():
+    if not root.exists():
         raise DatasetError(f"{root}: no dataset here; generate it with `python -m experiments.generate "
                            f"--out {root} ...` (or `python -m experiments.train`, which generates its preset's data)")
+    imported = dataset_source(root) == IMPORTED
     train = load_split(root, "train") if n_train + n_val else []
     test = load_split(root, "test") if n_test else []
     need = n_train + n_val
     if len(train) < need or len(test) < n_test:
+        hint = " (set --n_train, --n_val and --n_test to fit)" if imported else ""
         raise DatasetError(f"{root}: holds {len(train)} train / {len(test)} test trajectories, the config needs "
-                           f"n_train + n_val = {need} and n_test = {n_test}")
+                           f"n_train + n_val = {need} and n_test = {n_test}{hint}")
+    if imported:
+        return train[:n_train], train[len(train) - n_val:], test[:n_test]
     return train[:n_train], train[n_train:need], test[:n_test]
