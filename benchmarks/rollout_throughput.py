@@ -50,11 +50,11 @@ def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2,
     import jax.numpy as jnp
 
     from pcmgn_jax.mgn import contact as contact_lib
-    from pcmgn_jax.mgn.graphs import build_graph, make_topology
+    from pcmgn_jax.mgn.graphs import make_topology
     from pcmgn_jax.sim.mesh import build_mesh, roi
     from pcmgn_jax.mgn.model import EncodeProcessDecode
     from pcmgn_jax.mgn.normalization import normalize_graph
-    from pcmgn_jax.mgn.rollout import Spec
+    from pcmgn_jax.mgn.rollout import Spec, input_graph
     from pcmgn_jax.scene import default_scene
 
     base = default_scene()
@@ -91,9 +91,7 @@ def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2,
     from pcmgn_jax.mgn.formulation import FORMULATIONS
     from pcmgn_jax.mgn.normalization import Accumulator, TypedAccumulator, make_stats
     form = FORMULATIONS["default"]
-    edges = contact_lib.update(index, jnp.asarray(pressed[-1], jnp.float32))
-    g = build_graph(topo, points=m0.points, displacement=pressed[-1] - m0.points, velocity=v0[0], contact=edges,
-                    features=form.features)
+    g, _ = input_graph(form, topo, index, m0.points, pressed[-1] - m0.points, v0[0])
     k = topo.n_node_types
     node_type = np.asarray(topo.node_type)
     acc = dict(node=TypedAccumulator(k, g.nodes.shape[1] - k), mesh=TypedAccumulator(k, 6), contact=Accumulator(3),

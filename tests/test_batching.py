@@ -9,7 +9,7 @@ from pcmgn_jax.mgn import batching
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn import rollout as rl
 from pcmgn_jax.mgn.formulation import FORMULATIONS
-from pcmgn_jax.mgn.graphs import build_graph, topology_from_trajectory
+from pcmgn_jax.mgn.graphs import topology_from_trajectory
 from pcmgn_jax.mgn.model import EncodeProcessDecode
 from pcmgn_jax.mgn.normalization import normalize_graph
 
@@ -34,9 +34,7 @@ def simulator(formulation: str, ref: dict):
     topo, index = ref["topology"], ref["index"]
     trajs = [make_synthetic_trajectory(d) for d in (0.9, 1.1)]
     stats = compute_stats(spec, trajs, topo, index, np.zeros(topo.n_node, np.float32), max_frames=12)
-    edges = contact_lib.update(index, np.float32(ref["points"]))
-    g = build_graph(topo, points=ref["points"], displacement=ref["u0"], velocity=ref["v0"], contact=edges,
-                    features=form.features)
+    g, _ = rl.input_graph(form, topo, index, ref["points"], ref["u0"], ref["v0"])
     params = model.init(jax.random.PRNGKey(1), normalize_graph(stats, g, topo.node_type))
     return spec, params, stats
 

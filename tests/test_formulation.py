@@ -61,10 +61,11 @@ def test_noise_correction_lands_on_the_clean_frame(target, rigid):
     with jax.enable_x64(True):
         s = {k: jnp.asarray(v) for k, v in s.items()}
         noise = 0.3e-6 * jax.random.normal(jax.random.PRNGKey(0), s["u"].shape, jnp.float64)
-        if rigid:
+        if rigid:  # one shared sample for the rigid ball, which add_noise keeps on the symmetry axis
             noise = jnp.where(jnp.asarray(ball)[:, None], noise[np.flatnonzero(ball)[0]][None], noise)
         noisy = add_noise(form, ball, s, noise, DT)
-        np.testing.assert_allclose(np.asarray(noisy["v"] - s["v"]), np.asarray(noise) / DT, rtol=1e-9)
+        seen = jnp.where(jnp.asarray(ball)[:, None], noise * jnp.array([0.0, 1.0]), noise) if rigid else noise
+        np.testing.assert_allclose(np.asarray(noisy["v"] - s["v"]), np.asarray(seen) / DT, rtol=1e-9)
         u_next, _ = integrate(form, ball, points=jnp.asarray(traj.points), u=noisy["u"], v=noisy["v"],
                               a=noisy["target"][:, :2], a_ball=noisy["ball"], dt=DT)
     np.testing.assert_allclose(np.asarray(u_next), traj.displacement[t + 1], rtol=0, atol=1e-15)
@@ -79,8 +80,47 @@ def test_rigid_ball_inputs_are_rigid_and_formulation_validates():
     s = training_sample(FORMULATIONS["default"], ball, points=traj.points, u_prev=traj.displacement[3], u=u,
                         u_next=traj.displacement[5], vm_next=traj.von_mises[5], dt=DT)
     assert np.ptp(s["u"][ball], axis=0).max() == 0 and np.ptp(s["v"][ball], axis=0).max() == 0
-    np.testing.assert_allclose(s["u"][ball][0], u[ball].mean(0))
+    np.testing.assert_allclose(s["u"][ball][0], [0.0, u[ball].mean(0)[1]])  # rigid, on the symmetry axis
+    assert s["ball"][0] == 0.0
     with pytest.raises(ValueError, match="ball_target"):
         Formulation(ball_target="jerk")
     with pytest.raises(ValueError, match="normalization"):
         Formulation(normalization="per_node")
+
+
+def test_quasi_static_inputs_are_a_function_of_the_ball_state_alone():
+    """A quasi-static panel: the graph the network sees does not change with the layers' state, only
+    with the rigid ball's (which every node carries as 4 channels); the dynamic panel's graph does."""
+    from pcmgn_jax.mgn import contact as contact_lib
+    from pcmgn_jax.mgn.formulation import BALL_STATE_CHANNELS, model_inputs
+    from pcmgn_jax.mgn.graphs import topology_from_trajectory
+    from pcmgn_jax.mgn.rollout import input_graph
+
+    traj = make_synthetic_trajectory(1.0)
+    ball = is_ball(traj.node_type)
+    topo = topology_from_trajectory(traj)
+    index = contact_lib.allocate(points=traj.points, cells=traj.cells, cell_part=traj.cell_part, radius=60e-6,
+                                 capacity=256)
+    u, v = traj.displacement[6], traj.velocity[6]
+    u2 = np.where(ball[:, None], u, u + 3e-6)  # the layers elsewhere, the ball where it is
+    v2 = np.where(ball[:, None], v, -v + 0.1)
+    qs, dyn = FORMULATIONS["default"], FORMULATIONS["dynamic"]
+    assert qs.panel_model == "quasi_static" and qs.node_extra == BALL_STATE_CHANNELS
+    g1, _ = input_graph(qs, topo, index, traj.points, u, v)
+    g2, _ = input_graph(qs, topo, index, traj.points, u2, v2)
+    np.testing.assert_array_equal(np.asarray(g1.nodes), np.asarray(g2.nodes))
+    for k in ("mesh", "contact"):
+        np.testing.assert_array_equal(np.asarray(g1.edges[k].features), np.asarray(g2.edges[k].features))
+    u_in, v_in, extra = model_inputs(qs, ball, u, v)
+    np.testing.assert_array_equal(u_in[~ball], 0.0)
+    np.testing.assert_array_equal(u_in[ball], u[ball])
+    np.testing.assert_allclose(extra, np.broadcast_to(np.r_[u[ball, 1].mean(), v[ball, 1].mean()], extra.shape))
+    np.testing.assert_allclose(np.asarray(g1.nodes[:, -BALL_STATE_CHANNELS:]), extra, rtol=1e-6)
+    # moving the ball changes the graph; the dynamic panel sees its own state
+    g3, _ = input_graph(qs, topo, index, traj.points, np.where(ball[:, None], u - 1e-6, u), v)
+    assert not np.array_equal(np.asarray(g3.nodes), np.asarray(g1.nodes))
+    d1, _ = input_graph(dyn, topo, index, traj.points, u, v)
+    d2, _ = input_graph(dyn, topo, index, traj.points, u2, v2)
+    assert not np.array_equal(np.asarray(d1.nodes), np.asarray(d2.nodes))
+    with pytest.raises(ValueError, match="quasi_static"):
+        Formulation(panel_model="quasi_static")  # a velocity target cannot be a map of the ball's state

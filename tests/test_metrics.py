@@ -26,6 +26,19 @@ def test_field_metrics_hand_computed():
         metrics.field_metrics(pred_u[:, :2], pred_vm, true_u, true_vm)
 
 
+def test_per_part_metrics_hand_computed():
+    true_u = np.zeros((1, 3, 2, 2))
+    pred_u = true_u.copy()
+    pred_u[0, 1, 0] = [1e-6, -3e-6]   # node 0 (part 0): 1, 3 | 0, 0 µm over frames 1..2
+    pred_u[0, 2, 1] = [2e-6, 0.0]     # node 1 (part 1): 0, 0 | 2, 0 µm
+    true_vm = np.zeros((1, 3, 2))
+    pred_vm = true_vm.copy()
+    pred_vm[0, 1] = [1e6, 3e6]
+    m = metrics.per_part_metrics(pred_u, pred_vm, true_u, true_vm, [np.array([0, 1])], ["ball", "CG", "OLED"])
+    assert m == {"ball": {"position_mae_um": pytest.approx(1.0), "stress_mae_mpa": pytest.approx(0.5)},
+                 "CG": {"position_mae_um": pytest.approx(0.5), "stress_mae_mpa": pytest.approx(1.5)}}
+
+
 def test_penetration_pooled_over_trajectories():
     panel = np.array([[0.0, 0.0], [1.0, 0.0]])
     a = metrics.penetration_stats(np.array([[[0.5, -1e-6]], [[0.5, 1e-6]]]), panel)      # 1 µm in frame 0

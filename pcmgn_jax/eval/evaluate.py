@@ -75,6 +75,8 @@ def _scores(scene: Scene, trajs, pred_u, pred_vm, bnodes, pnodes) -> dict:
     true_u = [np.asarray(t.displacement, np.float64) for t in trajs]
     true_vm = [np.asarray(t.von_mises, np.float64) for t in trajs]
     out = metrics.field_metrics(pred_u, pred_vm, true_u, true_vm)
+    out["per_part"] = metrics.per_part_metrics(pred_u, pred_vm, true_u, true_vm, [t.node_part for t in trajs],
+                                               scene.part_names)
     pen = []
     for b, t in enumerate(trajs):
         xy = np.asarray(t.points)[None] + np.asarray(pred_u[b])

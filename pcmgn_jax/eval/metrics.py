@@ -77,6 +77,22 @@ def field_metrics(pred_u, pred_vm, true_u, true_vm) -> dict:
                 per_frame_stress_mae_mpa_std=pf_s.std(0).tolist())
 
 
+def per_part_metrics(pred_u, pred_vm, true_u, true_vm, node_parts, part_names) -> dict:
+    """Position and stress MAE of each part's nodes {name: {position_mae_um, stress_mae_mpa}} (the same
+    per-component errors as :func:`field_metrics`, pooled over the part's nodes of every trajectory;
+    ``node_parts``: each trajectory's (N,) part ids; a node on an interface counts for its own part)."""
+    pe_b = _per_trajectory(position_errors_um, pred_u, true_u)
+    se_b = _per_trajectory(stress_errors_mpa, pred_vm, true_vm)
+    out = {}
+    for k, name in enumerate(part_names):
+        sel = [np.asarray(p) == k for p in node_parts]
+        if not any(s.any() for s in sel):
+            continue
+        out[name] = dict(position_mae_um=float(_pooled([e[:, m] for e, m in zip(pe_b, sel)]).mean()),
+                         stress_mae_mpa=float(_pooled([e[:, m] for e, m in zip(se_b, sel)]).mean()))
+    return out
+
+
 def penetration_summary(per_trajectory: list[dict], *, prefix: str = "penetration", suffix: str = "") -> dict:
     """Pool :func:`penetration_stats` results of several rollouts: the max depth, the mean depth over
     every penetrating (trajectory, frame, node) triple, and the number of frames with penetration."""

@@ -146,20 +146,23 @@ def _norm(v: jnp.ndarray) -> jnp.ndarray:
     return jnp.where(sq > 0, jnp.sqrt(safe), 0.0)
 
 
-def node_features(topology: Topology, points, displacement, velocity, features: str = "paper") -> jnp.ndarray:
+def node_features(topology: Topology, points, displacement, velocity, features: str = "paper",
+                  extra=None) -> jnp.ndarray:
     """(N, n_types + k) node features [m, m/s].
 
     'paper':  [one_hot(type), x^w, xdot^w]          (k = 4; x^w = X + u, the paper's Table 1)
     'strain': [one_hot(type), X, u, xdot^w]         (k = 6; reference position and displacement apart,
               so the µm displacement is not a 1e-3 fraction of a mm coordinate)
 
-    followed by the topology's ``scene_features`` (N, k') [SI] when it has them.
+    followed by the topology's ``scene_features`` (N, k') [SI] when it has them, then ``extra`` (N, k'')
+    [SI] when given (the formulation's state channels, :func:`pcmgn_jax.mgn.formulation.model_inputs`).
     """
     one_hot = jnp.eye(topology.n_node_types, dtype=jnp.float32)[jnp.asarray(topology.node_type)]
     points = jnp.asarray(points, jnp.float32)
     displacement = jnp.asarray(displacement, jnp.float32)
     velocity = jnp.asarray(velocity, jnp.float32)
-    extra = [] if topology.scene_features is None else [jnp.asarray(topology.scene_features, jnp.float32)]
+    extra = ([] if topology.scene_features is None else [jnp.asarray(topology.scene_features, jnp.float32)]) \
+        + ([] if extra is None else [jnp.asarray(extra, jnp.float32)])
     if features == "paper":
         return jnp.concatenate([one_hot, points + displacement, velocity] + extra, axis=-1)
     if features == "strain":
@@ -202,7 +205,7 @@ def contact_edge_features(points, displacement, senders, receivers, mask) -> jnp
 
 
 def build_graph(topology: Topology, *, points, displacement, velocity, contact,
-                features: str = "paper", layout=None) -> jraph.GraphsTuple:
+                features: str = "paper", layout=None, node_extra=None) -> jraph.GraphsTuple:
     """Pure graph builder (jittable, vmappable).
 
     points:       (N, 2) reference coordinates [m]
@@ -211,6 +214,7 @@ def build_graph(topology: Topology, *, points, displacement, velocity, contact,
     contact:      a :class:`pcmgn_jax.mgn.contact.ContactEdges` (senders, receivers, mask) of capacity C
     features:     'paper' | 'strain' (see :func:`node_features`, :func:`mesh_edge_features`)
     layout:       None (one graph), or a padded disjoint union's :class:`pcmgn_jax.mgn.batching.Layout`
+    node_extra:   None, or (N, k) extra node channels [SI] appended last (:func:`node_features`)
     """
     n = topology.n_node
     mesh_mask = jnp.ones(topology.mesh_senders.shape, bool) if layout is None else jnp.asarray(layout.edge_mask)
@@ -221,7 +225,7 @@ def build_graph(topology: Topology, *, points, displacement, velocity, contact,
                                                   contact.receivers, contact.mask),
                    senders=contact.senders, receivers=contact.receivers, mask=contact.mask)
     return jraph.GraphsTuple(
-        nodes=node_features(topology, points, displacement, velocity, features),
+        nodes=node_features(topology, points, displacement, velocity, features, node_extra),
         edges={"mesh": mesh, "contact": cont},
         senders=mesh.senders, receivers=mesh.receivers,
         n_node=jnp.array([n], jnp.int32) if layout is None else jnp.asarray(layout.n_node),

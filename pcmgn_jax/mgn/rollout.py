@@ -24,7 +24,7 @@ import numpy as np
 
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.batching import GraphBatch, Layout, batch_graphs, split, split_graphs, to_union
-from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, integrate, rigidify
+from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, integrate, model_inputs, rigidify
 from pcmgn_jax.mgn.graphs import Topology, build_graph
 from pcmgn_jax.mgn.normalization import Stats, denormalize_output, normalize_graph
 
@@ -79,6 +79,22 @@ def impose_bc(topology: Topology, field):
 
 # ---- one step -------------------------------------------------------------------------------
 
+def input_graph(form: Formulation, topology: Topology, index: contact_lib.ContactIndex, points, u, v,
+                layout: Layout | None = None):
+    """The raw (SI) graph the network sees of the state (u, v) (N, 2) [m, m/s], and its contact edges:
+    the one place where a state becomes model inputs (:func:`pcmgn_jax.mgn.formulation.model_inputs`,
+    then the contact search and :func:`pcmgn_jax.mgn.graphs.build_graph`), for training, statistics
+    and rollouts alike."""
+    points = jnp.asarray(points, jnp.float32)
+    u_in, v_in, extra = model_inputs(form, ball_mask(topology), jnp.asarray(u, jnp.float32),
+                                     jnp.asarray(v, jnp.float32), None if layout is None else layout.segments)
+    search = contact_lib.update if layout is None else contact_lib.update_graphs
+    edges = search(index, points + u_in)
+    graph = build_graph(topology, points=points, displacement=u_in, velocity=v_in, contact=edges,
+                        features=form.features, layout=layout, node_extra=extra)
+    return graph, edges
+
+
 def predict(spec: Spec, params, stats: Stats, topology: Topology, index: contact_lib.ContactIndex,
             points, u, v, layout: Layout | None = None):
     """Normalised model output (N, 3) and the contact edges used. Pure; jit/vmap/grad compose.
@@ -86,12 +102,7 @@ def predict(spec: Spec, params, stats: Stats, topology: Topology, index: contact
     ``layout``: None for one graph; for a disjoint union (:mod:`pcmgn_jax.mgn.batching`) the contact
     search runs per graph (``index`` per graph) and the graph carries the padding masks.
     """
-    points = jnp.asarray(points, jnp.float32)
-    u = jnp.asarray(u, jnp.float32)
-    search = contact_lib.update if layout is None else contact_lib.update_graphs
-    edges = search(index, points + u)
-    graph = build_graph(topology, points=points, displacement=u, velocity=v, contact=edges,
-                        features=spec.formulation.features, layout=layout)
+    graph, edges = input_graph(spec.formulation, topology, index, points, u, v, layout)
     graph = normalize_graph(stats, graph, topology.node_type)
     return spec.model.apply(params, graph), edges
 

@@ -33,13 +33,13 @@ from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.eval.metrics import position_mae_um
 from pcmgn_jax.mgn import checkpoint
 from pcmgn_jax.mgn import contact as contact_lib
-from pcmgn_jax.mgn.graphs import build_graph
+
 from pcmgn_jax.mgn.normalization import normalize_graph
-from pcmgn_jax.mgn.rollout import rollout_designs
+from pcmgn_jax.mgn.rollout import input_graph, rollout_designs
 from pcmgn_jax.train.sampling import gather_unions, pair_table, sample_ids
 from pcmgn_jax.train.setup import Setup, graph_for, prepare
 from pcmgn_jax.train.sharding import DataParallel, data_parallel
-from pcmgn_jax.train.step import init_state, learning_rate, train_chunk
+from pcmgn_jax.train.step import init_state, learning_rate, penalty_weight, train_chunk
 
 
 class TrainingDiverged(RuntimeError):
@@ -50,9 +50,8 @@ def init_params(setup: Setup, example_traj, seed: int):
     """Fresh model parameters (shapes from one example frame, ``example_traj`` on its own mesh)."""
     t0 = example_traj
     d = graph_for(setup, t0)
-    edges = contact_lib.update(d["index"], np.asarray(t0.points + t0.displacement[0], np.float32))
-    g = build_graph(d["topology"], points=t0.points, displacement=t0.displacement[0],
-                    velocity=t0.velocity[0], contact=edges, features=setup.spec.sim.formulation.features)
+    g, _ = input_graph(setup.spec.sim.formulation, d["topology"], d["index"], t0.points, t0.displacement[0],
+                       t0.velocity[0])
     g = normalize_graph(setup.stats, g, d["topology"].node_type)
     return setup.spec.sim.model.init(jax.random.PRNGKey(seed), g)
 
@@ -182,8 +181,9 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
                            lr=float(learning_rate(setup.spec, step)), steps_per_s=rate,
                            contact_edges_max=int(np.max(m["contact_count"])))
                 if cfg.lambda_pen > 0:
-                    rec["loss_pen"] = float(np.mean(m["loss_pen"]))
-                    rec["pen_ratio"] = float(cfg.lambda_pen * rec["loss_pen"] / max(rec["loss_data"], 1e-30))
+                    lam = float(penalty_weight(setup.spec, step))
+                    rec["loss_pen"], rec["lambda"] = float(np.mean(m["loss_pen"])), lam
+                    rec["pen_ratio"] = float(lam * rec["loss_pen"] / max(rec["loss_data"], 1e-30))
             if val_trajs and (step % val_every == 0 or step >= total):
                 val, finite = validation_mae_um(setup, state["params"], val_trajs)
                 rec = rec or dict(step=step)

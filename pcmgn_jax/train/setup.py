@@ -30,12 +30,12 @@ from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.geometry import roi_boundary_nodes
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.checkpoint import make_spec
-from pcmgn_jax.mgn.formulation import BALL_PART, Formulation
+from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, is_ball
 from pcmgn_jax.mgn.batching import bucket_size
-from pcmgn_jax.mgn.graphs import Topology, build_graph, topology_from_trajectory, with_scene_features
+from pcmgn_jax.mgn.graphs import Topology, topology_from_trajectory, with_scene_features
 from pcmgn_jax.mgn.formulation import scene_feature_values
 from pcmgn_jax.mgn.normalization import Accumulator, Stats, TypedAccumulator, make_stats
-from pcmgn_jax.mgn.rollout import Spec
+from pcmgn_jax.mgn.rollout import Spec, input_graph
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.train.noise import motion_rms, noise_parts_mask, noise_sigma, perturb
 from pcmgn_jax.train.sampling import pair_table, sample
@@ -147,10 +147,7 @@ def loss_weights(form: Formulation, topology: Topology) -> dict:
 def _noisy_features(spec: Spec, topology, index, sigma, smp, key):
     form = spec.formulation
     smp = perturb(spec, topology, smp, sigma, key)
-    points = smp["points"]
-    edges = contact_lib.update(index, points + smp["u"])
-    g = build_graph(topology, points=points, displacement=smp["u"], velocity=smp["v"], contact=edges,
-                    features=form.features)
+    g, edges = input_graph(form, topology, index, smp["points"], smp["u"], smp["v"])
     return (g.nodes[:, topology.n_node_types:], g.edges["mesh"].features, g.edges["contact"].features,
             edges.mask, smp["target"], smp["ball"])
 
@@ -179,7 +176,7 @@ def compute_stats(spec: Spec, trajs, topology, index, sigma, *, max_frames: int 
     if len(pairs) > max_frames:
         pairs = pairs[np.linspace(0, len(pairs) - 1, max_frames).round().astype(int)]
     T = topos[0].n_node_types
-    n_node = (6 if form.features == "strain" else 4) + len(form.scene_features)
+    n_node = (6 if form.features == "strain" else 4) + len(form.scene_features) + form.node_extra
     acc = dict(node=TypedAccumulator(T, n_node), mesh=TypedAccumulator(T, 6), contact=Accumulator(3),
                motion=TypedAccumulator(T, 2), stress=TypedAccumulator(T, 1), ball=Accumulator(2))
     key = jax.random.PRNGKey(seed)
@@ -202,6 +199,15 @@ def compute_stats(spec: Spec, trajs, topology, index, sigma, *, max_frames: int 
             acc["ball"].add(np.asarray(ball)[None])
     return make_stats(**acc, per_part=form.normalization == "per_part",
                       contact_default_std=indices[0].radius)
+
+
+def contact_positions(form: Formulation, traj) -> np.ndarray:
+    """(T, N, 2) [m] the positions the contact search sees in the model's inputs of every frame of
+    ``traj`` (:func:`pcmgn_jax.mgn.formulation.model_inputs`: a quasi-static panel at its reference)."""
+    if form.panel_model != "quasi_static":
+        return traj.positions
+    ball = is_ball(traj.node_type)[None, :, None]
+    return np.asarray(traj.points)[None] + np.where(ball, np.asarray(traj.displacement), 0.0)
 
 
 def mesh_key(traj) -> tuple:
@@ -254,7 +260,7 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
         topo = topology_from_trajectory(g_ref)
         index = contact_lib.allocate(points=g_ref.points, cells=g_ref.cells, cell_part=g_ref.cell_part,
                                      ball_part=ball_part, panel_part=panel_part, radius=r_w,
-                                     positions=[train_trajs[i].positions for i in members],
+                                     positions=[contact_positions(form, train_trajs[i]) for i in members],
                                      capacity_factor=cfg.contact_capacity_factor, capacity=capacity)
         pen_ball, pen_panel = np.zeros(0, np.int32), np.zeros(0, np.int32)
         if cfg.lambda_pen > 0:
