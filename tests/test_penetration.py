@@ -428,3 +428,20 @@ def test_penetration_stats_hand_geometry():
     assert penetration_stats(frames_b, panel, threshold_um=1.0)["frames_with_penetration"] == 1
     s1 = penetration_stats(frames_b[0], panel)
     assert s1["max_um"] == 0.0 and s1["mean_um"] == 0.0 and s1["frames_with_penetration"] == 0
+
+
+def test_penalty_weight_schedule():
+    """lambda_start: no penetration term before the start, a linear ramp over 10 % of training, then
+    lambda_pen; lambda_start = 0 is the paper's constant weight."""
+    from pcmgn_jax.config import TrainConfig
+    from pcmgn_jax.train.setup import TrainSpec
+    from pcmgn_jax.train.step import penalty_weight
+
+    spec = TrainSpec(sim=None, cfg=TrainConfig.from_preset("tiny", lambda_pen=10.0, lambda_start=0.5),
+                     decay_steps=1000)
+    got = [float(penalty_weight(spec, s)) for s in (0, 499, 500, 550, 600, 601, 1000)]
+    assert got == pytest.approx([0.0, 0.0, 0.0, 5.0, 10.0, 10.0, 10.0])
+    const = TrainSpec(sim=None, cfg=TrainConfig.from_preset("tiny", lambda_pen=10.0), decay_steps=1000)
+    assert float(penalty_weight(const, 0)) == 10.0
+    with pytest.raises(ValueError, match="lambda_start"):
+        TrainConfig.from_preset("tiny", lambda_start=1.0)

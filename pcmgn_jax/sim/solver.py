@@ -254,24 +254,6 @@ def _frame_stress(u, db, cells, node_slots, avg_weight, rigid_x: bool):
     return (slots[node_slots] * avg_weight).sum(axis=1)
 
 
-def nodal_von_mises(scene: Scene, points: np.ndarray, cells: np.ndarray, cell_part: np.ndarray,
-                     node_part: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """The nodal von Mises stress [Pa] (T, N) that displacements ``u`` (T, N, 2) [m] imply on a quad
-    mesh (``points`` (N, 2) [m], ``cells`` (E, 4), part ids per cell and node), by the solver's own rule
-    (:func:`_frame_stress`: centroid stress of each element through the scene's materials, averaged over
-    the elements of the node's own part). On the solver's full mesh it reproduces the recorded field; on
-    a region-of-interest crop it differs only at the crop's cut, where elements outside are missing.
-    """
-    youngs, poisson, density = _material_arrays(scene, np.asarray(cell_part))
-    _, _, db = fem.element_matrices(np.asarray(points, float), np.asarray(cells), youngs, poisson, density,
-                                    analysis=scene.analysis)
-    slots, weight = _node_slots(np.asarray(cells), len(points), np.asarray(cell_part), np.asarray(node_part))
-    stress = jax.jit(jax.vmap(partial(_frame_stress, rigid_x=scene.analysis == "plane_strain"),
-                              in_axes=(0, None, None, None, None)))
-    return np.asarray(stress(jnp.asarray(u, jnp.float32), jnp.asarray(db, jnp.float32), jnp.asarray(cells),
-                             jnp.asarray(slots), jnp.asarray(weight, jnp.float32)), np.float64)
-
-
 @partial(jax.jit, static_argnames=("layout", "n_frames", "n_sub", "rigid_x"))
 def _run(arrays: dict[str, Any], u0, v0, dt, *, layout: stencil.SliceLayout, n_frames: int,
          n_sub: int, rigid_x: bool):
