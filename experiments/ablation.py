@@ -27,10 +27,18 @@ CELLS = {
     "paper+strain": ("+ strain-like features", ["--formulation=paper", "--features=strain"]),
     "paper+rigid_ball": ("+ rigid ball (one acceleration, pooled from its nodes)",
                          ["--formulation=paper", "--ball_model=rigid", "--ball_target=acceleration"]),
-    "default": ("all three (the project's default formulation)", ["--formulation=default"]),
-    "default+lambda10": ("default + penetration loss, lambda = 10", ["--formulation=default", "--lambda_pen=10"]),
+    "dynamic": ("all three: the layers as a second dynamical system (velocity target, own state as input)",
+                ["--formulation=dynamic"]),
+    "default": ("+ quasi-static panel (the default: layers at their reference, total displacement as a map "
+                "of the ball's state)", ["--formulation=default"]),
+    "default+lambda10": ("default + penetration loss, lambda = 10 from half-way (the cpu preset)",
+                         ["--formulation=default", "--lambda_pen=10", "--lambda_start=0.5"]),
+    "default+lambda10_from_0": ("default + penetration loss, lambda = 10 from step 0 (the paper's schedule)",
+                                ["--formulation=default", "--lambda_pen=10", "--lambda_start=0"]),
 }
-COMMON = ["--lambda_pen=0", "--noise_std=0", "--noise_rel=1.0", "--noise_parts=panel"]
+# noise 1.0 x each layer's per-frame motion on the layers for every cell: it is what the dynamic cells
+# need and a no-op for the quasi-static ones (their layers' state is not an input)
+COMMON = ["--lambda_pen=0", "--lambda_start=0", "--noise_std=0", "--noise_rel=1.0", "--noise_parts=panel"]
 KEYS = ("position_mae_um", "stress_mae_mpa", "oled_objective_rel_error_pct_mean", "penetration_max_um")
 
 

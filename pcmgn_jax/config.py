@@ -170,11 +170,13 @@ PRESETS: dict[str, dict[str, Any]] = {
                  log_every=20, ckpt_every=200, val_every=200),
     # the README's main job on a 2-core CPU: the project's default formulation (rigid ball, quasi-static
     # panel, per-part normalisation, strain features); no noise (nothing of the panel's state is an
-    # input, so there is no rollout error to imitate); lambda 10 from half-way (results/ablation.md)
+    # input, so there is no rollout error to imitate); no penetration term: lambda = 10 from step 0 or
+    # from half-way measured harmful to this formulation (README §4, results/ablation.md); with
+    # --lambda_pen > 0 the term starts half-way (lambda_start)
     "cpu": dict(data_preset="cpu", n_train=12, n_val=2, n_test=6, latent_size=64,
                 message_passing_steps=8, epochs=1, num_steps=4000, steps_per_dispatch=25,
                 log_every=100, ckpt_every=1000, val_every=500, formulation="default",
-                lambda_pen=10.0, lambda_start=0.5, noise_std=0.0, noise_rel=0.0, noise_parts="none"),
+                lambda_pen=0.0, lambda_start=0.5, noise_std=0.0, noise_rel=0.0, noise_parts="none"),
     # the paper: 15 x 128, 100 epochs, 100 training / 50 test trajectories (a GPU job)
     "paper": dict(data_preset="paper", n_train=100, n_val=5, n_test=50, latent_size=128,
                   message_passing_steps=15, epochs=100, num_steps=0, steps_per_dispatch=50,

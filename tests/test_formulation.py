@@ -10,21 +10,29 @@ from pcmgn_jax.mgn.formulation import (FORMULATIONS, TARGETS, Formulation, add_n
                                        previous_displacement, training_sample)
 
 
-def _roll_back(form: Formulation, traj, dtype=np.float64):
-    """Integrate the true targets of every step from frame 0; returns the (T, N, 2) displacements."""
+def _sample(form, traj, t):
     ball = is_ball(traj.node_type)
-    s0 = training_sample(form, ball, points=traj.points, u_prev=previous_displacement(traj.displacement,
-                         traj.velocity, 0, DT), u=traj.displacement[0], u_next=traj.displacement[1],
-                         vm_next=traj.von_mises[1], dt=DT)
+    u_next = traj.displacement[min(t + 1, traj.n_frames - 1)]
+    return training_sample(form, ball, points=traj.points, u_prev=previous_displacement(traj.displacement,
+                           traj.velocity, t, DT), u=traj.displacement[t], u_next=u_next,
+                           vm_next=traj.von_mises[min(t + 1, traj.n_frames - 1)], vm=traj.von_mises[t], dt=DT)
+
+
+def _roll_back(form: Formulation, traj, dtype=np.float64):
+    """Integrate the true targets of every step from frame 0; returns the (T, N, 2) displacements.
+    A quasi-static panel's target is its field at the sample's own time: frame t+1 takes the panel rows
+    of the sample at t+1 (as a rollout evaluates the panel at the ball's next state)."""
+    ball = is_ball(traj.node_type)
+    s0 = _sample(form, traj, 0)
     u, v = s0["u"].astype(dtype), s0["v"].astype(dtype)
     out = [u]
     for t in range(traj.n_frames - 1):
-        s = training_sample(form, ball, points=traj.points, u_prev=previous_displacement(traj.displacement,
-                            traj.velocity, t, DT), u=traj.displacement[t], u_next=traj.displacement[t + 1],
-                            vm_next=traj.von_mises[t + 1], dt=DT)
+        s = _sample(form, traj, t)
         u, v = integrate(form, ball, points=jnp.asarray(traj.points, dtype), u=jnp.asarray(u, dtype),
                          v=jnp.asarray(v, dtype), a=jnp.asarray(s["target"][:, :2], dtype),
                          a_ball=jnp.asarray(s["ball"], dtype), dt=DT)
+        if form.panel_model == "quasi_static":
+            u = jnp.where(jnp.asarray(ball)[:, None], u, jnp.asarray(_sample(form, traj, t + 1)["target"][:, :2], dtype))
         out.append(np.asarray(u, np.float64))
     return np.stack(out)
 
@@ -78,7 +86,7 @@ def test_rigid_ball_inputs_are_rigid_and_formulation_validates():
     u = traj.displacement[4].copy()
     u[ball] += np.random.default_rng(0).normal(0, 1e-9, (ball.sum(), 2))  # elastic wiggle of the ball
     s = training_sample(FORMULATIONS["default"], ball, points=traj.points, u_prev=traj.displacement[3], u=u,
-                        u_next=traj.displacement[5], vm_next=traj.von_mises[5], dt=DT)
+                        u_next=traj.displacement[5], vm_next=traj.von_mises[5], vm=traj.von_mises[4], dt=DT)
     assert np.ptp(s["u"][ball], axis=0).max() == 0 and np.ptp(s["v"][ball], axis=0).max() == 0
     np.testing.assert_allclose(s["u"][ball][0], [0.0, u[ball].mean(0)[1]])  # rigid, on the symmetry axis
     assert s["ball"][0] == 0.0

@@ -121,3 +121,23 @@ def test_surrogate_many_meshes(tiny_run, tiny_trajs):
         np.testing.assert_allclose(got_s, one_s[0], rtol=1e-4, atol=1e-5 * np.abs(one_s).max())
     u, vm = MGNSurrogate(workdir, a).rollout_trajectories(tiny_trajs[:3])
     assert u.shape == (3,) + a.displacement.shape and vm.shape == (3,) + a.von_mises.shape
+
+
+def test_quasi_static_panel_is_evaluated_at_the_balls_new_state(tiny_run, tiny_trajs):
+    """The default (quasi-static) panel: frame t+1's panel fields are the network's output at the ball's
+    state of frame t+1 (not one frame behind it), and that output does not depend on the panel's state."""
+    _, _, summary = tiny_run
+    s, params = summary["setup"], summary["state"]["params"]
+    sim, topo, idx = s.spec.sim, s.graphs[0].topology, s.graphs[0].index
+    assert sim.formulation.panel_model == "quasi_static"
+    t = tiny_trajs[3]
+    pts = t.points
+    res = rl.rollout(sim, 3, params, s.stats, topo, idx, *_args(t))
+    panel = np.asarray(topo.node_type) != 0
+    for k in (1, 2, 3):
+        u, v = np.asarray(res.displacement[k]), np.asarray(res.velocity[k])
+        wrong = np.where(panel[:, None], u + 1e-6, u)  # the panel elsewhere: no effect on the output
+        out, _ = rl.predict(sim, params, s.stats, topo, idx, pts, wrong, v)
+        up, _, vm = rl.integrate_output(sim, s.stats, topo, pts, u, v, out)
+        np.testing.assert_allclose(u[panel], np.asarray(up)[panel], rtol=1e-5, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(res.von_mises[k]), np.asarray(vm), rtol=1e-3, atol=1e-3)  # float32

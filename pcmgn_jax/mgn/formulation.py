@@ -33,8 +33,9 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
   integrated frame by frame: errors accumulate over a rollout) or ``quasi_static`` (the layers are
   drawn at their reference configuration in the graph, so their state is never an input; every node
   carries the rigid ball's vertical displacement and velocity as 2 extra channels, and the layers predict their
-  total displacement from the reference and their stress as a function of the ball's state and the
-  geometry: the panel's fields are a map of the ball's motion, not a second dynamical system, so they
+  total displacement from the reference and their stress *at the input's time* as a function of the
+  ball's state and the geometry (a rollout moves the ball on, then evaluates the panel at the ball's
+  new state, :func:`pcmgn_jax.mgn.rollout.step`): the panel's fields are a map of the ball's motion, not a second dynamical system, so they
   cannot drift). Measured in this scene: at the same ball displacement the panel's loading and
   unloading fields differ by 0.03–0.05 µm, and the panel's lowest eigenperiod is far below the ~300 µs
   contact, which is what makes the map well posed. The ball stays the one dynamical state (its
@@ -264,12 +265,18 @@ def model_inputs(form: Formulation, ball_mask, u, v, segments=None):
     return u_in, v_in, xp.broadcast_to(state, (u.shape[0], BALL_STATE_CHANNELS))
 
 
-def training_sample(form: Formulation, ball_mask, *, points, u_prev, u, u_next, vm_next, dt: float) -> dict:
+def training_sample(form: Formulation, ball_mask, *, points, u_prev, u, u_next, vm_next, dt: float,
+                    vm=None) -> dict:
     """Inputs and physical targets of one step (NumPy, host side).
 
     Returns dict(u (N,2), v (N,2) inputs; target (N,3) per-node [a_x, a_y, von Mises]; ball (2,) the
     rigid ball's target (zeros unless ``form.rigid_ball``)). With a rigid ball, the ball rows of every
     displacement are its mean (the ball is rigid to ~0.005 µm in the solver's data).
+
+    A ``quasi_static`` panel's targets are its fields at the input's own time (displacement ``u`` and
+    stress ``vm`` (N,) [Pa], needed then): the panel is a map of the ball's current state, so in a rollout
+    it is evaluated at the ball's next state (:func:`pcmgn_jax.mgn.rollout.step`) rather than one frame
+    behind it (a frame is 2.5 µm of ball travel at impact speed).
     """
     f = lambda a: np.asarray(a, np.float64)  # noqa: E731
     points, u_prev, u, u_next = f(points), f(u_prev), f(u), f(u_next)
@@ -277,7 +284,12 @@ def training_sample(form: Formulation, ball_mask, *, points, u_prev, u, u_next, 
     if form.rigid_ball:
         u_prev, u, u_next = (rigidify(a, ball) for a in (u_prev, u, u_next))
     kw = dict(points=points, u_prev=u_prev, u=u, u_next=u_next, dt=dt)
-    a = np.where(ball[:, None], per_node_target(form.ball_target, **kw), per_node_target(form.panel_target, **kw))
+    panel = per_node_target(form.panel_target, **kw)
+    if form.panel_model == "quasi_static":
+        if vm is None:
+            raise ValueError("training_sample: a quasi_static panel needs the stress at the input's time (vm)")
+        panel, vm_next = per_node_target(form.panel_target, **dict(kw, u_next=u)), vm
+    a = np.where(ball[:, None], per_node_target(form.ball_target, **kw), panel)
     rigid = np.zeros(2)
     if form.rigid_ball:
         rigid = per_node_target(form.ball_target, points=rigid_mean(points, ball), u_prev=rigid_mean(u_prev, ball),

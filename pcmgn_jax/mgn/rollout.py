@@ -110,8 +110,27 @@ def predict(spec: Spec, params, stats: Stats, topology: Topology, index: contact
 def step(spec: Spec, params, stats: Stats, topology: Topology, index, points, u, v, layout: Layout | None = None):
     """One frame forward: (u, v) -> (u_next, v_next, vm_next, contact edges)."""
     out, edges = predict(spec, params, stats, topology, index, points, u, v, layout)
+    if spec.formulation.panel_model == "quasi_static":
+        u_next, v_next, vm, _, edges = _advance_quasi_static(spec, params, stats, topology, index, points, u, v,
+                                                             out, layout)
+        return u_next, v_next, vm, edges
     u_next, v_next, vm = integrate_output(spec, stats, topology, points, u, v, out, layout)
     return u_next, v_next, vm, edges
+
+
+def _advance_quasi_static(spec: Spec, params, stats, topology, index, points, u, v, out, layout=None):
+    """A quasi-static panel's frame forward from the output ``out`` at the state (u, v): the ball moves
+    on by its acceleration, then the network, evaluated at the ball's new state, gives the panel's fields
+    there (the panel's outputs are fields at the input's own time, :func:`formulation.training_sample`).
+    Returns (u_next, v_next, vm_next, out_next, edges); a rollout carries ``out_next`` to the next frame,
+    so one evaluation per frame (and one for the initial state)."""
+    ub, vb, _ = integrate_output(spec, stats, topology, points, u, v, out, layout)
+    out_next, edges = predict(spec, params, stats, topology, index, points, ub, vb, layout)
+    up, _, vm = integrate_output(spec, stats, topology, points, ub, vb, out_next, layout)
+    ball = ball_mask(topology)[:, None]
+    u_next = jnp.where(ball, ub, up)
+    v_next = jnp.where(ball, vb, impose_bc(topology, (up - jnp.asarray(u, jnp.float32)) / spec.dt))
+    return u_next, v_next, vm, out_next, edges
 
 
 def integrate_output(spec: Spec, stats: Stats, topology: Topology, points, u, v, out,
@@ -138,18 +157,24 @@ def jitted_step(spec: Spec, params, stats, topology, index, points, u, v):
 def _rollout(spec: Spec, n_steps: int, params, stats, topology, index, points, u0, v0, vm0,
              layout: Layout | None = None):
     points = jnp.asarray(points, jnp.float32)
+    quasi_static = spec.formulation.panel_model == "quasi_static"
 
     def body(carry, _):
-        u, v = carry
-        u_next, v_next, vm, edges = step(spec, params, stats, topology, index, points, u, v, layout)
-        return (u_next, v_next), (u_next, v_next, vm, edges.overflow, edges.count)
+        u, v, out = carry
+        if quasi_static:  # carry the output at (u, v): one network evaluation per frame
+            u_next, v_next, vm, out, edges = _advance_quasi_static(spec, params, stats, topology, index, points,
+                                                                   u, v, out, layout)
+        else:
+            u_next, v_next, vm, edges = step(spec, params, stats, topology, index, points, u, v, layout)
+        return (u_next, v_next, out), (u_next, v_next, vm, edges.overflow, edges.count)
 
     u0 = impose_bc(topology, jnp.asarray(u0, jnp.float32))
     v0 = jnp.asarray(v0, jnp.float32)
     if spec.formulation.rigid_ball:
         segments = None if layout is None else layout.segments
         u0, v0 = (rigidify(a, ball_mask(topology), segments) for a in (u0, v0))
-    _, (us, vs, vms, ovf, cnt) = jax.lax.scan(body, (u0, v0), None, length=n_steps)
+    out0 = predict(spec, params, stats, topology, index, points, u0, v0, layout)[0] if quasi_static else None
+    _, (us, vs, vms, ovf, cnt) = jax.lax.scan(body, (u0, v0, out0), None, length=n_steps)
     cat = lambda a, b: jnp.concatenate([a[None], b], axis=0)  # noqa: E731
     return Rollout(cat(u0, us), cat(v0, vs), cat(jnp.asarray(vm0, jnp.float32), vms), ovf, cnt)
 

@@ -38,7 +38,7 @@ def sample(form: Formulation, traj, t: int, dt: float) -> dict:
     u_prev = previous_displacement(traj.displacement, traj.velocity, t, dt)
     out = training_sample(form, is_ball(traj.node_type), points=traj.points, u_prev=u_prev,
                           u=traj.displacement[t], u_next=traj.displacement[t + 1],
-                          vm_next=traj.von_mises[t + 1], dt=dt)
+                          vm_next=traj.von_mises[t + 1], vm=traj.von_mises[t], dt=dt)
     return dict(out, points=np.asarray(traj.points, np.float64))
 
 
