@@ -1,6 +1,6 @@
 """The surrogate-accuracy ablation: each formulation change alone and combined, several seeds, same data.
 
-    python -m experiments.ablation --out results/ablation --num_steps 2000 --seeds 0,1
+    python -m experiments.ablation --out results/ablation_v2 --num_steps 1000 --seeds 0,1
 
 Every cell is a training run (``--preset cpu`` plus the cell's flags, ``runs/ablation/<cell>_s<seed>``)
 followed by the evaluation on the test split (with the baselines). Resumable: a cell whose
@@ -31,7 +31,7 @@ CELLS = {
                 ["--formulation=dynamic"]),
     "default": ("+ quasi-static panel (the default: layers at their reference, total displacement as a map "
                 "of the ball's state)", ["--formulation=default"]),
-    "default+lambda10": ("default + penetration loss, lambda = 10 from half-way (the cpu preset)",
+    "default+lambda10": ("default + penetration loss, lambda = 10 from half-way (--lambda_start=0.5)",
                          ["--formulation=default", "--lambda_pen=10", "--lambda_start=0.5"]),
     "default+lambda10_from_0": ("default + penetration loss, lambda = 10 from step 0 (the paper's schedule)",
                                 ["--formulation=default", "--lambda_pen=10", "--lambda_start=0"]),
@@ -44,7 +44,7 @@ KEYS = ("position_mae_um", "stress_mae_mpa", "oled_objective_rel_error_pct_mean"
 
 @dataclass(frozen=True)
 class AblationArgs:
-    out: str = "results/ablation"           # output stem: OUT.json and OUT.md
+    out: str = "results/ablation_v2"        # output stem: OUT.json and OUT.md
     runs: str = "runs/ablation"             # where the cells' run directories go
     num_steps: int = 1000                   # optimiser steps per cell (the cpu preset trains 4000)
     seeds: str = "0,1"                      # comma-separated training seeds (same data for all)
