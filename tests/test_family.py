@@ -45,6 +45,7 @@ def mixed():
     return trajs, setup, init_params(setup, trajs[0], 0)
 
 
+@pytest.mark.slow  # ~70 s: keeps the default suite under 10 minutes on 2 cores
 def test_padding_and_other_graphs_change_no_loss_or_gradient(mixed):
     trajs, setup, params = mixed
     assert len({t.n_nodes for t in trajs}) == 2
