@@ -47,8 +47,6 @@ def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2,
                   seed: int = 0) -> dict:
     """Model spec, random params, stats, topology, contact index and per-design initial states."""
     import jax
-    import jax.numpy as jnp
-
     from pcmgn_jax.mgn import contact as contact_lib
     from pcmgn_jax.mgn.graphs import make_topology
     from pcmgn_jax.sim.mesh import build_mesh, roi

@@ -284,12 +284,12 @@ def training_sample(form: Formulation, ball_mask, *, points, u_prev, u, u_next, 
     if form.rigid_ball:
         u_prev, u, u_next = (rigidify(a, ball) for a in (u_prev, u, u_next))
     kw = dict(points=points, u_prev=u_prev, u=u, u_next=u_next, dt=dt)
-    panel = per_node_target(form.panel_target, **kw)
-    if form.panel_model == "quasi_static":
+    panel_kw = kw
+    if form.panel_model == "quasi_static":  # the panel's fields at the input's own time
         if vm is None:
             raise ValueError("training_sample: a quasi_static panel needs the stress at the input's time (vm)")
-        panel, vm_next = per_node_target(form.panel_target, **dict(kw, u_next=u)), vm
-    a = np.where(ball[:, None], per_node_target(form.ball_target, **kw), panel)
+        panel_kw, vm_next = dict(kw, u_next=u), vm
+    a = np.where(ball[:, None], per_node_target(form.ball_target, **kw), per_node_target(form.panel_target, **panel_kw))
     rigid = np.zeros(2)
     if form.rigid_ball:
         rigid = per_node_target(form.ball_target, points=rigid_mean(points, ball), u_prev=rigid_mean(u_prev, ball),

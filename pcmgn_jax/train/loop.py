@@ -33,7 +33,6 @@ from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.eval.metrics import position_mae_um
 from pcmgn_jax.mgn import checkpoint
 from pcmgn_jax.mgn import contact as contact_lib
-
 from pcmgn_jax.mgn.normalization import normalize_graph
 from pcmgn_jax.mgn.rollout import input_graph, rollout_designs
 from pcmgn_jax.train.sampling import gather_unions, pair_table, sample_ids

@@ -30,7 +30,7 @@ from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.geometry import roi_boundary_nodes
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.checkpoint import make_spec
-from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, is_ball
+from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, is_ball, model_inputs
 from pcmgn_jax.mgn.batching import bucket_size
 from pcmgn_jax.mgn.graphs import Topology, topology_from_trajectory, with_scene_features
 from pcmgn_jax.mgn.formulation import scene_feature_values
@@ -204,10 +204,8 @@ def compute_stats(spec: Spec, trajs, topology, index, sigma, *, max_frames: int 
 def contact_positions(form: Formulation, traj) -> np.ndarray:
     """(T, N, 2) [m] the positions the contact search sees in the model's inputs of every frame of
     ``traj`` (:func:`pcmgn_jax.mgn.formulation.model_inputs`: a quasi-static panel at its reference)."""
-    if form.panel_model != "quasi_static":
-        return traj.positions
-    ball = is_ball(traj.node_type)[None, :, None]
-    return np.asarray(traj.points)[None] + np.where(ball, np.asarray(traj.displacement), 0.0)
+    ball, points = is_ball(traj.node_type), np.asarray(traj.points, np.float64)
+    return np.stack([points + model_inputs(form, ball, u, u)[0] for u in np.asarray(traj.displacement, np.float64)])
 
 
 def mesh_key(traj) -> tuple:

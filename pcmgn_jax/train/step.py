@@ -25,9 +25,9 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from pcmgn_jax.mgn.formulation import BALL_PART, axial
+from pcmgn_jax.mgn.formulation import axial
 from pcmgn_jax.mgn.normalization import Stats, normalize_target
-from pcmgn_jax.mgn.rollout import ball_output, integrate_output, predict
+from pcmgn_jax.mgn.rollout import ball_mask, ball_output, integrate_output, predict
 from pcmgn_jax.train.noise import perturb
 from pcmgn_jax.train.penetration import penetration_depth, penetration_loss
 from pcmgn_jax.train.setup import TrainSpec
@@ -112,7 +112,7 @@ def loss_fn(params, spec: TrainSpec, stats: Stats, batch, key, step=None):
     if spec.cfg.lambda_pen > 0:
         u_next, _, _ = integrate_output(sim, stats, topology, points, sample["u"], sample["v"], out, layout)
         if form.panel_model == "quasi_static":  # the panel's prediction is at the input's time: the ball's too
-            u_next = jnp.where((topology.node_type == BALL_PART)[:, None], sample["u"], u_next)
+            u_next = jnp.where(ball_mask(topology)[:, None], sample["u"], u_next)
         loss_pen = _penetration(spec, batch, points, u_next)
     else:
         loss_pen = jnp.zeros(n_graph, jnp.float32)
