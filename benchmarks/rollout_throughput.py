@@ -65,7 +65,10 @@ def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2,
         if not np.array_equal(m.cells, m0.cells):
             raise ValueError("designs do not share one topology")
     n_parts = len(m0.part_names)
-    topo = make_topology(points=m0.points, cells=m0.cells, node_type=m0.node_type, n_parts=n_parts)
+    from pcmgn_jax.mgn.formulation import FORMULATIONS, scene_feature_rows
+    form = FORMULATIONS["default"]
+    topo = make_topology(points=m0.points, cells=m0.cells, node_type=m0.node_type, n_parts=n_parts,
+                         scene_features=scene_feature_rows(base.to_dict(), form.scene_features, m0.node_type))
     ball = m0.node_part == 0
     top = contact_lib.surface_nodes(m0.points, m0.cells, m0.cell_part, 1, facing="up")
     xs = np.sort(m0.points[top, 0])
@@ -86,9 +89,7 @@ def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2,
     v0[:, ball, 1] = -base.ball.velocity
     vm0 = np.zeros(points.shape[:2], np.float32)
     # normalisation statistics from the pressed frame (means/stds of the right magnitudes; targets O(1))
-    from pcmgn_jax.mgn.formulation import FORMULATIONS
     from pcmgn_jax.mgn.normalization import Accumulator, TypedAccumulator, make_stats
-    form = FORMULATIONS["default"]
     g, _ = input_graph(form, topo, index, m0.points, pressed[-1] - m0.points, v0[0])
     k = topo.n_node_types
     node_type = np.asarray(topo.node_type)

@@ -1,6 +1,7 @@
 """The surrogate-accuracy ablation: each formulation change alone and combined, several seeds, same data.
 
-    python -m experiments.ablation --out results/ablation_v2 --num_steps 1000 --seeds 0,1
+    python -m experiments.ablation --out results/ablation_v3 --num_steps 1000 --seeds 0,1 \
+        --cells quasi_static,quasi_static+ema,quasi_static+thickness,default
 
 Every cell is a training run (``--preset cpu`` plus the cell's flags, ``runs/ablation/<cell>_s<seed>``)
 followed by the evaluation on the test split (with the baselines). Resumable: a cell whose
@@ -29,22 +30,32 @@ CELLS = {
                          ["--formulation=paper", "--ball_model=rigid", "--ball_target=acceleration"]),
     "dynamic": ("all three: the layers as a second dynamical system (velocity target, own state as input)",
                 ["--formulation=dynamic"]),
-    "default": ("+ quasi-static panel (the default: layers at their reference, total displacement as a map "
-                "of the ball's state)", ["--formulation=default"]),
+    "quasi_static": ("+ quasi-static panel (layers at their reference, total displacement as a map of the "
+                     "ball's state; results/ablation_v2's 'default')",
+                     ["--formulation=default", "--contact_projection=off", "--scene_features=none", "--ema_decay=0"]),
+    "quasi_static+ema": ("+ the parameters' moving average validated and kept (--ema_decay=0.998)",
+                         ["--formulation=default", "--contact_projection=off", "--scene_features=none",
+                          "--ema_decay=0.998"]),
+    "quasi_static+thickness": ("+ the layer thicknesses as node inputs (--scene_features=layer_thickness)",
+                               ["--formulation=default", "--contact_projection=off", "--ema_decay=0"]),
+    "default": ("all of them and the rollout's contact projection: the default (--preset cpu)",
+                ["--formulation=default", "--ema_decay=0.998"]),
     "default+lambda10": ("default + penetration loss, lambda = 10 from half-way (--lambda_start=0.5)",
-                         ["--formulation=default", "--lambda_pen=10", "--lambda_start=0.5"]),
+                         ["--formulation=default", "--ema_decay=0.998", "--lambda_pen=10", "--lambda_start=0.5"]),
     "default+lambda10_from_0": ("default + penetration loss, lambda = 10 from step 0 (the paper's schedule)",
-                                ["--formulation=default", "--lambda_pen=10", "--lambda_start=0"]),
+                                ["--formulation=default", "--ema_decay=0.998", "--lambda_pen=10", "--lambda_start=0"]),
 }
 # noise 1.0 x each layer's per-frame motion on the layers for every cell: it is what the dynamic cells
-# need and a no-op for the quasi-static ones (their layers' state is not an input)
-COMMON = ["--lambda_pen=0", "--lambda_start=0", "--noise_std=0", "--noise_rel=1.0", "--noise_parts=panel"]
+# need and a no-op for the quasi-static ones (their layers' state is not an input); no parameter
+# average unless a cell asks for it (v1 and v2 were made without one)
+COMMON = ["--lambda_pen=0", "--lambda_start=0", "--noise_std=0", "--noise_rel=1.0", "--noise_parts=panel",
+          "--ema_decay=0"]
 KEYS = ("position_mae_um", "stress_mae_mpa", "oled_objective_rel_error_pct_mean", "penetration_max_um")
 
 
 @dataclass(frozen=True)
 class AblationArgs:
-    out: str = "results/ablation_v2"        # output stem: OUT.json and OUT.md
+    out: str = "results/ablation_v3"        # output stem: OUT.json and OUT.md
     runs: str = "runs/ablation"             # where the cells' run directories go
     num_steps: int = 1000                   # optimiser steps per cell (the cpu preset trains 4000)
     seeds: str = "0,1"                      # comma-separated training seeds (same data for all)

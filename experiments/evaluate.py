@@ -2,6 +2,7 @@
 
   python -m experiments.evaluate --workdir RUN [--which best|periodic]
   python -m experiments.evaluate --workdir RUN --data data/cpu/extrap      # -> RUN/eval/extrap/metrics.json
+  python -m experiments.evaluate --workdir RUN --contact_projection off --name raw   # the network's raw contact
 
 Rolls the model out from frame 0 of each trajectory and scores it beside the baselines fitted on the
 run's training split (nothing moves, nearest training design, per-node quadratic and RBF regression over
@@ -23,6 +24,7 @@ class EvaluateArgs:
     which: Literal["best", "periodic"] = "best"  # checkpoint: best validation or latest periodic
     data: str = ""                             # directory of trajectory files ("" = the run's test split)
     name: str = ""                             # output RUN/eval/NAME ("" = the --data folder's name)
+    contact_projection: Literal["", "on", "off"] = ""  # override the run's rollout contact projection ("" = the run's)
 
 
 def main(argv=None) -> int:
@@ -41,7 +43,8 @@ def main(argv=None) -> int:
         from pcmgn_jax.data.dataset import load_directory
         test = load_directory(args.data)
         name = args.name or Path(args.data).resolve().name
-    m = evaluation.evaluate(args.workdir, test_trajs=test, train_trajs=train, which=args.which, name=name)
+    m = evaluation.evaluate(args.workdir, test_trajs=test, train_trajs=train, which=args.which, name=name,
+                            contact_projection=args.contact_projection)
     print(evaluation.summary_table(m))
     print(f"wrote {Path(args.workdir) / 'eval' / (name or '')}/metrics.json and PNGs")
     return 0

@@ -24,6 +24,18 @@ def test_space_separated_hyphens_and_booleans():
     assert args.run_dir.as_posix() == "runs/x" and args.resume
 
 
+def test_contact_projection_and_ema_flags():
+    cfg = cli.parse_config(["--contact_projection=off", "--ema_decay=0.99"])
+    assert cfg.ema_decay == 0.99 and cfg.formulation_spec().contact_projection is False
+    assert TrainConfig.from_preset("cpu").formulation_spec().contact_projection is True  # the default formulation's
+    assert TrainConfig.from_preset("cpu", formulation="paper").formulation_spec().contact_projection is False
+    assert TrainConfig.from_preset("cpu", formulation="paper", contact_projection="on").formulation_spec().contact_projection
+    with pytest.raises(ValueError, match="contact_projection='yes' must be on or off"):
+        TrainConfig.from_preset("cpu", contact_projection="yes")
+    with pytest.raises(ValueError, match=r"ema_decay=1.0 must be in \[0, 1\)"):
+        TrainConfig.from_preset("cpu", ema_decay=1.0)
+
+
 @pytest.mark.parametrize("preset", sorted(PRESETS))
 def test_preset_fills_defaults(preset):
     cfg = cli.parse_train(["--preset", preset]).config

@@ -132,3 +132,46 @@ def test_quasi_static_inputs_are_a_function_of_the_ball_state_alone():
     assert not np.array_equal(np.asarray(d1.nodes), np.asarray(d2.nodes))
     with pytest.raises(ValueError, match="quasi_static"):
         Formulation(panel_model="quasi_static")  # a velocity target cannot be a map of the ball's state
+
+
+def test_layer_thickness_scene_feature_follows_the_design_with_its_derivative():
+    """``layer_thickness``: one channel per layer [m] in the scene's order; with ``design`` the design
+    layers' entries are the (traced) design, so the optimiser's tangent flows through them."""
+    from pcmgn_jax.mgn.formulation import scene_feature_values
+    from pcmgn_jax.scene import default_scene
+    scene = default_scene().with_design(80e-6, 120e-6).to_dict()
+    names = [layer["name"] for layer in scene["layers"]]
+    vals = scene_feature_values(scene, ("ball_radius", "layer_thickness"))
+    assert vals.dtype == np.float32 and vals.shape == (1 + len(names),)
+    np.testing.assert_allclose(vals[1 + names.index("OCA1")], 80e-6, rtol=1e-6)
+    np.testing.assert_allclose(vals[1 + names.index("OCA2")], 120e-6, rtol=1e-6)
+    np.testing.assert_allclose(vals[0], scene["ball"]["radius"], rtol=1e-6)
+    d = jnp.asarray([60e-6, 140e-6], jnp.float32)
+    traced = scene_feature_values(scene, ("layer_thickness",), design=d)
+    np.testing.assert_allclose(np.asarray(traced)[[names.index("OCA1"), names.index("OCA2")]], [60e-6, 140e-6])
+    np.testing.assert_allclose(np.delete(np.asarray(traced), [names.index("OCA1"), names.index("OCA2")]),
+                               np.delete(np.asarray(vals[1:]), [names.index("OCA1"), names.index("OCA2")]))
+    jac = np.asarray(jax.jacfwd(lambda x: scene_feature_values(scene, ("layer_thickness",), design=x))(d))
+    expect = np.zeros((len(names), 2))
+    expect[names.index("OCA1"), 0] = expect[names.index("OCA2"), 1] = 1.0
+    np.testing.assert_array_equal(jac, expect)
+    assert FORMULATIONS["default"].scene_features == ("layer_thickness",)
+    with pytest.raises(ValueError, match="scene feature 'layer_thickness': the scene has no layers.thickness"):
+        scene_feature_values({"ball": {}}, ("layer_thickness",))
+
+
+def test_scene_feature_rows_hide_the_design_from_the_ball():
+    """Layer-only features are 0 on the ball's nodes (the ball learns the panel through the contact);
+    the ball radius reaches every node."""
+    from pcmgn_jax.mgn.formulation import scene_feature_rows, scene_feature_values
+    from pcmgn_jax.scene import default_scene
+    scene = default_scene().to_dict()
+    node_type = np.array([0, 0, 1, 3, 6])
+    rows = scene_feature_rows(scene, ("ball_radius", "layer_thickness"), node_type)
+    vals = scene_feature_values(scene, ("ball_radius", "layer_thickness"))
+    assert rows.shape == (5, len(vals)) and rows.dtype == np.float32
+    np.testing.assert_array_equal(rows[2:], np.broadcast_to(vals, (3, len(vals))))
+    np.testing.assert_array_equal(rows[:2, 0], [vals[0]] * 2)
+    assert np.all(rows[:2, 1:] == 0)
+    traced = scene_feature_rows(scene, ("layer_thickness",), node_type, design=jnp.asarray([70e-6, 90e-6]))
+    assert np.all(np.asarray(traced)[:2] == 0) and np.asarray(traced)[2, 1] == pytest.approx(70e-6)

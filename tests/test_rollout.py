@@ -79,6 +79,11 @@ def test_evaluate_scores_model_and_baselines(tiny_run, tiny_trajs):
     for png in ("deformed_mesh_pred", "pred_truth_error", "contact_zoom", "mae_vs_frame"):
         assert (workdir / "eval" / f"{png}.png").stat().st_size > 1000
     assert "| MGN |" in evaluation.summary_table(m) and "| nearest |" in evaluation.summary_table(m)
+    # the rollout-only projection can be switched off for the same checkpoint: the network's raw contact
+    raw = evaluation.evaluate(workdir, test_trajs=test, plot=False, name="raw", contact_projection="off")
+    assert m["contact_projection"] is True and raw["contact_projection"] is False
+    assert raw["penetration_max_um"] >= m["penetration_max_um"]
+    assert (workdir / "eval" / "raw" / "metrics.json").exists()
 
 
 def test_evaluate_any_directory_and_baselines_that_need_the_training_mesh(tiny_run, tiny_trajs, tmp_path):
@@ -139,5 +144,65 @@ def test_quasi_static_panel_is_evaluated_at_the_balls_new_state(tiny_run, tiny_t
         wrong = np.where(panel[:, None], u + 1e-6, u)  # the panel elsewhere: no effect on the output
         out, _ = rl.predict(sim, params, s.stats, topo, idx, pts, wrong, v)
         up, _, vm = rl.integrate_output(sim, s.stats, topo, pts, u, v, out)
-        np.testing.assert_allclose(u[panel], np.asarray(up)[panel], rtol=1e-5, atol=1e-12)
+        up = np.where(panel[:, None], np.asarray(up), u)  # the ball where the rollout put it
+        if sim.formulation.contact_projection:
+            up = np.asarray(rl.project_contact(idx, pts, up))
+        np.testing.assert_allclose(u[panel], up[panel], rtol=1e-5, atol=1e-12)
         np.testing.assert_allclose(np.asarray(res.von_mises[k]), np.asarray(vm), rtol=1e-3, atol=1e-3)  # float32
+
+
+def _contact_scene(gap_um=-2.0, spacing=25e-6, radius=5e-3):
+    """A rigid ball's lower surface (nodes on a circle of ``radius`` [m], x in [0, 2 mm]) whose lowest point
+    is ``gap_um`` above a flat row of cover-glass top nodes (x in [0, 3 mm] at y = 0); negative: overlap."""
+    from pcmgn_jax.mgn.contact import ContactIndex
+    xb = np.arange(0.0, 2e-3 + 1e-12, spacing)
+    yb = radius + gap_um * 1e-6 - np.sqrt(radius ** 2 - xb ** 2)
+    xp = np.arange(0.0, 3e-3 + 1e-12, 0.7 * spacing)
+    points = np.concatenate([np.stack([xb, yb], 1), np.stack([xp, 0 * xp], 1)])
+    ball, panel = np.arange(len(xb)), len(xb) + np.arange(len(xp))
+    index = ContactIndex(ball_nodes=ball, panel_nodes=panel, allowed=np.ones((len(xb), len(xp)), bool),
+                         radius=75e-6, capacity=64)
+    return points, index
+
+
+def test_contact_projection_moves_only_nodes_inside_the_ball_onto_its_surface():
+    """Cover-glass nodes inside the rigid ball land on the ball's surface polyline (so the fit-free
+    penetration is at most the facet sagitta); nodes below the ball, or beyond its x range, do not move."""
+    from pcmgn_jax.eval.metrics import penetration_stats
+    points, index = _contact_scene(gap_um=-2.0)
+    u = np.zeros_like(points, np.float32)
+    far = index.panel_nodes[points[index.panel_nodes, 0] > 2.2e-3][:3]
+    u[far, 1] = 1e-3  # far above anything, but outside the ball's x range: no constraint there
+    out = np.asarray(rl.project_contact(index, points, u))
+    ball, panel = index.ball_nodes, index.panel_nodes
+    surface = np.interp(points[panel, 0], points[ball, 0], points[ball, 1])
+    inside = (points[panel, 0] <= points[ball, 0].max()) & (surface < 0)
+    assert inside.sum() >= 8  # a 2 µm overlap of a 5 mm ball: |x| < 141 µm, 9 nodes 17.5 µm apart
+    np.testing.assert_allclose(out[panel[inside], 1], surface[inside], atol=2e-9)  # float32 at mm scale
+    np.testing.assert_array_equal(out[panel[~inside]], u[panel[~inside]])
+    np.testing.assert_array_equal(out[ball], u[ball])
+    np.testing.assert_array_equal(out[:, 0], u[:, 0])
+    near = panel[points[panel, 0] < 2e-3]
+    before = penetration_stats((points + u)[None][:, ball], (points + u)[None][:, near])["max_um"]
+    after = penetration_stats((points + out)[None][:, ball], (points + out)[None][:, near])["max_um"]
+    # what is left is a chord sagitta, L^2 / 8R with L up to a ball + a panel spacing: (42.5 µm)^2 / 40 mm = 0.045 µm
+    assert before > 1.9 and after < 0.05, (before, after)
+    clear_points, clear_index = _contact_scene(gap_um=1.0)
+    clear = np.asarray(rl.project_contact(clear_index, clear_points, np.zeros_like(clear_points, np.float32)))
+    assert np.all(clear == 0)  # no overlap, nothing moves
+
+
+def test_contact_projection_of_a_union_is_each_graphs_own_and_has_finite_gradients():
+    from pcmgn_jax.mgn import contact as contact_lib
+    (p1, i1), (p2, i2) = _contact_scene(gap_um=-2.0), _contact_scene(gap_um=-5.0, spacing=30e-6)
+    n1, n2 = len(p1), len(p2)
+    stacked = contact_lib.stack([i1, i2], [0, n1], n_slots=3, n_ball=len(i1.ball_nodes) + 4,
+                                n_panel=len(i1.panel_nodes) + 7, capacity=64)
+    points = np.concatenate([p1, p2, np.zeros((5, 2))]).astype(np.float32)  # 5 padding nodes
+    u = np.zeros_like(points)
+    out = np.asarray(rl.project_contact(stacked, points, u))
+    np.testing.assert_array_equal(out[:n1], np.asarray(rl.project_contact(i1, p1, u[:n1])))
+    np.testing.assert_array_equal(out[n1:n1 + n2], np.asarray(rl.project_contact(i2, p2, u[n1:n1 + n2])))
+    assert np.all(out[n1 + n2:] == 0) and out[:n1 + n2, 1].min() < -4e-6
+    grad = jax.grad(lambda uu: rl.project_contact(stacked, points, uu)[:, 1].sum())(u)
+    assert np.all(np.isfinite(np.asarray(grad)))

@@ -95,3 +95,34 @@ def test_pushforward_training_runs_and_lowers_the_loss(tiny_trajs, tmp_path):
     res = training.train(cfg, tmp_path, train_trajs=tiny_trajs[:3])
     losses = [json.loads(line)["loss"] for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
     assert res["step"] == 80 and np.all(np.isfinite(losses)) and losses[-1] < losses[0]
+
+
+def test_ema_parameters_are_the_average_and_what_the_best_checkpoint_keeps(tiny_trajs, tmp_path):
+    """ema_decay > 0: after each step ema <- d ema + (1 - d) params (checked against the optimiser's own
+    parameter sequence, one step per dispatch); the best checkpoint holds the average, the periodic one
+    both (so --resume continues the average)."""
+    d = 0.9
+    cfg = tiny_config(num_steps=3, steps_per_dispatch=1, log_every=1, ckpt_every=1, val_every=1, ema_decay=d)
+    from pcmgn_jax.train.step import eval_params, init_state
+    setup = training.prepare(cfg, tiny_trajs[:3])
+    state = init_state(setup.spec, training.init_params(setup, tiny_trajs[0], cfg.seed))
+    table = pair_table(tiny_trajs[:3])
+    form = setup.spec.sim.formulation
+    ema = jax.tree.map(np.asarray, state["params"])
+    for step in range(3):
+        ids = sample_ids(cfg.seed, step, 1, 1, setup.n_pairs)
+        batch = gather_unions(form, tiny_trajs[:3], setup.graphs, table, ids, dt=setup.spec.sim.dt, sizes=setup.sizes)
+        state, _ = train_chunk(setup.spec, state, setup.stats, batch, jax.random.PRNGKey(cfg.seed + 1))
+        ema = jax.tree.map(lambda e, p: d * e + (1 - d) * np.asarray(p), ema, state["params"])
+    for a, b in zip(jax.tree.leaves(eval_params(state)), jax.tree.leaves(ema)):
+        np.testing.assert_allclose(np.asarray(a), b, rtol=1e-5, atol=1e-7)
+    assert not all(np.array_equal(np.asarray(a), np.asarray(b))
+                   for a, b in zip(jax.tree.leaves(state["ema_params"]), jax.tree.leaves(state["params"])))
+    res = training.train(cfg, tmp_path, train_trajs=tiny_trajs[:3])  # no validation: best = the final state
+    last = res["state"]
+    best = checkpoint.load(tmp_path, tiny_trajs[0], which="best")
+    for a, b in zip(jax.tree.leaves(best.params), jax.tree.leaves(last["ema_params"])):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    restored, _, _ = checkpoint.restore(tmp_path / "checkpoints" / "periodic", init_state(setup.spec, last["params"]))
+    for a, b in zip(jax.tree.leaves(restored["ema_params"]), jax.tree.leaves(last["ema_params"])):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

@@ -163,14 +163,20 @@ def baseline_metrics(train_trajs, test_trajs, scene, bnodes, pnodes) -> dict:
 
 
 def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence = (), which: str = "best",
-             batch: int = 4, plot: bool = True, name: str | None = None) -> dict:
+             batch: int = 4, plot: bool = True, name: str | None = None, contact_projection: str = "") -> dict:
     """Roll the run's model out on ``test_trajs`` and score it beside the baselines fitted on
-    ``train_trajs`` (the run's training split). Writes WORKDIR/eval[/name]/metrics.json and PNGs."""
+    ``train_trajs`` (the run's training split). Writes WORKDIR/eval[/name]/metrics.json and PNGs.
+    ``contact_projection``: "on" / "off" overrides the run's formulation in the rollouts (the projection
+    is rollout-only, so the same checkpoint serves both); "" keeps it."""
     workdir = Path(workdir)
     ref = test_trajs[0]
     T = ref.n_frames
     scene = Scene.from_dict(ref.meta["scene"])
-    mgn = MGNSurrogate(workdir, ref, which=which, batch=batch)
+    cfg = None
+    if contact_projection:
+        from pcmgn_jax.config import TrainConfig
+        cfg = TrainConfig.load(workdir / "config.json").replace(contact_projection=contact_projection)
+    mgn = MGNSurrogate(workdir, ref, which=which, batch=batch, cfg=cfg)
     pu, ps = mgn.rollout_trajectories(test_trajs)
     _, panel_part = contact_parts(scene)
     bnodes, pnodes = zip(*[boundary(t, panel_part) for t in test_trajs])
@@ -182,6 +188,7 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
     m.update(truth_pen, rollout_seconds_per_trajectory=mgn.rollout_seconds / len(test_trajs),
              n_test=len(test_trajs), n_frames=T, n_nodes=ref.n_nodes,
              n_nodes_per_trajectory=[t.n_nodes for t in test_trajs], checkpoint=which,
+             contact_projection=bool(mgn.sim.spec.formulation.contact_projection),
              contact_capacity=int(mgn.sim.index.capacity),
              phases=[{k: list(v) for k, v in p.items()} for p in phases],
              window_has_all_phases=all(v[0] is not None for p in phases for v in p.values()))

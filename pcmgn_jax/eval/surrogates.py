@@ -234,9 +234,11 @@ class MGNSurrogate:
 
     name = "mgn"
 
-    def __init__(self, workdir, ref, *, which: str = "best", batch: int = 8):
+    def __init__(self, workdir, ref, *, which: str = "best", batch: int = 8, cfg=None):
+        """``cfg``: the run's TrainConfig with rollout-only fields changed (e.g. ``contact_projection``);
+        None = the run's own config.json."""
         from pcmgn_jax.mgn.checkpoint import load
-        self.sim = load(workdir, ref, which=which)
+        self.sim = load(workdir, ref, which=which, cfg=cfg)
         self.ref = ref
         self.batch = batch
         self.rollout_seconds = 0.0
@@ -247,7 +249,7 @@ class MGNSurrogate:
         state; the model's topology and contact buffer when it is the reference mesh, else its own; the
         scene features (if the model has any) of ``scene`` (a scene dict; default the reference's)."""
         from pcmgn_jax.mgn.checkpoint import contact_index_for
-        from pcmgn_jax.mgn.formulation import scene_feature_values
+        from pcmgn_jax.mgn.formulation import scene_feature_rows
         from pcmgn_jax.mgn.graphs import make_topology, with_scene_features
         from pcmgn_jax.scene import Scene
         s = self.sim
@@ -260,7 +262,8 @@ class MGNSurrogate:
                                       capacity=s.index.capacity)
         names = s.spec.formulation.scene_features
         if names:
-            topology = with_scene_features(topology, scene_feature_values(scene or self.ref.meta["scene"], names))
+            topology = with_scene_features(topology, scene_feature_rows(scene or self.ref.meta["scene"], names,
+                                                                        topology.node_type))
         return dict(topology=topology, index=index, points=np.asarray(mesh.points, np.float32),
                     u0=np.asarray(u0, np.float32), v0=np.asarray(v0, np.float32), vm0=np.asarray(vm0, np.float32))
 
@@ -279,11 +282,18 @@ class MGNSurrogate:
             return np.stack(u), np.stack(vm)
         return u, vm
 
-    def rollout(self, points, u0, v0, vm0):
+    def rollout(self, points, u0, v0, vm0, designs=None):
         """Roll out from initial states (B, N, 2) x3 and (B, N) on the reference mesh's topology:
-        (u (B,T,N,2) [m], vm (B,T,N) [Pa])."""
-        return self._rollout([dict(self._design(self.ref, u, v, vm), points=np.asarray(p, np.float32))
-                              for p, u, v, vm in zip(points, u0, v0, vm0)])
+        (u (B,T,N,2) [m], vm (B,T,N) [Pa]). ``designs`` (B, D) [m]: the designs these meshes are of, for
+        the scene features (e.g. ``layer_thickness``); None: the reference's scene."""
+        scenes = [None] * len(points) if designs is None else [self.scene_of(d) for d in designs]
+        return self._rollout([dict(self._design(self.ref, u, v, vm, sc), points=np.asarray(p, np.float32))
+                              for p, u, v, vm, sc in zip(points, u0, v0, vm0, scenes)])
+
+    def scene_of(self, design) -> dict:
+        """The reference scene (a dict) with the design layers' thicknesses ``design`` (D,) [m]."""
+        from pcmgn_jax.scene import Scene
+        return Scene.from_dict(self.ref.meta["scene"]).with_design(*np.asarray(design, float)).to_dict()
 
     def rollout_trajectories(self, trajs):
         """Roll out from frame 0 of each trajectory, each on its own mesh (stacked when the node counts

@@ -40,11 +40,24 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
   unloading fields differ by 0.03–0.05 µm, and the panel's lowest eigenperiod is far below the ~300 µs
   contact, which is what makes the map well posed. The ball stays the one dynamical state (its
   acceleration is integrated). Needs ``rigid_ball`` and ``panel_target='total_displacement'``.
+- ``contact_projection``: after every rollout step, the contact layer's top-surface nodes that the
+  network put inside the rigid ball are moved down onto the ball's lower surface (the polyline of its
+  downward-facing surface nodes, interpolated at each node's x; :func:`pcmgn_jax.mgn.rollout.project_contact`).
+  The ball is rigid, so where its surface is is known exactly; a hard constraint makes the fit-free
+  penetration the facet sagitta (h^2 / 8R, ~0.02 µm at the `cpu` mesh's 25 µm) instead of whatever the
+  network left, without the penetration term's cost to the fit (README §4). Rollouts only: the training
+  loss sees the network's raw output (``lambda_pen`` still penalises it there if set). Stresses are not
+  changed.
 - ``scene_features``: scene parameters given to every node as extra input channels (after the velocity),
   normalised like the other node channels (per node type with ``per_part``): ``ball_radius`` [m] sets the
   rigid ball's mass (∝ R³) and curvature, which the region-of-interest graph (the ball's lowest 0.5 mm)
   cannot show; ``ball_velocity`` [m/s] (the impact speed) is available but redundant: the speed is
-  already the ball's velocity state. Node channels, not a graph-level global, because the processor has
+  already the ball's velocity state; ``layer_thickness`` [m] (one channel per layer; the default
+  formulation's) states the design outright: the mesh shows each layer's thickness only as the
+  reference positions of its nodes, and the OLED's stress depends on the OCA thicknesses several layers
+  and message-passing hops away (measured without it: the rollouts' OLED objective followed the design
+  trend poorly, -14 % to +8 % per design). Constant channels (a layer that no design changes) normalise
+  to 0. Layer-only features are 0 on the ball's nodes (:func:`scene_feature_rows`). Node channels, not a graph-level global, because the processor has
   no global block and every node of a scene carries the same value (a broadcast global); empty (the
   default) for single-scene datasets, where the channel would be constant.
 
@@ -69,22 +82,52 @@ LOSS_WEIGHTINGS = ("nodes", "parts")
 PANEL_MODELS = ("dynamic", "quasi_static")
 BALL_STATE_CHANNELS = 2  # quasi_static: [u_ball,y, v_ball,y] on every node (the ball moves along the axis)
 NOISE_PARTS = ("none", "ball", "panel", "all")
-SCENE_FEATURES = {"ball_radius": ("ball", "radius"), "ball_velocity": ("ball", "velocity")}  # -> scene dict keys
+SCENE_FEATURES = {"ball_radius": ("ball", "radius"), "ball_velocity": ("ball", "velocity"),  # -> scene dict keys
+                  "layer_thickness": ("layers", "thickness")}  # one channel per layer, in the scene's order
+LAYER_ONLY_FEATURES = ("layer_thickness",)  # 0 on the ball's nodes: the ball learns the panel through contact
 
 
-def scene_feature_values(scene: dict, names) -> np.ndarray:
+def scene_feature_values(scene: dict, names, design=None):
     """(k,) float32 values [SI] of the scene features ``names`` (:data:`SCENE_FEATURES`) of a scene dict
-    (``Scene.to_dict()``, e.g. a trajectory's meta['scene'])."""
+    (``Scene.to_dict()``, e.g. a trajectory's meta['scene']). ``layer_thickness`` gives one value per
+    layer [m]. ``design``: thicknesses (D,) [m] of the scene's ``design_layers`` replacing theirs, NumPy
+    or traced JAX (the optimiser differentiates through them); the result is then a JAX array."""
+    xp = np if design is None else jnp
     out = []
     for name in names:
         if name not in SCENE_FEATURES:
             raise ValueError(f"scene feature {name!r} must be one of {sorted(SCENE_FEATURES)}")
         group, key = SCENE_FEATURES[name]
         try:
-            out.append(float(scene[group][key]))
+            if group == "layers":
+                designed = list(scene.get("design_layers") or [])
+                out.extend(design[designed.index(layer["name"])] if design is not None and layer["name"] in designed
+                           else xp.asarray(float(layer[key]), np.float32) for layer in scene[group])
+            else:
+                out.append(xp.asarray(float(scene[group][key]), np.float32))
         except (KeyError, TypeError):
             raise ValueError(f"scene feature {name!r}: the scene has no {group}.{key}") from None
-    return np.asarray(out, np.float32)
+    return xp.stack([xp.asarray(v, np.float32) for v in out]) if out else xp.zeros((0,), np.float32)
+
+
+def scene_feature_rows(scene: dict, names, node_type, design=None):
+    """(N, k) float32 per-node scene features [SI]: every node carries its scene's
+    :func:`scene_feature_values`, except that the layer-only features (:data:`LAYER_ONLY_FEATURES`) are 0
+    on the ball's nodes (``node_type`` (N,)): the ball's acceleration should come from what the contact
+    zone says, not from a design label it could fit directly (measured with the thicknesses on every
+    node: the ball's rollout drifted up to 7.8 µm on one test design, against 0.5 µm without them).
+    NumPy, or JAX with a traced ``design`` (see :func:`scene_feature_values`)."""
+    vals = scene_feature_values(scene, names, design)
+    xp = np if design is None else jnp
+    seen = []
+    for name in names:
+        width = len(scene["layers"]) if SCENE_FEATURES[name][0] == "layers" else 1
+        seen += [name not in LAYER_ONLY_FEATURES] * width
+    ball = np.asarray(node_type) == BALL_PART
+    hide = ball[:, None] & ~np.asarray(seen, bool)[None, :]
+    return xp.where(hide, 0.0, xp.broadcast_to(vals, (len(ball), vals.shape[0]))).astype(np.float32)
+
+
 BALL_PART = 0  # scene convention: part 0 is the ball, 1.. the layers from the top (scene.py)
 
 
@@ -100,6 +143,7 @@ class Formulation:
     loss_weighting: str = "parts"
     scene_features: tuple = ()
     panel_model: str = "dynamic"
+    contact_projection: bool = False
 
     def __post_init__(self):
         bad = [f for f in self.scene_features if f not in SCENE_FEATURES]
@@ -136,7 +180,8 @@ FORMULATIONS = {
                          normalization="global", features="paper", loss_weighting="nodes"),
     # the project's default: each body modelled as what it is -- a rigid ball (one acceleration), a
     # quasi-static panel (its fields as a map of the ball's state and the geometry)
-    "default": Formulation(panel_target="total_displacement", panel_model="quasi_static"),
+    "default": Formulation(panel_target="total_displacement", panel_model="quasi_static", contact_projection=True,
+                           scene_features=("layer_thickness",)),
     # the previous default: the layers as a second dynamical system (velocity target, own state as input)
     "dynamic": Formulation(),
 }

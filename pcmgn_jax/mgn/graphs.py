@@ -98,7 +98,7 @@ def make_topology(*, points: np.ndarray, cells: np.ndarray, node_type: np.ndarra
     """Build the static topology. ``points`` (N,2) [m] reference; ``n_parts`` = ball + layers.
 
     Axis nodes are those with reference x <= ``axis_tol`` [m] (half model, symmetry axis x = 0).
-    ``scene_features``: (k,) values [SI] every node carries (:func:`with_scene_features`), or None.
+    ``scene_features``: (N, k) rows [SI] (:func:`with_scene_features`), or None.
     """
     node_type = np.asarray(node_type, dtype=np.int32)
     if node_type.min() < 0 or node_type.max() > n_parts:
@@ -112,22 +112,26 @@ def make_topology(*, points: np.ndarray, cells: np.ndarray, node_type: np.ndarra
     return topo if scene_features is None else with_scene_features(topo, scene_features)
 
 
-def with_scene_features(topology: Topology, values) -> Topology:
-    """``topology`` whose every node carries the scene feature ``values`` (k,) [SI] (None or k = 0: none)."""
-    if values is None or len(values) == 0:
+def with_scene_features(topology: Topology, rows) -> Topology:
+    """``topology`` whose nodes carry the scene features ``rows`` (N, k) [SI]
+    (:func:`pcmgn_jax.mgn.formulation.scene_feature_rows`; None or k = 0: none)."""
+    if rows is None or np.shape(rows)[-1] == 0:
         return topology.replace(scene_features=None)
-    vals = np.asarray(values, np.float32)
-    return topology.replace(scene_features=np.broadcast_to(vals, (topology.n_node, len(vals))).copy())
+    rows = np.asarray(rows, np.float32)
+    if rows.shape != (topology.n_node, rows.shape[-1]):
+        raise ValueError(f"scene features: expected ({topology.n_node}, k) rows, got {rows.shape}")
+    return topology.replace(scene_features=rows.copy())
 
 
 def topology_from_trajectory(traj, scene_features: tuple = ()) -> Topology:
     """Topology of a :class:`pcmgn_jax.trajectory.Trajectory` (n_parts from its scene/part names), with the
     scene features ``scene_features`` (names, :data:`pcmgn_jax.mgn.formulation.SCENE_FEATURES`) read from
     its meta['scene']."""
-    from pcmgn_jax.mgn.formulation import scene_feature_values
-    values = scene_feature_values(traj.meta["scene"], scene_features) if scene_features else None
-    return make_topology(points=traj.points, cells=traj.cells, node_type=traj.node_type,
-                         n_parts=n_parts_of(traj), scene_features=values)
+    from pcmgn_jax.mgn.formulation import scene_feature_rows
+    topo = make_topology(points=traj.points, cells=traj.cells, node_type=traj.node_type, n_parts=n_parts_of(traj))
+    if not scene_features:
+        return topo
+    return with_scene_features(topo, scene_feature_rows(traj.meta["scene"], scene_features, traj.node_type))
 
 
 def n_parts_of(traj) -> int:

@@ -77,6 +77,41 @@ def impose_bc(topology: Topology, field):
     return field.at[:, 0].set(jnp.where(topology.axis, 0.0, field[:, 0]))
 
 
+def project_contact(index: contact_lib.ContactIndex, points, u):
+    """``u`` (N, 2) [m] with the contact layer's top-surface nodes (``index.panel_nodes``) that lie inside
+    the ball moved straight down onto the ball's lower surface: the polyline through the ball's
+    downward-facing surface nodes (``index.ball_nodes``), interpolated at each node's world x; a node
+    outside the ball's x range, or below its surface, is untouched. A hard contact constraint for a
+    rigid ball (:class:`~pcmgn_jax.mgn.formulation.Formulation` ``contact_projection``).
+
+    One graph (``index.ball_nodes`` (Nb,)) or a per-graph index of a disjoint union ((G, Nb),
+    :func:`pcmgn_jax.mgn.contact.stack`; padded candidates have no allowed pair and are ignored).
+    Differentiable almost everywhere (a ``min`` per node), static shapes.
+    """
+    u = jnp.asarray(u, jnp.float32)
+    pos = jnp.asarray(points, jnp.float32) + u
+
+    def one(ball, panel, allowed):
+        b_ok, p_ok = jnp.any(allowed, axis=1), jnp.any(allowed, axis=0)
+        xb, yb = pos[ball, 0], pos[ball, 1]
+        big = jnp.asarray(1.0, pos.dtype)  # [m] padding sorts last; masked out by the x range below
+        order = jnp.argsort(jnp.where(b_ok, xb, big))
+        xs, ys = jnp.where(b_ok, xb, big)[order], jnp.where(b_ok, yb, big)[order]
+        lo = jnp.min(jnp.where(b_ok, xb, big))
+        hi = jnp.max(jnp.where(b_ok, xb, -big))
+        xp, yp = pos[panel, 0], pos[panel, 1]
+        surface = jnp.interp(xp, xs, ys)
+        inside = p_ok & (xp >= lo) & (xp <= hi) & (yp > surface)
+        return jnp.where(inside, yp - surface, 0.0)  # how far each panel node must move down [m]
+
+    ball, panel, allowed = (jnp.asarray(a) for a in (index.ball_nodes, index.panel_nodes, index.allowed))
+    if ball.ndim == 1:
+        depth = one(ball, panel, allowed)
+    else:
+        depth = jax.vmap(one)(ball, panel, allowed)
+    return u.at[panel.reshape(-1), 1].add(-depth.reshape(-1))
+
+
 # ---- one step -------------------------------------------------------------------------------
 
 def input_graph(form: Formulation, topology: Topology, index: contact_lib.ContactIndex, points, u, v,
@@ -115,6 +150,9 @@ def step(spec: Spec, params, stats: Stats, topology: Topology, index, points, u,
                                                              out, layout)
         return u_next, v_next, vm, edges
     u_next, v_next, vm = integrate_output(spec, stats, topology, points, u, v, out, layout)
+    if spec.formulation.contact_projection:  # the moved nodes' velocity follows their new displacement
+        projected = project_contact(index, points, u_next)
+        v_next, u_next = impose_bc(topology, v_next + (projected - u_next) / spec.dt), projected
     return u_next, v_next, vm, edges
 
 
@@ -129,7 +167,9 @@ def _advance_quasi_static(spec: Spec, params, stats, topology, index, points, u,
     up, _, vm = integrate_output(spec, stats, topology, points, ub, vb, out_next, layout)
     ball = ball_mask(topology)[:, None]
     u_next = jnp.where(ball, ub, up)
-    v_next = jnp.where(ball, vb, impose_bc(topology, (up - jnp.asarray(u, jnp.float32)) / spec.dt))
+    if spec.formulation.contact_projection:
+        u_next = project_contact(index, points, u_next)
+    v_next = jnp.where(ball, vb, impose_bc(topology, (u_next - jnp.asarray(u, jnp.float32)) / spec.dt))
     return u_next, v_next, vm, out_next, edges
 
 

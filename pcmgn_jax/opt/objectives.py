@@ -83,12 +83,13 @@ class MGNObjective(FieldObjective):
     def _predict(self, designs):
         """Fields on the design map's meshes (the same map the gradient differentiates)."""
         pts = np.asarray(self.map.points(np.asarray(designs, float)))
-        return self.surrogate.rollout(pts, *self.surrogate.initial_state(pts))
+        return self.surrogate.rollout(pts, *self.surrogate.initial_state(pts), designs=designs)
 
     def _build_grad(self):
         import jax
         import jax.numpy as jnp
 
+        from pcmgn_jax.mgn.formulation import scene_feature_rows
         from pcmgn_jax.mgn.rollout import rollout
 
         s = self.surrogate.sim
@@ -96,10 +97,16 @@ class MGNObjective(FieldObjective):
         n_steps = ref.n_frames - 1
         u0, v0, vm0 = (jnp.asarray(a, jnp.float32) for a in self.surrogate.initial_state(self.map.p0[None]))
         reading = self.reading
+        names = s.spec.formulation.scene_features
+        scene = ref.meta["scene"]
 
         def objective(design, weights, index):
             pts = self.map.points(design)
-            res = rollout(s.spec, n_steps, s.params, s.stats, s.topology, index, pts, u0[0], v0[0], vm0[0])
+            topology = s.topology
+            if names:  # scene features that follow the design (layer_thickness) carry its tangent too
+                topology = topology.replace(scene_features=scene_feature_rows(scene, names, topology.node_type,
+                                                                              design=design))
+            res = rollout(s.spec, n_steps, s.params, s.stats, topology, index, pts, u0[0], v0[0], vm0[0])
             f = metrics.oled_objective(res.von_mises, weights, reading=reading)
             return f, (f, jnp.any(res.overflow), jnp.max(res.contact_count))
 

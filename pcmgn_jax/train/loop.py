@@ -6,7 +6,8 @@
   ``lax.scan``; checkpoints, logs and validation happen at chunk boundaries (their intervals are rounded
   up to whole chunks). A contact-buffer overflow grows the buffer and re-runs the chunk.
 - Validation: full rollouts of the validation trajectories, position MAE by
-  :func:`pcmgn_jax.eval.metrics.position_mae_um`; the best one is kept in ``checkpoints/best``.
+  :func:`pcmgn_jax.eval.metrics.position_mae_um`; the best one is kept in ``checkpoints/best``. With
+  ``ema_decay`` > 0 the moving average of the parameters is what is validated and kept as best.
 - ``--resume`` continues from the latest periodic checkpoint with its statistics and buffer size; the
   data order is a pure function of (seed, step), so the result equals an uninterrupted run.
 - Batches: each step is one padded disjoint union of ``batch_graphs`` graphs per device
@@ -38,7 +39,7 @@ from pcmgn_jax.mgn.rollout import input_graph, rollout_designs
 from pcmgn_jax.train.sampling import gather_unions, pair_table, sample_ids
 from pcmgn_jax.train.setup import Setup, graph_for, prepare
 from pcmgn_jax.train.sharding import DataParallel, data_parallel
-from pcmgn_jax.train.step import init_state, learning_rate, penalty_weight, train_chunk
+from pcmgn_jax.train.step import eval_params, init_state, learning_rate, penalty_weight, train_chunk
 
 
 class TrainingDiverged(RuntimeError):
@@ -86,6 +87,12 @@ def _grown(setup: Setup, needed: int) -> Setup:
     cap = max(cap, setup.sizes.capacity + 2)
     return setup._replace(sizes=setup.sizes._replace(capacity=cap),
                           graphs=[g._replace(index=g.index.replace(capacity=cap)) for g in setup.graphs])
+
+
+def _best(state: dict) -> dict:
+    """What the best checkpoint keeps: the state with ``params`` the evaluated ones (:func:`eval_params`),
+    so every reader of a checkpoint's ``params`` gets the model that was validated."""
+    return dict(state, params=eval_params(state))
 
 
 def _meta(cfg: TrainConfig, setup: Setup, **extra) -> dict:
@@ -184,12 +191,12 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
                     rec["loss_pen"], rec["lambda"] = float(np.mean(m["loss_pen"])), lam
                     rec["pen_ratio"] = float(lam * rec["loss_pen"] / max(rec["loss_data"], 1e-30))
             if val_trajs and (step % val_every == 0 or step >= total):
-                val, finite = validation_mae_um(setup, state["params"], val_trajs)
+                val, finite = validation_mae_um(setup, eval_params(state), val_trajs)
                 rec = rec or dict(step=step)
                 rec["val_position_mae_um"] = val
                 if finite and val < best_val:
                     best_val = val
-                    checkpoint.save(best_mgr, state, setup.stats, _meta(cfg, setup, best_val=best_val))
+                    checkpoint.save(best_mgr, _best(state), setup.stats, _meta(cfg, setup, best_val=best_val))
             if rec is not None:
                 log.write(json.dumps(rec) + "\n")
                 log.flush()
@@ -200,7 +207,7 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
     if bar is not None:
         bar.close()
     if not val_trajs and step >= total:
-        checkpoint.save(best_mgr, state, setup.stats, _meta(cfg, setup, best_val=None))
+        checkpoint.save(best_mgr, _best(state), setup.stats, _meta(cfg, setup, best_val=None))
     return dict(step=step, best_val_position_mae_um=best_val, state=state, setup=setup,
                 seconds=time.perf_counter() - t_start)
 

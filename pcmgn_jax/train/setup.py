@@ -33,7 +33,7 @@ from pcmgn_jax.mgn.checkpoint import make_spec
 from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, is_ball, model_inputs
 from pcmgn_jax.mgn.batching import bucket_size
 from pcmgn_jax.mgn.graphs import Topology, topology_from_trajectory, with_scene_features
-from pcmgn_jax.mgn.formulation import scene_feature_values
+from pcmgn_jax.mgn.formulation import scene_feature_rows
 from pcmgn_jax.mgn.normalization import Accumulator, Stats, TypedAccumulator, make_stats
 from pcmgn_jax.mgn.rollout import Spec, input_graph
 from pcmgn_jax.scene import Scene
@@ -176,7 +176,8 @@ def compute_stats(spec: Spec, trajs, topology, index, sigma, *, max_frames: int 
     if len(pairs) > max_frames:
         pairs = pairs[np.linspace(0, len(pairs) - 1, max_frames).round().astype(int)]
     T = topos[0].n_node_types
-    n_node = (6 if form.features == "strain" else 4) + len(form.scene_features) + form.node_extra
+    n_scene = 0 if topos[0].scene_features is None else int(np.shape(topos[0].scene_features)[1])
+    n_node = (6 if form.features == "strain" else 4) + n_scene + form.node_extra
     acc = dict(node=TypedAccumulator(T, n_node), mesh=TypedAccumulator(T, 6), contact=Accumulator(3),
                motion=TypedAccumulator(T, 2), stress=TypedAccumulator(T, 1), ball=Accumulator(2))
     key = jax.random.PRNGKey(seed)
@@ -278,7 +279,7 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
         p = shared[mesh_key(t)]
         topo = p.topology
         if form.scene_features:
-            topo = with_scene_features(topo, scene_feature_values(t.meta["scene"], form.scene_features))
+            topo = with_scene_features(topo, scene_feature_rows(t.meta["scene"], form.scene_features, topo.node_type))
         graphs.append(p._replace(topology=topo, index=p.index.replace(capacity=cap)))
     interval = (0.0, 1.0)
     if intervals:  # one fixed fit interval covering every mesh's boundary (one mesh: its own)

@@ -61,7 +61,17 @@ def make_optimizer(spec: TrainSpec) -> optax.GradientTransformation:
 
 
 def init_state(spec: TrainSpec, params) -> dict:
-    return dict(step=jnp.zeros((), jnp.int32), params=params, opt_state=make_optimizer(spec).init(params))
+    """Optimiser state; with ``ema_decay`` > 0 also ``ema_params``, the parameters' moving average."""
+    state = dict(step=jnp.zeros((), jnp.int32), params=params, opt_state=make_optimizer(spec).init(params))
+    if spec.cfg.ema_decay > 0:
+        state["ema_params"] = jax.tree.map(jnp.array, params)
+    return state
+
+
+def eval_params(state: dict):
+    """The parameters a run validates, keeps as its best checkpoint and evaluates: the moving average
+    when the run keeps one (``ema_decay`` > 0), else the optimiser's own."""
+    return state.get("ema_params", state["params"])
 
 
 def _penetration(spec: TrainSpec, batch, points, u_next):
@@ -146,6 +156,9 @@ def train_chunk(spec: TrainSpec, state, stats, batches, seed_key):
                                                                            state["step"])
         updates, opt_state = tx.update(grads, state["opt_state"], state["params"])
         params = optax.apply_updates(state["params"], updates)
-        return dict(step=state["step"] + 1, params=params, opt_state=opt_state), dict(loss=loss, **aux)
+        new = dict(step=state["step"] + 1, params=params, opt_state=opt_state)
+        if "ema_params" in state:  # Polyak average: ema <- d ema + (1 - d) params
+            new["ema_params"] = optax.incremental_update(params, state["ema_params"], 1.0 - spec.cfg.ema_decay)
+        return new, dict(loss=loss, **aux)
 
     return jax.lax.scan(one, state, batches)
