@@ -1,7 +1,7 @@
 """Surrogate against solver: wall time per design vs error on held-out designs (Pareto plot).
 
     python -m benchmarks.speed_vs_error --runs runs/l32s5,runs/l64s8,runs/l128s15 \\
-        --solver-presets cpu,cpu@1.5,cpu@2,tiny [--n-test 6] [--json PATH] [--md PATH] [--png PATH]
+        --solver-presets cpu,cpu@1.5,cpu@2,tiny [--baselines nearest,poly2,rbf] [--n-test 6] [--json PATH] ...
 
 Ground truth: the held-out (test split) trajectories of the runs' dataset, i.e. the solver at the
 training mesh (all runs must share one dataset). Points:
@@ -9,6 +9,8 @@ training mesh (all runs must share one dataset). Points:
 - surrogates: each run directory (trained with ``python -m experiments.train``), best checkpoint,
   batched ``rollout_checked`` over the test designs (compiled before timing). Cost per design =
   rollout wall time / n_designs + building the design's ROI mesh (``mesh_build_s``).
+- baselines (``--baselines``): the design-space regressions of :mod:`pcmgn_jax.eval.surrogates`, fitted
+  on the first ``n_train`` training trajectories (the run's), cost per design = prediction wall time.
 - solvers: each mesh preset (``tiny|cpu|paper``, or ``PRESET@F`` = PRESET with element sizes x F and
   through-thickness element counts / F) run on the same designs with ``solver.simulate`` (batched,
   second call timed, so compilation is excluded). Cost per design = (scan wall time + host prepare:
@@ -40,6 +42,9 @@ def _args(argv):
     p.add_argument("--dataset", default="", help="dataset dir (default: the first run's)")
     p.add_argument("--n-test", type=int, default=0, help="held-out designs (0 = the run config's n_test)")
     p.add_argument("--which", default="best", help="checkpoint: best | periodic")
+    p.add_argument("--baselines", default="", help="comma-separated design-space baselines fitted on the training "
+                   "split (none, nearest, poly2, rbf: pcmgn_jax.eval.surrogates), timed like the surrogates")
+    p.add_argument("--n-train", type=int, default=0, help="training designs the baselines fit (0 = the run config's n_train)")
     p.add_argument("--json", default=None)
     p.add_argument("--md", default=None)
     p.add_argument("--png", default=None)
@@ -88,6 +93,22 @@ def surrogate_point(workdir, test_trajs, *, which: str = "best", label: str | No
                 rollout_s_batched=wall, rollout_s_single=wall1, mesh_build_s=mesh_s,
                 seconds_per_design=per + mesh_s, seconds_single_design=wall1 + mesh_s,
                 n_designs=len(test_trajs), **err)
+
+
+def baseline_point(kind: str, train_trajs, test_trajs) -> dict:
+    """A design-space baseline (:class:`pcmgn_jax.eval.surrogates.FieldRegression`) fitted on
+    ``train_trajs``, predicting the test designs' fields on the shared mesh; cost per design = its
+    prediction wall time (no mesh needed: it predicts the reference nodes' fields directly)."""
+    from pcmgn_jax.eval.surrogates import FieldRegression, design_of
+    model = FieldRegression(kind, train_trajs)
+    designs = np.stack([design_of(t) for t in test_trajs])
+    model.predict(designs[:1])  # warm-up (lazy imports, first call)
+    t0 = time.perf_counter()
+    pu, pvm = model.predict(designs)
+    wall = time.perf_counter() - t0
+    err = errors(pu, pvm, test_trajs)
+    return dict(kind="baseline", label=f"baseline {kind}", fit_seconds=model.fit_seconds,
+                seconds_per_design=wall / len(test_trajs), n_designs=len(test_trajs), **err)
 
 
 def _mesh_build_s(ref) -> float:
@@ -228,7 +249,8 @@ def plot(points, path) -> None:
         pos = [p[key] for p in points if p[key] > 0]
         floor = (min(pos) / 3) if pos else 1e-3
         y = lambda p: max(p[key], floor)  # noqa: E731
-        for kind, mk, col in (("solver", "s", "tab:blue"), ("surrogate", "o", "tab:red")):
+        for kind, mk, col in (("solver", "s", "tab:blue"), ("surrogate", "o", "tab:red"),
+                              ("baseline", "^", "tab:green")):
             sel = [p for p in points if p["kind"] == kind]
             ax.scatter([p["seconds_per_design"] for p in sel], [y(p) for p in sel], marker=mk, c=col,
                        label=kind, zorder=3)
@@ -302,6 +324,11 @@ def main(argv=None) -> dict:
     if not test:
         raise SystemExit(f"{dataset}/test holds no trajectories")
     points = [surrogate_point(r, test, which=a.which) for r in runs]
+    kinds = [k for k in a.baselines.split(",") if k]
+    if kinds:
+        n_train = a.n_train or (cfgs[0].n_train if cfgs else 12)
+        train = load_split(dataset, "train")[:n_train]
+        points += [baseline_point(k, train, test) for k in kinds]
     points += [solver_point(p, test) for p in presets]
     jp, mp = common.default_paths("speed_vs_error", a.json, a.md)
     png = Path(a.png) if a.png else jp.with_suffix(".png")

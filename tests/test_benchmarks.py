@@ -143,6 +143,21 @@ def test_speed_vs_error_surrogate_and_report(tiny_run, tiny_trajs, tmp_path):
     assert (tmp_path / "sve.png").stat().st_size > 1000
 
 
+def test_speed_vs_error_baseline_points_score_like_the_evaluation(tiny_trajs, tmp_path):
+    """A design-space baseline as a speed-vs-error point: its errors are the evaluation's (nearest training
+    design -> that design's fields), and it appears in the report beside the other kinds."""
+    from benchmarks.speed_vs_error import baseline_point, errors, report
+    train, test = tiny_trajs[:2], tiny_trajs[2:]
+    p = baseline_point("nearest", train, test)
+    near = np.stack([train[1].displacement] * 2), np.stack([train[1].von_mises] * 2)  # 0.93 is nearest to both
+    assert p["kind"] == "baseline" and p["seconds_per_design"] > 0
+    assert p["position_mae_um"] == pytest.approx(errors(*near, test)["position_mae_um"])
+    report([p, dict(kind="solver", label="solver ref", seconds_per_design=2.0, position_mae_um=0.0,
+                    stress_mae_mpa=0.0, n_designs=2)], command="test", json_path=tmp_path / "b.json",
+           md_path=tmp_path / "b.md", png_path=tmp_path / "b.png")
+    assert "baseline nearest" in (tmp_path / "b.md").read_text()
+
+
 def test_speed_vs_error_solver_points():
     """Solver at the reference mesh reproduces it (error ~0); a coarser mesh is interpolated."""
     from benchmarks.speed_vs_error import solver_point

@@ -161,8 +161,8 @@ def test_layer_thickness_scene_feature_follows_the_design_with_its_derivative():
 
 
 def test_scene_feature_rows_hide_the_design_from_the_ball():
-    """Layer-only features are 0 on the ball's nodes (the ball learns the panel through the contact);
-    the ball radius reaches every node."""
+    """Layer-only features are 0 on the contact pair's nodes (ball, cover glass: they learn the contact
+    from the contact); the ball radius reaches every node."""
     from pcmgn_jax.mgn.formulation import scene_feature_rows, scene_feature_values
     from pcmgn_jax.scene import default_scene
     scene = default_scene().to_dict()
@@ -170,8 +170,8 @@ def test_scene_feature_rows_hide_the_design_from_the_ball():
     rows = scene_feature_rows(scene, ("ball_radius", "layer_thickness"), node_type)
     vals = scene_feature_values(scene, ("ball_radius", "layer_thickness"))
     assert rows.shape == (5, len(vals)) and rows.dtype == np.float32
-    np.testing.assert_array_equal(rows[2:], np.broadcast_to(vals, (3, len(vals))))
-    np.testing.assert_array_equal(rows[:2, 0], [vals[0]] * 2)
-    assert np.all(rows[:2, 1:] == 0)
+    np.testing.assert_array_equal(rows[3:], np.broadcast_to(vals, (2, len(vals))))  # OCA2, fixed nodes
+    np.testing.assert_array_equal(rows[:3, 0], [vals[0]] * 3)   # the radius reaches every node
+    assert np.all(rows[:3, 1:] == 0)                            # ball and cover glass: the contact pair
     traced = scene_feature_rows(scene, ("layer_thickness",), node_type, design=jnp.asarray([70e-6, 90e-6]))
-    assert np.all(np.asarray(traced)[:2] == 0) and np.asarray(traced)[2, 1] == pytest.approx(70e-6)
+    assert np.all(np.asarray(traced)[:3] == 0) and np.asarray(traced)[3, 1] == pytest.approx(70e-6)
