@@ -70,6 +70,7 @@ def test_torch_reference_matches_architecture():
         assert tuple(m(torch_graph(g)).shape) == (g["nodes"].shape[0], 3)
 
 
+@pytest.mark.slow  # 38 s: a smoke run of the benchmark's command line (the default suite's 10-minute budget)
 def test_rollout_throughput_tiny(tmp_path):
     from benchmarks import rollout_throughput
     out = tmp_path / "r.json"
@@ -84,6 +85,7 @@ def test_rollout_throughput_tiny(tmp_path):
     assert r["config"]["params"].startswith("random")
 
 
+@pytest.mark.slow  # 13 s: a smoke run of the benchmark's command line
 def test_solver_speed_tiny(tmp_path):
     from benchmarks import solver_speed
     out = tmp_path / "s.json"
