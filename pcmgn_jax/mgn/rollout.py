@@ -7,8 +7,10 @@ model predicts and how it becomes the next frame is the :class:`~pcmgn_jax.mgn.f
 (targets, rigid ball, normalisation, features).
 
 Boundary conditions re-imposed after every step: fixed nodes (node_type == n_parts) u = v = 0;
-symmetry-axis nodes (x = 0) u_x = v_x = 0. Contact edges are recomputed from the predicted positions
-inside the scan; every frame reports contact-buffer overflow (callers grow the buffer and re-run).
+symmetry-axis nodes (x = 0) u_x = v_x = 0; with the formulation's ``contact_projection``, cover-glass
+nodes inside the rigid ball are moved onto its surface (:func:`project_contact`). Contact edges are
+recomputed from the predicted positions inside the scan; every frame reports contact-buffer overflow
+(callers grow the buffer and re-run).
 """
 from __future__ import annotations
 
