@@ -110,19 +110,10 @@ def scene_feature_values(scene: dict, names, design=None):
     return xp.stack([xp.asarray(v, np.float32) for v in out]) if out else xp.zeros((0,), np.float32)
 
 
-def contact_pair_parts(scene: dict) -> tuple[int, ...]:
-    """Part ids (0 = ball, 1.. the layers from the top) of the bodies in the scene's contact pairs."""
-    names = [layer["name"] for layer in scene.get("layers", ())]
-    parts = {BALL_PART}
-    for pair in scene.get("contact_pairs") or ():
-        parts.update(1 + names.index(n) for n in pair if n in names)
-    return tuple(sorted(parts))
-
-
 def scene_feature_rows(scene: dict, names, node_type, design=None):
     """(N, k) float32 per-node scene features [SI]: every node carries its scene's
     :func:`scene_feature_values`, except that the layer-only features (:data:`LAYER_ONLY_FEATURES`) are 0
-    on the nodes of the contact pair (the ball and the layer it touches, :func:`contact_pair_parts`): the
+    on the nodes of the contact pair (the ball and the layer it touches, :func:`pcmgn_jax.mgn.contact.contact_parts`): the
     bodies that touch learn the contact from the contact and their local geometry, and the design is
     stated where the response is read out far from it (the OLED). Measured with the thicknesses on every
     node, and with them hidden from the ball only: the ball's rollout drifted up to 7–8 µm on the test
@@ -134,7 +125,9 @@ def scene_feature_rows(scene: dict, names, node_type, design=None):
     for name in names:
         width = len(scene["layers"]) if SCENE_FEATURES[name][0] == "layers" else 1
         seen += [name not in LAYER_ONLY_FEATURES] * width
-    touching = np.isin(np.asarray(node_type), contact_pair_parts(scene))
+    from pcmgn_jax.mgn.contact import contact_parts
+    from pcmgn_jax.scene import Scene
+    touching = np.isin(np.asarray(node_type), contact_parts(Scene.from_dict(scene)))
     hide = touching[:, None] & ~np.asarray(seen, bool)[None, :]
     return xp.where(hide, 0.0, xp.broadcast_to(vals, (len(touching), vals.shape[0]))).astype(np.float32)
 

@@ -95,12 +95,11 @@ def project_contact(index: contact_lib.ContactIndex, points, u):
 
     def one(ball, panel, allowed):
         b_ok, p_ok = jnp.any(allowed, axis=1), jnp.any(allowed, axis=0)
-        xb, yb = pos[ball, 0], pos[ball, 1]
         big = jnp.asarray(1.0, pos.dtype)  # [m] padding sorts last; masked out by the x range below
-        order = jnp.argsort(jnp.where(b_ok, xb, big))
-        xs, ys = jnp.where(b_ok, xb, big)[order], jnp.where(b_ok, yb, big)[order]
-        lo = jnp.min(jnp.where(b_ok, xb, big))
-        hi = jnp.max(jnp.where(b_ok, xb, -big))
+        xb, yb = jnp.where(b_ok, pos[ball, 0], big), jnp.where(b_ok, pos[ball, 1], big)
+        order = jnp.argsort(xb)
+        xs, ys = xb[order], yb[order]
+        lo, hi = xs[0], jnp.max(jnp.where(b_ok, xb, -big))
         xp, yp = pos[panel, 0], pos[panel, 1]
         surface = jnp.interp(xp, xs, ys)
         inside = p_ok & (xp >= lo) & (xp <= hi) & (yp > surface)

@@ -91,8 +91,9 @@ def _grown(setup: Setup, needed: int) -> Setup:
 
 def _best(state: dict) -> dict:
     """What the best checkpoint keeps: the state with ``params`` the evaluated ones (:func:`eval_params`),
-    so every reader of a checkpoint's ``params`` gets the model that was validated."""
-    return dict(state, params=eval_params(state))
+    so every reader of a checkpoint's ``params`` gets the model that was validated (and no second copy
+    of the average: only the periodic checkpoint, which ``--resume`` reads, needs both)."""
+    return {**{k: v for k, v in state.items() if k != "ema_params"}, "params": eval_params(state)}
 
 
 def _meta(cfg: TrainConfig, setup: Setup, **extra) -> dict:
