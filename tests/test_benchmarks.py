@@ -29,6 +29,7 @@ def test_bench_graph_and_flops():
     assert 0 < f["forward"] < f["forward_concat_variant"]
 
 
+@pytest.mark.slow  # 18 s: a smoke run of the benchmark's command line (the default suite's 10-minute budget)
 @pytest.mark.parametrize("with_torch", [False, pytest.param(True, marks=pytest.mark.skipif(
     not HAVE_TORCH, reason="torch not installed (pip install torch==2.13.0)"))])
 def test_mgn_vs_torch_tiny(tmp_path, with_torch):
@@ -160,6 +161,7 @@ def test_speed_vs_error_baseline_points_score_like_the_evaluation(tiny_trajs, tm
     assert "baseline nearest" in (tmp_path / "b.md").read_text()
 
 
+@pytest.mark.slow  # 15 s: real solver runs of the benchmark (the default suite's 10-minute budget)
 def test_speed_vs_error_solver_points():
     """Solver at the reference mesh reproduces it (error ~0); a coarser mesh is interpolated."""
     from benchmarks.speed_vs_error import solver_point
