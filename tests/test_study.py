@@ -1,0 +1,72 @@
+"""The study runner's bookkeeping (experiments/study.py), without training: cells.run_cell is replaced by
+a recorder that returns made-up metrics, so these tests check the flags each cell trains with and the
+tables written after every cell, not any model."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from experiments import cells, study
+
+
+def _fake_metrics(pos: float) -> dict:
+    return {"position_mae_um": pos, "stress_mae_mpa": 2 * pos, "oled_objective_area_rel_error_pct_mean": 3.0,
+            "penetration_max_um": 0.1, "train_seconds": 1.0, "per_frame_position_mae_um_mean": [pos, pos],
+            "baselines": {"none": {"position_mae_um": 10.0, "stress_mae_mpa": 30.0,
+                                   "oled_objective_area_rel_error_pct_mean": 100.0, "penetration_max_um": 0.0}}}
+
+
+def test_degree_study_flags_and_table(tmp_path, monkeypatch):
+    calls = []
+
+    def fake(workdir, flags, extra_data=None):
+        calls.append((str(workdir), list(flags)))
+        deg = next(f for f in flags if f.startswith("--poly_ball="))
+        return _fake_metrics(float(deg.split("=")[1]) / 10 + len(calls) * 1e-3)
+
+    monkeypatch.setattr(cells, "run_cell", fake)
+    assert study.main(["--name", "degree", "--seeds", "0", "--runs", str(tmp_path / "runs"),
+                       "--out", str(tmp_path / "out")]) == 0
+    n_cells = len(study.STUDIES["degree"][2])
+    assert len(calls) == 2 * n_cells                       # both formulations, one seed
+    paper = [f for w, f in calls if "/paper/" in w]
+    default = [f for w, f in calls if "/default/" in w]
+    # the paper's formulation keeps its own lambda = 10; the default gets lambda = 10 only in this study
+    assert all("--lambda_pen=10" in f and "--formulation=paper" in f for f in paper)
+    assert all("--lambda_pen=10" in f and "--formulation=default" in f for f in default)
+    # the cell's own flags come last, so they win over the base flags
+    assert all(f[-2].startswith("--poly_ball=") and f[-1].startswith("--poly_panel=") for _, f in calls)
+    md = (tmp_path / "out" / "degree.md").read_text()
+    assert "Partial" not in md and "not run yet" not in md
+    assert "--lambda_pen=10" in md                         # the table says what the default formulation added
+    assert "Best cell by position MAE, paper: **B.2/P.3**" in md
+    assert (tmp_path / "out" / "degree_per_frame.png").stat().st_size > 0
+    res = json.loads((tmp_path / "out" / "degree.json").read_text())["results"]
+    assert set(res) == {"paper", "default"} and len(res["paper"]) == n_cells
+
+
+def test_study_cut_short_leaves_a_partial_table(tmp_path, monkeypatch):
+    n = {"calls": 0}
+
+    def fake(workdir, flags, extra_data=None):
+        n["calls"] += 1
+        if n["calls"] == 3:
+            raise KeyboardInterrupt                         # the session is cut during the third cell
+        return _fake_metrics(1.0)
+
+    monkeypatch.setattr(cells, "run_cell", fake)
+    with pytest.raises(KeyboardInterrupt):
+        study.main(["--name", "noise_parts", "--formulations", "paper", "--runs", str(tmp_path / "runs"),
+                    "--out", str(tmp_path / "out")])
+    md = (tmp_path / "out" / "noise_parts.md").read_text()
+    assert "Partial: 2 of 8 cell-seeds measured" in md
+    rows = [r for r in md.splitlines() if r.startswith("| paper |")]
+    assert len(rows) == 4
+    assert rows[0].startswith("| paper | none | 1 ± 0 |")                 # both seeds of "none" done
+    assert all("not run yet" in r for r in rows[1:])
+
+
+def test_unknown_study_is_refused():
+    with pytest.raises(ValueError, match="--name must be one of"):
+        study.main(["--name", "nope"])
