@@ -2,6 +2,7 @@
 
   python -m experiments.optimize --workdir runs/cpu --surrogate mgn --method ga --pop 20 --gens 10
   python -m experiments.optimize --workdir runs/cpu --surrogate poly2 --method gradient
+  python -m experiments.optimize --workdir runs/cpu --surrogate mgn --method slsqp --starts 2
   python -m experiments.optimize --workdir runs/cpu --surrogate rbf --method ga --objective node_mean
 
 Objective (DESIGN §8, pcmgn_jax.eval.metrics): time-mean over the window of the OLED von Mises stress
@@ -26,12 +27,12 @@ from pcmgn_jax import cli
 class OptimizeArgs:
     workdir: str                                            # training run (config.json; checkpoints for mgn)
     surrogate: Literal["mgn", "nearest", "poly2", "rbf"] = "mgn"  # what predicts the objective
-    method: Literal["ga", "gradient"] = "ga"                # pymoo GA, or multi-start projected gradient
+    method: Literal["ga", "gradient", "slsqp"] = "ga"       # pymoo GA, multi-start projected gradient, or scipy SLSQP
     objective: Literal["area_mean", "node_mean", "disc_mean", "peak"] = "area_mean"  # reading (DESIGN §8)
     pop: int = 100                                          # GA population (paper: 100)
     gens: int = 50                                          # GA generations (paper: 50)
-    starts: int = 4                                         # gradient: starting designs (seeded LHS)
-    iters: int = 20                                         # gradient: evaluations per start, at most
+    starts: int = 4                                         # gradient / slsqp: starting designs (seeded LHS)
+    iters: int = 20                                         # gradient: evaluations per start; slsqp: iterations per start
     seed: int = 0                                           # GA / starts seed
     grid: int = -1                                          # objective map: n x n surrogate grid; -1: 21 (mgn: 7); 0: none
     which: Literal["best", "periodic"] = "best"             # mgn checkpoint
@@ -80,7 +81,8 @@ def main(argv: list[str] | None = None) -> int:
         res = search.ga(obj, box, pop=args.pop, gens=args.gens, seed=args.seed, progress=args.progress)
         budget = {"pop": args.pop, "gens": args.gens}
     else:
-        res = search.gradient(obj, box, starts=args.starts, iters=args.iters, seed=args.seed, progress=args.progress)
+        fn = search.gradient if args.method == "gradient" else search.slsqp
+        res = fn(obj, box, starts=args.starts, iters=args.iters, seed=args.seed, progress=args.progress)
         budget = {"starts": args.starts, "iters": args.iters}
     x = res["x"]
 

@@ -1,5 +1,7 @@
-"""Search the design box for the lowest objective: a genetic algorithm (pymoo) and a multi-start
-projected gradient descent. Both take an objective of :mod:`pcmgn_jax.opt.objectives`; designs [m].
+"""Search the design box for the lowest objective: a genetic algorithm (pymoo), a multi-start projected
+gradient descent, and multi-start SLSQP (scipy: sequential quadratic programming with the bounds and the
+sum band as constraints, quasi-Newton curvature from the exact gradients). All take an objective of
+:mod:`pcmgn_jax.opt.objectives`; designs [m].
 """
 from __future__ import annotations
 
@@ -107,4 +109,52 @@ def gradient(objective, box: DesignBox, *, starts: int = 4, iters: int = 20, ste
             live[i] = h[i] >= min_step
     best = int(np.argmin(f))
     return {"x": x[best].copy(), "f": float(f[best]), "n_evals": int(objective.n_evals - n0),
+            "seconds": time.perf_counter() - t0, "paths": paths}
+
+
+def slsqp(objective, box: DesignBox, *, starts: int = 2, iters: int = 20, ftol: float = 1e-5, seed: int = 0,
+          progress: bool = True) -> dict:
+    """Multi-start SLSQP (``scipy.optimize.minimize``) in box coordinates z = (d - low) / (high - low),
+    the bounds and the sum band as linear constraints, ``objective.value_and_grad`` for value and exact
+    gradient in one call. A quasi-Newton method needs fewer gradient evaluations than the fixed-step
+    descent of :func:`gradient` on a smooth 2-variable landscape, which is what an MGN gradient costs
+    (~3.5 rollouts each). ``iters`` caps SLSQP's iterations per start, ``ftol`` [MPa] its stopping
+    tolerance on the objective. Returns the keys of :func:`gradient` (paths: per start the iterates)."""
+    from scipy.optimize import minimize
+    from tqdm.auto import tqdm
+
+    span = box.high - box.low
+    d0 = box.starts(starts, seed)
+    t0 = time.perf_counter()
+    n0 = objective.n_evals
+    bar = tqdm(total=starts, desc=f"slsqp {getattr(objective, 'name', '')}", disable=not progress, dynamic_ncols=True)
+    memo: dict[bytes, tuple[float, np.ndarray]] = {}
+
+    def fun(z):
+        key = np.asarray(z, float).tobytes()
+        if key not in memo:
+            d = np.clip(box.low + np.asarray(z, float) * span, box.low, box.high)   # SLSQP may step 1e-16 out
+            f, g = objective.value_and_grad(d[None])
+            memo[key] = (float(f[0]), np.asarray(g[0], float) * span)
+        return memo[key]
+
+    ones = np.ones(box.dim)
+    cons = [{"type": "ineq", "fun": lambda z: (box.low * box.dim + span * z.sum()) - box.sum_low,
+             "jac": lambda z: span * ones},
+            {"type": "ineq", "fun": lambda z: box.sum_high - (box.low * box.dim + span * z.sum()),
+             "jac": lambda z: -span * ones}]
+    results, paths = [], []
+    for d in d0:
+        z0 = (d - box.low) / span
+        path = [z0.copy()]
+        res = minimize(fun, z0, jac=True, method="SLSQP", bounds=[(0.0, 1.0)] * box.dim, constraints=cons,
+                       callback=lambda zk: path.append(np.array(zk, float)),
+                       options={"maxiter": iters, "ftol": ftol})
+        x = box.project(box.low + np.asarray(res.x, float) * span)[0]
+        results.append((fun((x - box.low) / span)[0], x))
+        paths.append([{"x_um": ((box.low + z * span) * 1e6).tolist(), "f": fun(z)[0]} for z in path])
+        bar.update(1)
+    bar.close()
+    best = int(np.argmin([f for f, _ in results]))
+    return {"x": results[best][1].copy(), "f": float(results[best][0]), "n_evals": int(objective.n_evals - n0),
             "seconds": time.perf_counter() - t0, "paths": paths}
