@@ -70,3 +70,24 @@ def test_study_cut_short_leaves_a_partial_table(tmp_path, monkeypatch):
 def test_unknown_study_is_refused():
     with pytest.raises(ValueError, match="--name must be one of"):
         study.main(["--name", "nope"])
+
+
+def test_same_training_cells_are_not_retrained(tmp_path, monkeypatch):
+    """noise_parts in the default formulation: panel = none and all = ball (SAME_AS), so 2 of its 4
+    cells train; the table says which cell each one repeats and why."""
+    calls = []
+
+    def fake(workdir, flags, extra_data=None):
+        calls.append(next(f for f in flags if f.startswith("--noise_parts=")))
+        return _fake_metrics(1.0 if calls[-1].endswith("none") else 2.0)
+
+    monkeypatch.setattr(cells, "run_cell", fake)
+    assert study.main(["--name", "noise_parts", "--formulations", "default", "--seeds", "0",
+                       "--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "out")]) == 0
+    assert calls == ["--noise_parts=none", "--noise_parts=ball"]
+    md = (tmp_path / "out" / "noise_parts.md").read_text()
+    assert "Partial" not in md
+    row = next(r for r in md.splitlines() if r.startswith("| default | panel"))
+    assert "(= none, not retrained" in row and "| 1 |" in row
+    row = next(r for r in md.splitlines() if r.startswith("| default | all"))
+    assert "(= ball, not retrained" in row and "| 2 |" in row
