@@ -87,6 +87,7 @@ def main(argv=None) -> int:
     if unknown:
         raise ValueError(f"unknown cell(s) {unknown}; choose from {list(CELLS)}")
     seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
+    cells.use_compilation_cache(Path(args.runs) / ".xla_cache")
     results, baselines = {}, {}
     for name in names:
         results[name] = {}

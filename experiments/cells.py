@@ -13,6 +13,17 @@ from pathlib import Path
 import numpy as np
 
 
+def use_compilation_cache(folder: str | Path, min_compile_seconds: float = 1.0) -> None:
+    """Keep XLA's compiled executables on disk in ``folder`` (JAX's persistent compilation cache) for
+    the rest of this process, so the cells of a study that compile the same program (the same model
+    and shapes under another seed; every cell's evaluation rollout) load it instead of compiling it
+    again. Call it before the process's first compilation: JAX decides once whether the cache is used."""
+    import jax
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_seconds))
+
+
 def run_cell(workdir: str | Path, flags: list[str], *, extra_data: dict[str, str] | None = None) -> dict:
     """Train (unless finished) and evaluate; return the test metrics plus ``train_seconds`` and, for each
     ``extra_data`` {name: directory}, the metrics of ``evaluate --data`` under ``eval_<name>``."""

@@ -97,6 +97,7 @@ def main(argv=None) -> int:
     bad = sorted(set(forms) - set(BASE))
     if bad:
         raise ValueError(f"--formulations: unknown {bad}; choose from {list(BASE)}")
+    cells.use_compilation_cache(Path(args.runs) / ".xla_cache")
     table_ref, steps, study_cells = STUDIES[args.name]
     steps = args.num_steps or steps
     seeds = [int(s) for s in args.seeds.split(",") if s.strip()]

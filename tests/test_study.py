@@ -4,10 +4,38 @@ tables written after every cell, not any model."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
 import pytest
 
 from experiments import cells, study
+
+
+@pytest.fixture(autouse=True)
+def _no_persistent_cache(monkeypatch):
+    """study.main turns on JAX's persistent compilation cache for its process; not in the test process."""
+    monkeypatch.setattr(cells, "use_compilation_cache", lambda folder, min_compile_seconds=1.0: None)
+
+
+def test_compilation_cache_is_written_and_read(tmp_path):
+    """In a fresh process, a compiled function lands in the folder; a second process loads it (JAX's
+    cache-hit event)."""
+    code = ("import sys, jax, jax.numpy as jnp\n"
+            "from experiments import cells\n"
+            "jax.monitoring.register_event_listener(lambda name, **kw: print('event', name, file=sys.stderr))\n"
+            "cells.use_compilation_cache(sys.argv[1], min_compile_seconds=0)\n"
+            "f = jax.jit(lambda x: jnp.sin(x) @ x.T + 1.0)\n"
+            "print(float(f(jnp.ones((64, 64))).sum()))\n")
+    runs = [subprocess.run([sys.executable, "-c", code, str(tmp_path / "c")], capture_output=True, text=True,
+                           cwd=str(__import__("pathlib").Path(__file__).parents[1])) for _ in range(2)]
+    for r in runs:
+        assert r.returncode == 0, r.stderr
+    assert runs[0].stdout == runs[1].stdout
+    assert "/jax/compilation_cache/cache_hits" not in runs[0].stderr
+    assert "/jax/compilation_cache/cache_hits" in runs[1].stderr
+    files = sorted(p.name for p in (tmp_path / "c").rglob("*") if p.is_file())
+    assert files, "nothing was written to the compilation cache"
 
 
 def _fake_metrics(pos: float) -> dict:
