@@ -131,6 +131,31 @@ def main(argv=None) -> int:
     return 0
 
 
+def ordering_lines(results, forms, study_cells) -> list[str]:
+    """Per formulation: its best cell by position MAE beside the paper's best, and Kendall's tau between
+    the cells' mean position (and stress) MAE and the paper's, over the cells measured here that the
+    paper reports (orderings are what compare across data sets; values are not)."""
+    import numpy as np
+    from scipy.stats import kendalltau
+    out = []
+    paper_best = min((c for c in study_cells if c[2] is not None), key=lambda c: c[2][0], default=None)
+    for form in [f for f in forms if results.get(f)]:
+        mean = {label: [float(np.mean([m[k] for m in results[form][label].values()]))
+                        for k in ("position_mae_um", "stress_mae_mpa")]
+                for label, *_ in study_cells if results[form].get(label)}
+        best = min(mean, key=lambda c: mean[c][0])
+        line = f"- {form}: best cell by position MAE **{best}**"
+        if paper_best is not None:
+            line += f" (paper: {paper_best[0]}, {'the same' if best == paper_best[0] else 'not the same'})"
+            both = [c for c in study_cells if c[2] is not None and c[0] in mean]
+            if len(both) >= 3:
+                taus = [kendalltau([mean[c[0]][k] for c in both], [c[2][k] for c in both]).statistic for k in (0, 1)]
+                line += (f"; rank agreement with the paper over {len(both)} cells, Kendall's tau: position "
+                         f"{taus[0]:+.2f}, stress {taus[1]:+.2f}")
+        out.append(line)
+    return out
+
+
 def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quiet: bool = False) -> None:
     """The table, JSON and per-frame plot of ``results`` ({formulation: {cell: {seed: metrics}}}); cells
     or seeds not measured yet are marked in the table (the runner writes after every cell)."""
@@ -178,15 +203,10 @@ def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quie
         if "not_applicable" not in b:
             lines.append(f"| baseline | {name} | " + " | ".join(f"{b.get(k, float('nan')):.3g}" for k in KEYS)
                          + " | – | – |")
-    # the orderings: which cell is best per formulation, and the paper's best
-    for form in [f for f in forms if f in results]:
-        mean = {label: np.mean([m["position_mae_um"] for m in results[form][label].values()])
-                for label, *_ in study_cells if results[form].get(label)}
-        best = min(mean, key=mean.get)
-        paper_best = min((c for c in study_cells if c[2] is not None), key=lambda c: c[2][0], default=None)
-        lines.append("")
-        lines.append(f"Best cell by position MAE, {form}: **{best}**"
-                     + (f" (paper: {paper_best[0]})" if paper_best else ""))
+    # the orderings: the best cell per formulation and the paper's, and how far the cells' ranking agrees
+    # with the paper's (Kendall's tau over the cells both have: +1 the same order, -1 reversed)
+    lines.append("")
+    lines += ordering_lines(results, forms, study_cells)
     (out / f"{args.name}.md").write_text("\n".join(lines) + "\n")
     atomic_write_json(out / f"{args.name}.json", {"command": command, "num_steps": steps, "seeds": seeds,
                                                   "base_flags": {f: BASE[f] for f in forms}, "results": results})

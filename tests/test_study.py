@@ -68,7 +68,7 @@ def test_degree_study_flags_and_table(tmp_path, monkeypatch):
     md = (tmp_path / "out" / "degree.md").read_text()
     assert "Partial" not in md and "not run yet" not in md
     assert "--lambda_pen=10" in md                         # the table says what the default formulation added
-    assert "Best cell by position MAE, paper: **B.2/P.3**" in md
+    assert "- paper: best cell by position MAE **B.2/P.3** (paper: B.6/P.5, not the same)" in md
     assert (tmp_path / "out" / "degree_per_frame.png").stat().st_size > 0
     res = json.loads((tmp_path / "out" / "degree.json").read_text())["results"]
     assert set(res) == {"paper", "default"} and len(res["paper"]) == n_cells
@@ -119,3 +119,19 @@ def test_same_training_cells_are_not_retrained(tmp_path, monkeypatch):
     assert "(= none, not retrained" in row and "| 1 |" in row
     row = next(r for r in md.splitlines() if r.startswith("| default | all"))
     assert "(= ball, not retrained" in row and "| 2 |" in row
+
+
+def test_orderings_against_the_paper():
+    """Kendall's tau is +1 when the cells rank as the paper's do and -1 when reversed; the best cells."""
+    table = study.STUDIES["noise_sigma"][2]
+    same = {"paper": {c[0]: {"0": {"position_mae_um": c[2][0] * 5, "stress_mae_mpa": c[2][1] + 3}} for c in table}}
+    line = study.ordering_lines(same, ["paper"], table)[0]
+    assert "**0.3 µm** (paper: 0.3 µm, the same)" in line
+    assert "over 4 cells, Kendall's tau: position +1.00, stress +1.00" in line
+    rev = {"default": {c[0]: {"0": {"position_mae_um": -c[2][0], "stress_mae_mpa": -c[2][1]}} for c in table}}
+    line = study.ordering_lines(rev, ["paper", "default"], table)
+    assert len(line) == 1 and "position -1.00, stress -1.00" in line[0] and "not the same" in line[0]
+    # the extrapolation study has no paper numbers: best cell only
+    ext = study.STUDIES["extrapolation"][2]
+    res = {"default": {c[0]: {"0": {"position_mae_um": i, "stress_mae_mpa": i}} for i, c in enumerate(ext)}}
+    assert study.ordering_lines(res, ["default"], ext) == [f"- default: best cell by position MAE **{ext[0][0]}**"]
