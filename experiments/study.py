@@ -83,6 +83,7 @@ class StudyArgs:
     runs: str = "runs/studies"                  # cell run directories: RUNS/<name>/<formulation>/<cell>_s<seed>
     out: str = "results/studies"                # tables and plots
     data: str = "data/cpu"                      # the cpu preset's dataset (extrap split added for extrapolation)
+    render: bool = False                        # only re-write OUT/<name>.{md,png} from OUT/<name>.json (no cell runs)
 
 
 def _slug(s: str) -> str:
@@ -97,8 +98,17 @@ def main(argv=None) -> int:
     bad = sorted(set(forms) - set(BASE))
     if bad:
         raise ValueError(f"--formulations: unknown {bad}; choose from {list(BASE)}")
-    cells.use_compilation_cache(Path(args.runs) / ".xla_cache")
     table_ref, steps, study_cells = STUDIES[args.name]
+    if args.render:   # the table of a finished (or cut) study again, e.g. after the table's format changed
+        import json
+        src = Path(args.out) / f"{args.name}.json"
+        if not src.exists():
+            raise FileNotFoundError(f"{src}: no study results to render (run the study first)")
+        d = json.loads(src.read_text())
+        write(args, table_ref, d["num_steps"], study_cells, list(d["results"]), d["seeds"], d["results"], None,
+              command=d["command"], note=d.get("note"))
+        return 0
+    cells.use_compilation_cache(Path(args.runs) / ".xla_cache")
     steps = args.num_steps or steps
     seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
     extra = None
@@ -156,9 +166,12 @@ def ordering_lines(results, forms, study_cells) -> list[str]:
     return out
 
 
-def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quiet: bool = False) -> None:
+def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quiet: bool = False,
+          command: str | None = None, note: str | None = None) -> None:
     """The table, JSON and per-frame plot of ``results`` ({formulation: {cell: {seed: metrics}}}); cells
-    or seeds not measured yet are marked in the table (the runner writes after every cell)."""
+    or seeds not measured yet are marked in the table (the runner writes after every cell). ``command``
+    (default: this process's) is the one that measured the cells; ``note`` is kept in the JSON and
+    quoted under the table's title."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -167,10 +180,11 @@ def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quie
     from pcmgn_jax.data.trajectory_io import atomic_write_json
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    command = "python -m experiments.study " + " ".join(sys.argv[1:] if argv is None else argv)
+    if command is None:
+        command = "python -m experiments.study " + " ".join(sys.argv[1:] if argv is None else argv)
     where = "the paper's four extrapolation designs (data/cpu/extrap)" if args.name == "extrapolation" else \
         "the cpu test split (6 designs)"
-    lines = [f"# Study `{args.name}` (paper {table_ref})", "",
+    lines = [f"# Study `{args.name}` (paper {table_ref})", "", *([f"> {note}", ""] if note else []),
              f"`{command}`: cpu preset, {steps} steps per cell (trimmed to fit about an hour; the paper trained "
              f"~20 h on a GPU), seeds {seeds}, scored on {where}; mean ± std over seeds. Position and stress MAE "
              "in µm and MPa; objective error: the section area mean (DESIGN §8). The paper's numbers are "
@@ -209,7 +223,8 @@ def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quie
     lines += ordering_lines(results, forms, study_cells)
     (out / f"{args.name}.md").write_text("\n".join(lines) + "\n")
     atomic_write_json(out / f"{args.name}.json", {"command": command, "num_steps": steps, "seeds": seeds,
-                                                  "base_flags": {f: BASE[f] for f in forms}, "results": results})
+                                                  "base_flags": {f: BASE[f] for f in forms}, "results": results,
+                                                  **({"note": note} if note else {})})
     fig, axes = plt.subplots(1, len(forms), figsize=(5.5 * len(forms), 3.8), squeeze=False)
     for ax, form in zip(axes[0], forms):
         for label, *_ in study_cells:

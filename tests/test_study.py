@@ -135,3 +135,19 @@ def test_orderings_against_the_paper():
     ext = study.STUDIES["extrapolation"][2]
     res = {"default": {c[0]: {"0": {"position_mae_um": i, "stress_mae_mpa": i}} for i, c in enumerate(ext)}}
     assert study.ordering_lines(res, ["default"], ext) == [f"- default: best cell by position MAE **{ext[0][0]}**"]
+
+
+def test_render_rewrites_the_table_from_its_json_without_running_cells(tmp_path, monkeypatch):
+    monkeypatch.setattr(cells, "run_cell", lambda workdir, flags, extra_data=None: _fake_metrics(1.5))
+    args = ["--name", "target", "--seeds", "0", "--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "out")]
+    assert study.main(args) == 0
+    md = (tmp_path / "out" / "target.md").read_text()
+    (tmp_path / "out" / "target.md").unlink()
+
+    def refuse(*a, **k):
+        raise AssertionError("render must not run a cell")
+    monkeypatch.setattr(cells, "run_cell", refuse)
+    assert study.main(args + ["--render"]) == 0
+    assert (tmp_path / "out" / "target.md").read_text() == md
+    with pytest.raises(FileNotFoundError, match="no study results to render"):
+        study.main(["--name", "degree", "--render", "--out", str(tmp_path / "nothing")])
