@@ -33,6 +33,7 @@ class OptimizeArgs:
     gens: int = 50                                          # GA generations (paper: 50)
     starts: int = 4                                         # gradient / slsqp: starting designs (seeded LHS)
     iters: int = 20                                         # gradient: evaluations per start; slsqp: iterations per start
+    screen: int = 0                                         # slsqp: screen this many seeded designs (values only), start from the best
     seed: int = 0                                           # GA / starts seed
     grid: int = -1                                          # objective map: n x n surrogate grid; -1: 21 (mgn: 7); 0: none
     which: Literal["best", "periodic"] = "best"             # mgn checkpoint
@@ -58,6 +59,8 @@ def main(argv: list[str] | None = None) -> int:
     from pcmgn_jax.scene import Scene
     from pcmgn_jax.sim.design_map import DesignMap
 
+    if args.screen and args.method != "slsqp":
+        raise ValueError(f"--screen {args.screen}: only for --method slsqp (got --method {args.method})")
     run = Path(args.workdir)
     if not (run / "config.json").exists():
         raise FileNotFoundError(f"{run}/config.json: not a training run directory")
@@ -81,9 +84,12 @@ def main(argv: list[str] | None = None) -> int:
         res = search.ga(obj, box, pop=args.pop, gens=args.gens, seed=args.seed, progress=args.progress)
         budget = {"pop": args.pop, "gens": args.gens}
     else:
-        fn = search.gradient if args.method == "gradient" else search.slsqp
-        res = fn(obj, box, starts=args.starts, iters=args.iters, seed=args.seed, progress=args.progress)
-        budget = {"starts": args.starts, "iters": args.iters}
+        kw = dict(starts=args.starts, iters=args.iters, seed=args.seed, progress=args.progress)
+        if args.method == "gradient":
+            res = search.gradient(obj, box, **kw)
+        else:
+            res = search.slsqp(obj, box, screen=args.screen, **kw)
+        budget = {"starts": args.starts, "iters": args.iters, **({"screen": args.screen} if args.screen else {})}
     x = res["x"]
 
     # the dataset's own solver-evaluated designs (every split the run sees), for the "beats the data" check
@@ -105,6 +111,8 @@ def main(argv: list[str] | None = None) -> int:
                    rel_error_pct=float(metrics.relative_error_pct(res["f"], chk[args.objective])),
                    beats_dataset_best=None if best_f is None else bool(chk[args.objective] <= best_f))
     out["history"] = res.get("history") or res.get("paths")
+    if res.get("screened"):
+        out["screened"] = res["screened"]
 
     n = args.grid if args.grid >= 0 else (7 if args.surrogate == "mgn" else 21)
     tag = f"{args.surrogate}_{args.method}" + ("" if args.objective == "area_mean" else f"_{args.objective}")

@@ -127,6 +127,12 @@ def test_slsqp_finds_constrained_and_bound_optima_in_few_evaluations():
     s = search.slsqp(_Corner(), box, starts=3, seed=1, progress=False)
     assert np.allclose(s["x"] * 1e6, [150, 100], atol=0.05) and box.violation(s["x"])[0] <= 1e-12
     assert all(p[0]["f"] >= p[-1]["f"] for p in s["paths"])
+    # screening: 16 values first, one start from the best of them
+    q = _Quadratic()
+    s = search.slsqp(q, box, starts=1, screen=16, progress=False)
+    assert np.allclose(s["x"] * 1e6, [115, 135], atol=0.05) and len(s["screened"]) == 16
+    best = min(s["screened"], key=lambda p: p["f"])
+    assert np.allclose(s["paths"][0][0]["x_um"], best["x_um"]) and s["n_evals"] == q.n_evals
 
 
 def test_design_map_is_the_mesh_builder_at_any_design():
