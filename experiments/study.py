@@ -67,9 +67,8 @@ FORM_FLAGS = {("degree", "default"): ["--lambda_pen=10"]}
 # default's quasi-static panel never sees its own state (mgn.formulation.model_inputs draws the layers
 # at their reference) and its total-displacement target needs no noise correction, so noise on the
 # panel changes neither its inputs nor its loss (tests/test_noise.py)
-SAME_AS = {("noise_parts", "default"): {"panel": "none", "all": "ball"}}
-SAME_AS_WHY = {("noise_parts", "default"): "the quasi-static panel's own state is not an input, so panel noise "
-               "changes neither the inputs nor the loss"}
+SAME_AS = {("noise_parts", "default"): ({"panel": "none", "all": "ball"}, "the quasi-static panel's own state is "
+                                         "not an input, so panel noise changes neither the inputs nor the loss")}
 EXTRAP_DESIGNS_UM = "40,40;40,160;160,40;160,160"   # the paper's §4.6
 KEYS = ("position_mae_um", "stress_mae_mpa", "oled_objective_area_rel_error_pct_mean", "penetration_max_um")
 
@@ -119,7 +118,7 @@ def main(argv=None) -> int:
     results: dict = {}
     for form in forms:
         for label, flags, _, _ in study_cells:
-            same = SAME_AS.get((args.name, form), {}).get(label)
+            same = SAME_AS.get((args.name, form), ({}, ""))[0].get(label)
             if same is not None:   # the same training as an earlier cell of the study: its results
                 results[form][label] = results[form][same]
                 continue
@@ -205,11 +204,11 @@ def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quie
             if not per:
                 lines.append(f"| {form} | {label} | not run yet | | | | | {paper} |")
                 continue
-            note = "" if len(per) == len(seeds) else f" ({len(per)} of {len(seeds)} seeds)"
-            same = SAME_AS.get((args.name, form), {}).get(label)
-            if same is not None:
-                note += f" (= {same}, not retrained: {SAME_AS_WHY[(args.name, form)]})"
-            lines.append(f"| {form} | {label}{note} | " + " | ".join(cells.mean_pm(m[k] for m in per) for k in KEYS)
+            tag = "" if len(per) == len(seeds) else f" ({len(per)} of {len(seeds)} seeds)"
+            same_as, why = SAME_AS.get((args.name, form), ({}, ""))
+            if label in same_as:
+                tag += f" (= {same_as[label]}, not retrained: {why})"
+            lines.append(f"| {form} | {label}{tag} | " + " | ".join(cells.mean_pm(m[k] for m in per) for k in KEYS)
                          + f" | {cells.mean_pm(m['train_seconds'] for m in per)} | {paper} |")
     first = next(iter(next(iter(results.values())).values()))
     base = next(iter(first.values()))["baselines"]

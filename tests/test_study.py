@@ -141,7 +141,11 @@ def test_render_rewrites_the_table_from_its_json_without_running_cells(tmp_path,
     monkeypatch.setattr(cells, "run_cell", lambda workdir, flags, extra_data=None: _fake_metrics(1.5))
     args = ["--name", "target", "--seeds", "0", "--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "out")]
     assert study.main(args) == 0
+    src = tmp_path / "out" / "target.json"       # a note kept in the JSON (as the older tables carry)
+    src.write_text(json.dumps(dict(json.loads(src.read_text()), note="made before X")))
+    assert study.main(args + ["--render"]) == 0
     md = (tmp_path / "out" / "target.md").read_text()
+    assert "> made before X" in md and json.loads(src.read_text())["note"] == "made before X"
     (tmp_path / "out" / "target.md").unlink()
 
     def refuse(*a, **k):
@@ -149,5 +153,6 @@ def test_render_rewrites_the_table_from_its_json_without_running_cells(tmp_path,
     monkeypatch.setattr(cells, "run_cell", refuse)
     assert study.main(args + ["--render"]) == 0
     assert (tmp_path / "out" / "target.md").read_text() == md
+    assert json.loads(src.read_text())["note"] == "made before X"     # a second render keeps it too
     with pytest.raises(FileNotFoundError, match="no study results to render"):
         study.main(["--name", "degree", "--render", "--out", str(tmp_path / "nothing")])
