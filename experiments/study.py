@@ -11,7 +11,9 @@ formulation's base flags, the cell's flags and ``--num_steps`` (trimmed so a stu
 hour: steps, not seeds, are cut), then ``experiments.evaluate``. Resumable: finished cells are never
 retrained and a killed training resumes (experiments/cells.py). Writes results/studies/<name>.{json,md}
 (a table beside the paper's numbers, mean ± std over seeds) and <name>_per_frame.png (per-frame position
-MAE per cell, like the paper's Figure 7).
+MAE per cell, like the paper's Figure 7). A run of some formulations keeps the other formulations' rows
+of the study's earlier JSON (with the command that measured them), so ``--formulations default``
+re-measures only the default's rows; the earlier JSON's note is dropped with the rows it was about.
 """
 from __future__ import annotations
 
@@ -105,11 +107,12 @@ def main(argv=None) -> int:
             raise FileNotFoundError(f"{src}: no study results to render (run the study first)")
         d = json.loads(src.read_text())
         write(args, table_ref, d["num_steps"], study_cells, list(d["results"]), d["seeds"], d["results"], None,
-              command=d["command"], note=d.get("note"))
+              command=d["command"], note=d.get("note"), kept=d.get("kept"))
         return 0
     cells.use_compilation_cache(Path(args.runs) / ".xla_cache")
     steps = args.num_steps or steps
     seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
+    kept_results, kept = _kept(args, forms, steps, seeds)
     extra = None
     if args.name == "extrapolation":
         from pcmgn_jax.data.dataset import ensure_dataset, parse_designs
@@ -135,9 +138,39 @@ def main(argv=None) -> int:
                 print(f"{args.name} {form} {label} seed {seed}: "
                       + ", ".join(f"{k}={src.get(k, float('nan')):.4g}" for k in KEYS), flush=True)
                 # the table after every cell: a study cut short still leaves what it has measured
-                write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quiet=True)
-    write(args, table_ref, steps, study_cells, forms, seeds, results, argv)
+                _write_all(args, table_ref, steps, study_cells, forms, seeds, results, argv, kept_results, kept,
+                           quiet=True)
+    _write_all(args, table_ref, steps, study_cells, forms, seeds, results, argv, kept_results, kept)
     return 0
+
+
+def _kept(args, forms, steps, seeds) -> tuple[dict, dict]:
+    """The formulations of an earlier run of this study (OUT/<name>.json) that this run does not re-run:
+    their results and the command that measured them, so ``--formulations default`` re-measures the
+    default rows and keeps the paper's. Refused when they were measured at other steps or seeds (the
+    table has one of each)."""
+    import json
+    src = Path(args.out) / f"{args.name}.json"
+    if not src.exists():
+        return {}, {}
+    d = json.loads(src.read_text())
+    old = {f: r for f, r in d["results"].items() if f not in forms}
+    if not old:
+        return {}, {}
+    if d["num_steps"] != steps or list(d["seeds"]) != seeds:
+        raise ValueError(f"{src}: its {sorted(old)} rows were measured at {d['num_steps']} steps, seeds "
+                         f"{d['seeds']}; this run is {steps} steps, seeds {seeds}. Pass --num_steps "
+                         f"{d['num_steps']} --seeds {','.join(map(str, d['seeds']))}, or re-run every formulation.")
+    prev = d.get("kept") or {}
+    return old, {f: prev.get(f, d["command"]) for f in old}
+
+
+def _write_all(args, table_ref, steps, study_cells, forms, seeds, results, argv, kept_results, kept, quiet=False):
+    """``write`` with the kept formulations' rows beside this run's, in BASE's order."""
+    merged = {f: (results[f] if f in results else kept_results[f]) for f in BASE
+              if f in results or f in kept_results}
+    order = [f for f in BASE if f in forms or f in kept_results]
+    write(args, table_ref, steps, study_cells, order, seeds, merged, argv, quiet=quiet, kept=kept or None)
 
 
 def ordering_lines(results, forms, study_cells) -> list[str]:
@@ -166,11 +199,12 @@ def ordering_lines(results, forms, study_cells) -> list[str]:
 
 
 def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quiet: bool = False,
-          command: str | None = None, note: str | None = None) -> None:
+          command: str | None = None, note: str | None = None, kept: dict | None = None) -> None:
     """The table, JSON and per-frame plot of ``results`` ({formulation: {cell: {seed: metrics}}}); cells
     or seeds not measured yet are marked in the table (the runner writes after every cell). ``command``
-    (default: this process's) is the one that measured the cells; ``note`` is kept in the JSON and
-    quoted under the table's title."""
+    (default: this process's) is the one that measured the cells, except the formulations in ``kept``
+    ({formulation: the earlier command that measured them}); ``note`` is kept in the JSON and quoted
+    under the table's title."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -189,7 +223,8 @@ def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quie
              "in µm and MPa; objective error: the section area mean (DESIGN §8). The paper's numbers are "
              "its physics-constrained MGN (vanilla in brackets) on its data: compare orderings, not values."
              + "".join(f" The `{f}` formulation adds `{' '.join(v)}` in this study." for (n, f), v in FORM_FLAGS.items()
-                       if n == args.name and f in forms), ""]
+                       if n == args.name and f in forms)
+             + "".join(f" The `{f}` rows are kept from an earlier run, `{c}`." for f, c in (kept or {}).items()), ""]
     done = sum(len(results.get(f, {}).get(c[0], {})) for f in forms for c in study_cells)
     total = len(forms) * len(study_cells) * len(seeds)
     if done < total:
@@ -223,7 +258,8 @@ def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quie
     (out / f"{args.name}.md").write_text("\n".join(lines) + "\n")
     atomic_write_json(out / f"{args.name}.json", {"command": command, "num_steps": steps, "seeds": seeds,
                                                   "base_flags": {f: BASE[f] for f in forms}, "results": results,
-                                                  **({"note": note} if note else {})})
+                                                  **({"note": note} if note else {}),
+                                                  **({"kept": kept} if kept else {})})
     fig, axes = plt.subplots(1, len(forms), figsize=(5.5 * len(forms), 3.8), squeeze=False)
     for ax, form in zip(axes[0], forms):
         for label, *_ in study_cells:

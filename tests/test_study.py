@@ -156,3 +156,32 @@ def test_render_rewrites_the_table_from_its_json_without_running_cells(tmp_path,
     assert json.loads(src.read_text())["note"] == "made before X"     # a second render keeps it too
     with pytest.raises(FileNotFoundError, match="no study results to render"):
         study.main(["--name", "degree", "--render", "--out", str(tmp_path / "nothing")])
+
+
+def test_rerunning_one_formulation_keeps_the_others_rows(tmp_path, monkeypatch):
+    """``--formulations default`` after a full run re-measures the default rows only: the paper rows and
+    the command that measured them survive; a re-run at other steps is refused, naming the file."""
+    value = {"v": 1.0}
+    calls = []
+
+    def fake(workdir, flags, extra_data=None):
+        calls.append(str(workdir))
+        return _fake_metrics(value["v"])
+
+    monkeypatch.setattr(cells, "run_cell", fake)
+    common = ["--name", "target", "--seeds", "0", "--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "out")]
+    assert study.main(common) == 0
+    value["v"], calls[:] = 5.0, []
+    assert study.main(common + ["--formulations", "default", "--runs", str(tmp_path / "runs2")]) == 0
+    assert calls and all("/default/" in w for w in calls)
+    d = json.loads((tmp_path / "out" / "target.json").read_text())
+    assert list(d["results"]) == ["paper", "default"]
+    assert all(s["0"]["position_mae_um"] == 1.0 for s in d["results"]["paper"].values())
+    assert all(s["0"]["position_mae_um"] == 5.0 for s in d["results"]["default"].values())
+    assert d["kept"] == {"paper": "python -m experiments.study " + " ".join(common)}
+    md = (tmp_path / "out" / "target.md").read_text()
+    assert "The `paper` rows are kept from an earlier run" in md
+    assert [r.split(" | ")[2] for r in md.splitlines() if r.startswith("| paper |")] == ["1"] * 3
+    assert [r.split(" | ")[2] for r in md.splitlines() if r.startswith("| default |")] == ["5"] * 3
+    with pytest.raises(ValueError, match="target.json: its \\['paper'\\] rows were measured at 1500 steps"):
+        study.main(common + ["--formulations", "default", "--num_steps", "7"])
