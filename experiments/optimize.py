@@ -10,7 +10,9 @@ at x < 3 mm, the section's area-weighted mean by default (node_mean: the paper's
 disc_mean; peak). Bounds 50-150 µm per OCA, 150 <= T1 + T2 <= 250 µm. The baselines (nearest, poly2,
 rbf) are fitted on the run's training split; mgn is the run's model. The optimum is re-simulated by the
 built-in solver on the training data's mesh preset (cached under RUN/optimize/solver/).
-Writes RUN/optimize/<surrogate>_<method>[_<objective>].json and .png.
+Writes RUN/optimize/<surrogate>_<method>[_<objective>].json and .png. The GA is resumable: its values
+go to RUN/optimize/<tag>.resume.json as they come (one surrogate batch at a time), and the same command
+after a kill replays them and carries on; the file is removed when the result is written.
 """
 from __future__ import annotations
 
@@ -80,8 +82,19 @@ def main(argv: list[str] | None = None) -> int:
     else:
         obj = FieldObjective(FieldRegression(args.surrogate, train), dmap, **kw)
 
+    tag = f"{args.surrogate}_{args.method}" + ("" if args.objective == "area_mean" else f"_{args.objective}")
+    dest = plots.ensure_dir(run / "optimize")
+    resume = dest / f"{tag}.resume.json"
+    loaded = 0
     if args.method == "ga":
+        # the GA's values go to a resume file as they come: a killed GA run again replays them and goes on
+        loaded = obj.persist(resume, {"surrogate": args.surrogate, "method": "ga", "pop": args.pop,
+                                      "gens": args.gens, "seed": args.seed, "preset": preset, "which": args.which})
+        if loaded:
+            print(f"{resume}: resuming with {loaded} evaluations done ({obj.prior_seconds:.0f} s of search)")
         res = search.ga(obj, box, pop=args.pop, gens=args.gens, seed=args.seed, progress=args.progress)
+        obj.stop_timing()
+        res["seconds"] = obj.search_seconds()   # this run's and the killed runs' before it
         budget = {"pop": args.pop, "gens": args.gens}
     else:
         kw = dict(starts=args.starts, iters=args.iters, seed=args.seed, progress=args.progress)
@@ -103,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
            "n_evals": res["n_evals"], "preset": preset, "units": {"objective": "MPa", "design": "µm"},
            "dataset_best": None if best_d is None else {"design_um": (best_d * 1e6).tolist(), "mpa": best_f},
            "command": "python -m experiments.optimize " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:])),
-           "args": asdict(args)}
+           "args": asdict(args), **({"resumed": {"evals_loaded": loaded}} if loaded else {})}
     if args.check:
         chk = solver_objectives(scene, x, preset, cache_dir=run / "optimize" / "solver")
         out.update(solver_mpa=chk[args.objective], solver_all_readings_mpa={k: chk[k] for k in metrics.OBJECTIVES},
@@ -115,8 +128,6 @@ def main(argv: list[str] | None = None) -> int:
         out["screened"] = res["screened"]
 
     n = args.grid if args.grid >= 0 else (7 if args.surrogate == "mgn" else 21)
-    tag = f"{args.surrogate}_{args.method}" + ("" if args.objective == "area_mean" else f"_{args.objective}")
-    dest = plots.ensure_dir(run / "optimize")
     if n > 1:
         grid, ok = box.grid(n)
         f = np.full(len(grid), np.nan)
@@ -129,6 +140,7 @@ def main(argv: list[str] | None = None) -> int:
                             paths_um=paths, optimum_um=x * 1e6, solver_um=x * 1e6 if args.check else None,
                             dataset_um=np.asarray([d for d, _ in data]) * 1e6)
     atomic_write_json(dest / f"{tag}.json", out)
+    resume.unlink(missing_ok=True)   # the result is written: a new run of the command searches afresh
     line = (f"{args.surrogate} {args.method}: optimum {np.round(x * 1e6, 1).tolist()} µm, predicted "
             f"{res['f']:.4f} MPa in {res['seconds']:.1f} s ({res['n_evals']} evaluations)")
     if args.check:

@@ -173,6 +173,56 @@ def test_field_objective_caches_and_differentiates():
     assert g[0] == pytest.approx([2e6, -1e6], rel=1e-6)
 
 
+class _Bowl:
+    """A fields surrogate whose objective is a bowl around (120, 140) µm [MPa]; ``fail_after`` calls of
+    predict it raises KeyboardInterrupt (a kill)."""
+
+    name, batch = "bowl", 7
+
+    def __init__(self, n_nodes, fail_after=None):
+        self.n, self.fail_after, self.calls, self.designs, self.x = n_nodes, fail_after, 0, 0, np.zeros(2)
+
+    def predict(self, d):
+        self.calls += 1
+        if self.fail_after is not None and self.calls > self.fail_after:
+            raise KeyboardInterrupt
+        self.designs += len(d)
+        s = (np.sum((d - [120e-6, 140e-6]) ** 2, axis=1) * 1e10 + 1.0) * 1e6
+        return None, np.broadcast_to(s[:, None, None], (len(d), 3, self.n))
+
+
+def test_ga_resumes_after_a_kill_with_the_same_result(tmp_path):
+    """persist(): a GA killed part way, run again with the same seed, replays the stored values and ends
+    exactly where an unbroken run does, evaluating only what the first run had not; a resume file of
+    another search is refused, naming what differs."""
+    from pcmgn_jax.opt.objectives import FieldObjective
+    pts, cells = _rect_mesh(4, 2)
+    mesh = SimpleNamespace(cells=cells, cell_part=np.ones(len(cells), int), node_part=np.ones(len(pts), int))
+    dmap = SimpleNamespace(mesh=mesh, points=lambda d: pts)
+    box, meta = DesignBox(), {"method": "ga", "pop": 20, "gens": 6, "seed": 3}
+
+    whole = FieldObjective(_Bowl(len(pts)), dmap, part=1)
+    ref = search.ga(whole, box, pop=20, gens=6, seed=3, progress=False)
+
+    store = tmp_path / "bowl_ga.resume.json"
+    first = FieldObjective(_Bowl(len(pts), fail_after=9), dmap, part=1)
+    assert first.persist(store, meta) == 0
+    with pytest.raises(KeyboardInterrupt):
+        search.ga(first, box, pop=20, gens=6, seed=3, progress=False)
+    saved = json.loads(store.read_text())
+    done = first.surrogate.designs                                        # every finished batch, none lost
+    assert saved["n_evals"] == len(saved["values"]) == done and 0 < done < ref["n_evals"]
+
+    again = FieldObjective(_Bowl(len(pts)), dmap, part=1)
+    assert again.persist(store, meta) == done and again.prior_seconds > 0
+    res = search.ga(again, box, pop=20, gens=6, seed=3, progress=False)
+    assert np.array_equal(res["x"], ref["x"]) and res["f"] == ref["f"] and res["history"] == ref["history"]
+    assert res["n_evals"] == ref["n_evals"] == whole.n_evals
+    assert again.surrogate.designs == ref["n_evals"] - done              # only the designs not stored
+    with pytest.raises(ValueError, match=r"bowl_ga.resume.json: written for another search \(seed: 3 here 4\)"):
+        FieldObjective(_Bowl(len(pts)), dmap, part=1).persist(store, {**meta, "seed": 4})
+
+
 def test_mgn_objective_gradient_matches_finite_differences(tiny_run, tiny_trajs):
     """Exact forward-mode gradient of (design -> mesh -> rollout -> objective) on the tiny synthetic run
     (design: the CG thickness; the CG top and the ball move with it) against central differences."""
@@ -217,5 +267,6 @@ def test_optimize_cli_end_to_end_on_the_tiny_preset(tmp_path):
         assert DesignBox().violation(np.array(out["optimum_um"]) * 1e-6)[0] <= 1e-12
         assert out["solver_mpa"] > 0 and np.isfinite(out["rel_error_pct"])
         assert (run / "optimize" / f"poly2_{method}.png").stat().st_size > 1000
+        assert not (run / "optimize" / f"poly2_{method}.resume.json").exists()   # removed with the result
     # the second re-check of the same optimum comes from the cache
     assert len(list((run / "optimize" / "solver").glob("*.json"))) <= 3

@@ -12,8 +12,14 @@
 """
 from __future__ import annotations
 
+import hashlib
+import json
+import time
+from pathlib import Path
+
 import numpy as np
 
+from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.eval import metrics
 from pcmgn_jax.sim.design_map import DesignMap
 
@@ -30,6 +36,63 @@ class FieldObjective:
         self.name = getattr(surrogate, "name", type(surrogate).__name__)
         self.cache: dict[tuple, float] = {}
         self.n_evals = 0
+        self._store: Path | None = None     # see persist()
+        self._meta: dict = {}
+        self.prior_seconds = 0.0            # search time spent by earlier, killed runs of the same search
+        self.timing = False                 # whether the wall clock since persist() counts as search time
+        self._t0 = 0.0
+
+    def fingerprint(self) -> str:
+        """A short hash of what the values are of: the surrogate's name and its fitted numbers (the MGN's
+        parameters and normalisation statistics; a regression's training designs)."""
+        import jax
+        h = hashlib.sha256(self.name.encode())
+        sim = getattr(self.surrogate, "sim", None)
+        arrays = jax.tree.leaves((sim.params, sim.stats)) if sim is not None else [self.surrogate.x]
+        for a in arrays:
+            h.update(np.ascontiguousarray(np.asarray(a)).tobytes())
+        return h.hexdigest()[:16]
+
+    def persist(self, path, meta: dict) -> int:
+        """Keep every value in ``path`` (JSON, written atomically after each surrogate batch) and load the
+        ones already there. A seeded search killed part way and run again replays its designs from the
+        file (pymoo's GA and the seeded starts are deterministic given the values) and carries on where
+        it stopped; ``prior_seconds`` is the search time the earlier runs spent. ``meta`` names what the
+        values are of (surrogate fingerprint, reading, search and its budget, ...): a file written for
+        other meta is refused, naming the fields that differ. Returns the number of values loaded."""
+        path = Path(path)
+        meta = {**meta, "fingerprint": self.fingerprint(), "reading": self.reading, "resolution": self.resolution}
+        loaded = 0
+        if path.exists():
+            try:
+                d = json.loads(path.read_text())
+                values, old = d["values"], d["meta"]
+            except (ValueError, KeyError) as e:
+                raise ValueError(f"{path}: not a resume file of the optimiser ({e}); delete it to start over") from e
+            diff = sorted(k for k in set(old) | set(meta) if old.get(k) != meta.get(k))
+            if diff:
+                what = ", ".join(f"{k}: {old.get(k)!r} here {meta.get(k)!r}" for k in diff)
+                raise ValueError(f"{path}: written for another search ({what}); delete it to start over")
+            for key, v in values:
+                self.cache[tuple(key)] = float("nan") if v is None else float(v)
+            self.n_evals, self.prior_seconds, loaded = int(d["n_evals"]), float(d["seconds"]), len(values)
+        self._store, self._meta = path, meta
+        self._t0, self.timing = time.perf_counter(), True
+        return loaded
+
+    def search_seconds(self) -> float:
+        """Search time so far [s]: the earlier runs' (``prior_seconds``) and this one's since persist()."""
+        return self.prior_seconds + (time.perf_counter() - self._t0 if self.timing else 0.0)
+
+    def stop_timing(self) -> None:
+        """The search has ended: later evaluations (the objective map) are not search time."""
+        self.prior_seconds, self.timing = self.search_seconds(), False
+
+    def _flush(self) -> None:
+        if self._store is not None:
+            atomic_write_json(self._store, {
+                "meta": self._meta, "n_evals": self.n_evals, "seconds": self.search_seconds(),
+                "values": [[list(k), None if np.isnan(v) else v] for k, v in self.cache.items()]})
 
     def weights(self, design) -> np.ndarray:
         m = self.map.mesh
@@ -43,12 +106,16 @@ class FieldObjective:
         """(B,) objective [MPa] of designs (B, D) [m]; new designs go to the surrogate as one batch."""
         d = np.atleast_2d(np.asarray(designs, float))
         new = list(dict.fromkeys(self._key(x) for x in d if self._key(x) not in self.cache))
-        if new:
-            des = np.asarray(new, float) * self.resolution
+        # one surrogate batch at a time, so a resume file (persist) loses at most one batch to a kill
+        step = (getattr(self.surrogate, "batch", None) or len(new)) if self._store else len(new)
+        for i in range(0, len(new), max(step, 1)):
+            chunk = new[i:i + step]
+            des = np.asarray(chunk, float) * self.resolution
             _, vm = self._predict(des)
-            for key, x, v in zip(new, des, vm):
+            for key, x, v in zip(chunk, des, vm):
                 self.cache[key] = float(metrics.oled_objective(v, self.weights(x), reading=self.reading))
-            self.n_evals += len(new)
+            self.n_evals += len(chunk)
+            self._flush()
         return np.array([self.cache[self._key(x)] for x in d])
 
     def _predict(self, designs):
@@ -134,4 +201,5 @@ class MGNObjective(FieldObjective):
             grads.append(np.asarray(g, np.float64))
             self.cache.setdefault(self._key(x), float(f))
             self.n_evals += 1
+            self._flush()
         return np.array(vals), np.stack(grads)
