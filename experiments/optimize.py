@@ -111,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     feas = [(d, f) for d, f in data if box.violation(d)[0] <= 1e-12]
     best_d, best_f = min(feas, key=lambda p: p[1]) if feas else (None, None)
 
-    out = {"surrogate": args.surrogate, "method": args.method, "objective": args.objective, "budget": budget,
+    out = {"surrogate": args.surrogate, "surrogate_fingerprint": obj.fingerprint(), "method": args.method, "objective": args.objective, "budget": budget,
            "optimum_um": (x * 1e6).tolist(), "predicted_mpa": res["f"], "search_seconds": res["seconds"],
            "n_evals": res["n_evals"], "preset": preset, "units": {"objective": "MPa", "design": "µm"},
            "dataset_best": None if best_d is None else {"design_um": (best_d * 1e6).tolist(), "mpa": best_f},
