@@ -270,3 +270,26 @@ def test_optimize_cli_end_to_end_on_the_tiny_preset(tmp_path):
         assert not (run / "optimize" / f"poly2_{method}.resume.json").exists()   # removed with the result
     # the second re-check of the same optimum comes from the cache
     assert len(list((run / "optimize" / "solver").glob("*.json"))) <= 3
+
+
+def test_optimize_table_orders_by_the_solver_and_names_bad_files(tmp_path):
+    from experiments import optimize_table
+    base = {"objective": "area_mean", "dataset_best": {"design_um": [110.0, 135.0], "mpa": 1.01},
+            "n_evals": 10, "search_seconds": 2.0, "command": "python -m experiments.optimize ..."}
+    (tmp_path / "a.json").write_text(json.dumps({**base, "surrogate": "mgn", "method": "ga", "budget": {"pop": 100, "gens": 50},
+                                                 "optimum_um": [120, 94], "predicted_mpa": 0.97, "solver_mpa": 1.02,
+                                                 "rel_error_pct": 4.9, "beats_dataset_best": False,
+                                                 "surrogate_fingerprint": "0123456789abcdef"}))
+    (tmp_path / "b.json").write_text(json.dumps({**base, "surrogate": "poly2", "method": "slsqp",
+                                                 "budget": {"starts": 1, "iters": 20, "screen": 8},
+                                                 "optimum_um": [150, 100], "predicted_mpa": 0.978, "solver_mpa": 0.98,
+                                                 "rel_error_pct": 0.2, "beats_dataset_best": True}))
+    out = tmp_path / "t.md"
+    assert optimize_table.main(["--files", str(tmp_path / "*.json"), "--out", str(out)]) == 0
+    table = [r for r in out.read_text().splitlines() if r.startswith("| `")]
+    assert table[0].startswith("| `b.json` | poly2 | slsqp | 1 start × 20, 8 screened | 150.0 / 100.0 |")
+    assert table[1].startswith("| `a.json` | mgn `01234567` | ga | 100 × 50 (paper) |") and table[1].endswith("| no |")
+    assert "1.0100 MPa at 110.0 / 135.0 µm" in out.read_text()
+    (tmp_path / "c.json").write_text("{}")
+    with pytest.raises(ValueError, match="c.json: not a result of experiments.optimize"):
+        optimize_table.main(["--files", str(tmp_path / "*.json")])

@@ -145,8 +145,12 @@ def _fsync_path(path: Path) -> None:
 
 def atomic_write_json(path: str | os.PathLike, data: Any) -> None:
     """Write ``data`` as JSON to ``path`` atomically (temp file in the same folder, fsync, rename)."""
+    atomic_write_text(path, json.dumps(to_jsonable(data, str(path)), indent=1, allow_nan=False))
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` to ``path`` atomically (temp file in the same folder, fsync, rename)."""
     path = Path(path)
-    text = json.dumps(to_jsonable(data, str(path)), indent=1, allow_nan=False)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "w") as f:

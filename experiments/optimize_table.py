@@ -1,0 +1,80 @@
+"""The design-optimisation results as one table like the paper's Table 8, a row per result JSON of
+``experiments.optimize``, best solver-checked optimum first, beside the best of the dataset's own
+solver-evaluated designs; each row's command is listed under the table.
+
+  python -m experiments.optimize_table --files 'results/optimize/*.json' --out results/optimize/table.md
+"""
+from __future__ import annotations
+
+import glob
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from pcmgn_jax import cli
+
+
+@dataclass(frozen=True)
+class TableArgs:
+    files: str = "results/optimize/*.json"      # a glob (quote it) or comma-separated paths of optimize JSONs
+    out: str = ""                               # write the table here (markdown) as well as printing it
+
+
+def budget_of(d: dict) -> str:
+    """The search budget in words: GA population × generations, starts × iterations, screening."""
+    b = d.get("budget", {})
+    if d["method"] == "ga":
+        return f"{b['pop']} × {b['gens']}" + (" (paper)" if (b["pop"], b["gens"]) == (100, 50) else "")
+    text = f"{b['starts']} start{'s' if b['starts'] != 1 else ''} × {b['iters']}"
+    return text + (f", {b['screen']} screened" if b.get("screen") else "")
+
+
+def rows(paths) -> list[str]:
+    """The markdown table of the optimize JSONs ``paths`` (see the module docstring)."""
+    results = []
+    for p in paths:
+        try:
+            d = json.loads(Path(p).read_text())
+            d["method"], d["optimum_um"], d["predicted_mpa"]
+        except (OSError, ValueError, KeyError) as e:
+            raise ValueError(f"{p}: not a result of experiments.optimize ({e})") from e
+        results.append((Path(p), d))
+    if not results:
+        raise ValueError("no optimize results given (--files)")
+    results.sort(key=lambda r: (r[1].get("solver_mpa") is None, r[1].get("solver_mpa") or 0.0))
+    best = {json.dumps(d.get("dataset_best"), sort_keys=True) for _, d in results}
+    lines = []
+    if len(best) == 1 and results[0][1].get("dataset_best"):
+        db = results[0][1]["dataset_best"]
+        lines += [f"Best of the dataset's own solver-evaluated designs: {db['mpa']:.4f} MPa at "
+                  f"{db['design_um'][0]:.1f} / {db['design_um'][1]:.1f} µm (objective `{results[0][1]['objective']}`).", ""]
+    lines += ["| file | surrogate | method | budget | optimum T1 / T2 [µm] | predicted [MPa] | solver [MPa] | "
+              "error [%] | search [s] | evaluations | beats dataset best |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for p, d in results:
+        fp = d.get("surrogate_fingerprint")
+        solver = d.get("solver_mpa")
+        beats = d.get("beats_dataset_best")
+        lines.append(
+            f"| `{p.name}` | {d['surrogate']}{f' `{fp[:8]}`' if fp else ''} | {d['method']} | {budget_of(d)} | "
+            f"{d['optimum_um'][0]:.1f} / {d['optimum_um'][1]:.1f} | {d['predicted_mpa']:.4f} | "
+            + ("– | – | " if solver is None else f"{solver:.4f} | {d['rel_error_pct']:.2f} | ")
+            + f"{d['search_seconds']:.1f} | {d['n_evals']:,} | {'–' if beats is None else ('yes' if beats else 'no')} |")
+    lines += ["", "Commands:", ""] + [f"- `{p.name}`: `{d['command']}`" for p, d in results]
+    return lines
+
+
+def main(argv=None) -> int:
+    args = cli.parse(TableArgs, argv, description=__doc__, prog="python -m experiments.optimize_table")
+    paths = sorted(glob.glob(args.files)) if any(c in args.files for c in "*?[") else \
+        [s for s in args.files.split(",") if s]
+    lines = rows(paths)
+    if args.out:
+        from pcmgn_jax.data.trajectory_io import atomic_write_text
+        atomic_write_text(args.out, "\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(cli.run(main))
