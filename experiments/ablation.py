@@ -96,7 +96,7 @@ def main(argv=None) -> int:
             results[name][str(seed)] = {k: m[k] for k in KEYS + ("train_seconds",)}
             baselines = m.get("baselines", baselines)
             print(f"{name} seed {seed}: " + ", ".join(f"{k}={m[k]:.4g}" for k in KEYS), flush=True)
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.data.trajectory_io import atomic_write_json, atomic_write_text
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     command = "python -m experiments.ablation " + " ".join(sys.argv[1:] if argv is None else argv)
@@ -104,7 +104,7 @@ def main(argv=None) -> int:
                                                      baselines={k: {kk: v[kk] for kk in KEYS} for k, v in
                                                                 baselines.items() if "not_applicable" not in v}))
     md = table(results, {k: v for k, v in baselines.items() if "not_applicable" not in v})
-    out.with_suffix(".md").write_text(f"`{command}` (flags common to every cell: `{' '.join(COMMON)}`)\n\n{md}\n")
+    atomic_write_text(out.with_suffix(".md"), f"`{command}` (flags common to every cell: `{' '.join(COMMON)}`)\n\n{md}\n")
     print(md)
     return 0
 

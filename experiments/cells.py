@@ -28,6 +28,7 @@ def run_cell(workdir: str | Path, flags: list[str], *, extra_data: dict[str, str
     """Train (unless finished) and evaluate; return the test metrics plus ``train_seconds`` and, for each
     ``extra_data`` {name: directory}, the metrics of ``evaluate --data`` under ``eval_<name>``."""
     from experiments import evaluate, train
+    from pcmgn_jax.data.trajectory_io import atomic_write_json
     workdir = Path(workdir)
     metrics = workdir / "eval" / "metrics.json"
     if not metrics.exists():
@@ -37,7 +38,7 @@ def run_cell(workdir: str | Path, flags: list[str], *, extra_data: dict[str, str
             raise RuntimeError(f"training of {workdir} failed")
         secs = workdir / "train_seconds.json"
         if not (resume and secs.exists()):
-            secs.write_text(json.dumps({"seconds": time.perf_counter() - t0, "resumed": resume}))
+            atomic_write_json(secs, {"seconds": time.perf_counter() - t0, "resumed": resume})
         if evaluate.main([f"--workdir={workdir}"]) != 0:
             raise RuntimeError(f"evaluation of {workdir} failed")
     m = json.loads(metrics.read_text())

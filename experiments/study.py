@@ -210,7 +210,7 @@ def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quie
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.data.trajectory_io import atomic_write_json, atomic_write_text
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if command is None:
@@ -255,7 +255,7 @@ def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quie
     # with the paper's (Kendall's tau over the cells both have: +1 the same order, -1 reversed)
     lines.append("")
     lines += ordering_lines(results, forms, study_cells)
-    (out / f"{args.name}.md").write_text("\n".join(lines) + "\n")
+    atomic_write_text(out / f"{args.name}.md", "\n".join(lines) + "\n")
     atomic_write_json(out / f"{args.name}.json", {"command": command, "num_steps": steps, "seeds": seeds,
                                                   "base_flags": {f: BASE[f] for f in forms}, "results": results,
                                                   **({"note": note} if note else {}),
