@@ -25,7 +25,8 @@ def use_compilation_cache(folder: str | Path, min_compile_seconds: float = 1.0) 
 
 
 def run_cell(workdir: str | Path, flags: list[str], *, extra_data: dict[str, str] | None = None) -> dict:
-    """Train (unless finished) and evaluate; return the test metrics plus ``train_seconds`` and, for each
+    """Train (unless finished) and evaluate; return the test metrics plus ``train_seconds``,
+    ``checkpoint_step`` (:func:`checkpoint_step`) and, for each
     ``extra_data`` {name: directory}, the metrics of ``evaluate --data`` under ``eval_<name>``."""
     from experiments import evaluate, train
     from pcmgn_jax.data.trajectory_io import atomic_write_json
@@ -44,12 +45,20 @@ def run_cell(workdir: str | Path, flags: list[str], *, extra_data: dict[str, str
     m = json.loads(metrics.read_text())
     secs = workdir / "train_seconds.json"
     m["train_seconds"] = json.loads(secs.read_text())["seconds"] if secs.exists() else float("nan")
+    m["checkpoint_step"] = checkpoint_step(workdir)
     for name, folder in (extra_data or {}).items():
         out = workdir / "eval" / name / "metrics.json"
         if not out.exists() and evaluate.main([f"--workdir={workdir}", f"--data={folder}", f"--name={name}"]) != 0:
             raise RuntimeError(f"evaluation of {workdir} on {folder} failed")
         m[f"eval_{name}"] = json.loads(out.read_text())
     return m
+
+
+def checkpoint_step(workdir: str | Path) -> int:
+    """The training step of the checkpoint the evaluation uses (the best by validation): a cell whose
+    best checkpoint is not its last was scored on an earlier model than its step count says."""
+    from pcmgn_jax.mgn.checkpoint import checkpoint_dir, read_meta
+    return int(read_meta(checkpoint_dir(workdir, "best"))[0])
 
 
 def mean_pm(values) -> str:

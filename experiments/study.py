@@ -133,6 +133,7 @@ def main(argv=None) -> int:
                 src = m["eval_extrap"] if extra else m
                 results.setdefault(form, {}).setdefault(label, {})[str(seed)] = {
                     **{k: src.get(k) for k in KEYS}, "train_seconds": m["train_seconds"],
+                    "checkpoint_step": m.get("checkpoint_step"),
                     "per_frame_position_mae_um_mean": src["per_frame_position_mae_um_mean"],
                     "baselines": src.get("baselines", {})}
                 print(f"{args.name} {form} {label} seed {seed}: "
@@ -220,7 +221,9 @@ def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quie
     lines = [f"# Study `{args.name}` (paper {table_ref})", "", *([f"> {note}", ""] if note else []),
              f"`{command}`: cpu preset, {steps} steps per cell (trimmed to fit about an hour; the paper trained "
              f"~20 h on a GPU), seeds {seeds}, scored on {where}; mean ± std over seeds. Position and stress MAE "
-             "in µm and MPa; objective error: the section area mean (DESIGN §8). The paper's numbers are "
+             "in µm and MPa; objective error: the section area mean (DESIGN §8). Every cell is scored with "
+             "its best checkpoint by validation position MAE; a cell whose best is not its last step says so. "
+             "The paper's numbers are "
              "its physics-constrained MGN (vanilla in brackets) on its data: compare orderings, not values."
              + "".join(f" The `{f}` formulation adds `{' '.join(v)}` in this study." for (n, f), v in FORM_FLAGS.items()
                        if n == args.name and f in forms)
@@ -240,6 +243,9 @@ def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quie
                 lines.append(f"| {form} | {label} | not run yet | | | | | {paper} |")
                 continue
             tag = "" if len(per) == len(seeds) else f" ({len(per)} of {len(seeds)} seeds)"
+            early = [m.get("checkpoint_step") for m in per]
+            if any(c is not None and c < steps for c in early):   # scored on a model before the last step
+                tag += f" (best checkpoint: step {' / '.join('?' if c is None else str(c) for c in early)})"
             same_as, why = SAME_AS.get((args.name, form), ({}, ""))
             if label in same_as:
                 tag += f" (= {same_as[label]}, not retrained: {why})"

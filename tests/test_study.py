@@ -185,3 +185,19 @@ def test_rerunning_one_formulation_keeps_the_others_rows(tmp_path, monkeypatch):
     assert [r.split(" | ")[2] for r in md.splitlines() if r.startswith("| default |")] == ["5"] * 3
     with pytest.raises(ValueError, match="target.json: its \\['paper'\\] rows were measured at 1500 steps"):
         study.main(common + ["--formulations", "default", "--num_steps", "7"])
+
+
+def test_a_cell_scored_on_an_earlier_checkpoint_says_so(tmp_path, monkeypatch):
+    """The evaluation uses the best checkpoint by validation; when that is not the last step (e.g. a
+    penalty that starts half-way only made validation worse) the row names the step."""
+    def fake(workdir, flags, extra_data=None):
+        late = "--lambda_pen=0" in flags
+        return {**_fake_metrics(1.0), "checkpoint_step": 1000 if late else 500}
+
+    monkeypatch.setattr(cells, "run_cell", fake)
+    assert study.main(["--name", "lambda", "--formulations", "default", "--runs", str(tmp_path / "runs"),
+                       "--out", str(tmp_path / "out")]) == 0
+    rows = [r for r in (tmp_path / "out" / "lambda.md").read_text().splitlines() if r.startswith("| default |")]
+    assert rows[0].startswith("| default | none (0) | ")
+    assert all(r.startswith(f"| default | {c} (best checkpoint: step 500 / 500) |")
+               for r, c in zip(rows[1:], ("0.1", "1", "10", "30")))
