@@ -31,6 +31,7 @@ def run_cell(workdir: str | Path, flags: list[str], *, extra_data: dict[str, str
     from experiments import evaluate, train
     from pcmgn_jax.data.trajectory_io import atomic_write_json
     workdir = Path(workdir)
+    check_flags(workdir, flags)
     metrics = workdir / "eval" / "metrics.json"
     if not metrics.exists():
         resume = (workdir / "checkpoints" / "periodic").is_dir()
@@ -52,6 +53,24 @@ def run_cell(workdir: str | Path, flags: list[str], *, extra_data: dict[str, str
             raise RuntimeError(f"evaluation of {workdir} on {folder} failed")
         m[f"eval_{name}"] = json.loads(out.read_text())
     return m
+
+
+def check_flags(workdir: str | Path, flags: list[str]) -> None:
+    """Refuse a cell directory trained with other values of the flags asked for: a cell is found by its
+    directory, so a changed flag (a study's base flags edited) must not silently reuse the old model.
+    Only the fields the flags name are compared (fields added to the config later keep their defaults)."""
+    from pcmgn_jax.config import TrainConfig
+    saved = Path(workdir) / "config.json"
+    if not saved.exists():
+        return
+    stored = json.loads(saved.read_text())
+    wanted = TrainConfig.from_flags(flags).to_dict()
+    names = {f[2:].split("=", 1)[0].replace("-", "_") for f in flags if f.startswith("--")}
+    diff = sorted(k for k in names if k in stored and k in wanted and stored[k] != wanted[k])
+    if diff:
+        raise ValueError(f"{saved}: this cell was trained with " + ", ".join(
+            f"{k}={stored[k]!r}" for k in diff) + " but is asked for " + ", ".join(f"{k}={wanted[k]!r}" for k in diff)
+            + f"; move {workdir} away to retrain it with the new flags")
 
 
 def checkpoint_step(workdir: str | Path) -> int:

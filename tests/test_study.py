@@ -201,3 +201,26 @@ def test_a_cell_scored_on_an_earlier_checkpoint_says_so(tmp_path, monkeypatch):
     assert rows[0].startswith("| default | none (0) | ")
     assert all(r.startswith(f"| default | {c} (best checkpoint: step 500 / 500) |")
                for r, c in zip(rows[1:], ("0.1", "1", "10", "30")))
+
+
+def test_a_cell_trained_with_other_flags_is_refused(tmp_path):
+    """cells.run_cell finds a cell by its directory; a directory trained with other values of the flags
+    asked for (e.g. a study's base flags edited since) is refused, naming the field, not reused."""
+    wd = tmp_path / "cell"
+    wd.mkdir()
+    from pcmgn_jax.config import TrainConfig
+    TrainConfig.from_flags(["--preset=cpu", "--lambda_pen=10"]).save_json(wd / "config.json")
+    cells.check_flags(wd, ["--preset=cpu", "--lambda_pen=10"])                  # the same: fine
+    with pytest.raises(ValueError, match=r"config.json: this cell was trained with lambda_start=0.5 but is "
+                                         r"asked for lambda_start=0.0; move .* away"):
+        cells.run_cell(wd, ["--preset=cpu", "--lambda_pen=10", "--lambda_start=0"])
+
+
+def test_lambda_study_starts_the_paper_formulations_penalty_at_step_0(tmp_path, monkeypatch):
+    calls = []
+    monkeypatch.setattr(cells, "run_cell", lambda wd, flags, extra_data=None: calls.append((str(wd), flags))
+                        or _fake_metrics(1.0))
+    assert study.main(["--name", "lambda", "--seeds", "0", "--runs", str(tmp_path / "runs"),
+                       "--out", str(tmp_path / "out")]) == 0
+    assert all(("--lambda_start=0" in f) == ("/paper/" in w) for w, f in calls)
+    assert "The `paper` formulation adds `--lambda_start=0` in this study." in (tmp_path / "out" / "lambda.md").read_text()
