@@ -195,8 +195,9 @@ def ordering_lines(results, forms, study_cells) -> list[str]:
             both = [c for c in study_cells if c[2] is not None and c[0] in mean]
             if len(both) >= 3:
                 taus = [kendalltau([mean[c[0]][k] for c in both], [c[2][k] for c in both]).statistic for k in (0, 1)]
+                fmt = lambda t: "undefined (all cells equal)" if np.isnan(t) else f"{t:+.2f}"  # noqa: E731
                 line += (f"; rank agreement with the paper over {len(both)} cells, Kendall's tau: position "
-                         f"{taus[0]:+.2f}, stress {taus[1]:+.2f}")
+                         f"{fmt(taus[0])}, stress {fmt(taus[1])}")
         out.append(line)
     return out
 
