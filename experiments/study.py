@@ -250,7 +250,7 @@ def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quie
             tag = "" if len(per) == len(seeds) else f" ({len(per)} of {len(seeds)} seeds)"
             early = [m.get("checkpoint_step") for m in per]
             if any(c is not None and c < steps for c in early):   # scored on a model before the last step
-                tag += f" (best checkpoint: step {' / '.join('?' if c is None else str(c) for c in early)})"
+                tag += f" (best checkpoint: step {', '.join('?' if c is None else str(c) for c in early)} of {steps})"
             same_as, why = SAME_AS.get((args.name, form), ({}, ""))
             if label in same_as:
                 tag += f" (= {same_as[label]}, not retrained: {why})"

@@ -199,7 +199,7 @@ def test_a_cell_scored_on_an_earlier_checkpoint_says_so(tmp_path, monkeypatch):
                        "--out", str(tmp_path / "out")]) == 0
     rows = [r for r in (tmp_path / "out" / "lambda.md").read_text().splitlines() if r.startswith("| default |")]
     assert rows[0].startswith("| default | none (0) | ")
-    assert all(r.startswith(f"| default | {c} (best checkpoint: step 500 / 500) |")
+    assert all(r.startswith(f"| default | {c} (best checkpoint: step 500, 500 of 1000) |")
                for r, c in zip(rows[1:], ("0.1", "1", "10", "30")))
 
 
