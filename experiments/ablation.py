@@ -96,7 +96,8 @@ def main(argv=None) -> int:
             results[name][str(seed)] = {k: m[k] for k in KEYS + ("train_seconds",)}
             baselines = m.get("baselines", baselines)
             print(f"{name} seed {seed}: " + ", ".join(f"{k}={m[k]:.4g}" for k in KEYS), flush=True)
-    from pcmgn_jax.data.trajectory_io import atomic_write_json, atomic_write_text
+    from pcmgn_jax.atomic import atomic_write_text
+    from pcmgn_jax.data.trajectory_io import atomic_write_json
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     command = "python -m experiments.ablation " + " ".join(sys.argv[1:] if argv is None else argv)

@@ -70,7 +70,7 @@ def main(argv=None) -> int:
         [s for s in args.files.split(",") if s]
     lines = rows(paths)
     if args.out:
-        from pcmgn_jax.data.trajectory_io import atomic_write_text
+        from pcmgn_jax.atomic import atomic_write_text
         atomic_write_text(args.out, "\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0

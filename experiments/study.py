@@ -214,7 +214,8 @@ def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quie
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from pcmgn_jax.data.trajectory_io import atomic_write_json, atomic_write_text
+    from pcmgn_jax.atomic import atomic_write_text
+    from pcmgn_jax.data.trajectory_io import atomic_write_json
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if command is None:

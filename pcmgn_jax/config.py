@@ -138,7 +138,7 @@ class TrainConfig:
         return dataclasses.asdict(self)
 
     def save_json(self, path: str | Path) -> None:
-        from pcmgn_jax.data.trajectory_io import atomic_write_text  # (late: trajectory_io imports this module's users)
+        from pcmgn_jax.atomic import atomic_write_text
         atomic_write_text(path, json.dumps(self.to_dict(), indent=2, sort_keys=True) + "\n")
 
     def replace(self, **kw) -> "TrainConfig":

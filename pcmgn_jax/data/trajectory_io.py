@@ -42,6 +42,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from pcmgn_jax.atomic import atomic_write_text
 from pcmgn_jax.trajectory import Trajectory
 
 __all__ = [
@@ -146,23 +147,6 @@ def _fsync_path(path: Path) -> None:
 def atomic_write_json(path: str | os.PathLike, data: Any) -> None:
     """Write ``data`` as JSON to ``path`` atomically (temp file in the same folder, fsync, rename)."""
     atomic_write_text(path, json.dumps(to_jsonable(data, str(path)), indent=1, allow_nan=False))
-
-
-def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` to ``path`` atomically (temp file in the same folder, fsync, rename)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; a results file should be readable like any other
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 # ---- writing ------------------------------------------------------------------------------------
