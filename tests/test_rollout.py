@@ -147,7 +147,10 @@ def test_quasi_static_panel_is_evaluated_at_the_balls_new_state(tiny_run, tiny_t
         up = np.where(panel[:, None], np.asarray(up), u)  # the ball where the rollout put it
         if sim.formulation.contact_projection:
             up = np.asarray(rl.project_contact(idx, pts, up))
-        np.testing.assert_allclose(u[panel], up[panel], rtol=1e-5, atol=1e-12)
+        # float32: the shifted panel moves the inputs' last bits, so compare to the field's own scale
+        # (1e-5 of the largest panel displacement), not to each node's value (one seen 2e-12 m off at 2e-8 m)
+        scale = float(np.abs(u[panel]).max())
+        np.testing.assert_allclose(u[panel], up[panel], rtol=1e-5, atol=1e-5 * scale + 1e-15)
         np.testing.assert_allclose(np.asarray(res.von_mises[k]), np.asarray(vm), rtol=1e-3, atol=1e-3)  # float32
 
 
