@@ -2,12 +2,16 @@
 ``experiments.optimize``, best solver-checked optimum first, beside the best of the dataset's own
 solver-evaluated designs; each row's command is listed under the table.
 
-  python -m experiments.optimize_table --files 'results/optimize/*.json' --out results/optimize/table.md
+  python -m experiments.optimize_table --files 'results/optimize/*.json,results/optimize/cpu_v3/*.json' --out results/optimize/table.md
+
+A row names its file relative to the folder all the files share, so results of two models in two folders
+(the same file names) stay apart; a surrogate's fingerprint (its parameters' hash) follows its name.
 """
 from __future__ import annotations
 
 import glob
 import json
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,7 +21,7 @@ from pcmgn_jax import cli
 
 @dataclass(frozen=True)
 class TableArgs:
-    files: str = "results/optimize/*.json"      # a glob (quote it) or comma-separated paths of optimize JSONs
+    files: str = "results/optimize/*.json"      # comma-separated paths or globs (quote them) of optimize JSONs
     out: str = ""                               # write the table here (markdown) as well as printing it
 
 
@@ -43,6 +47,8 @@ def rows(paths) -> list[str]:
     if not results:
         raise ValueError("no optimize results given (--files)")
     results.sort(key=lambda r: (r[1].get("solver_mpa") is None, r[1].get("solver_mpa") or 0.0))
+    root = Path(os.path.commonpath([p.resolve().parent for p, _ in results]))
+    name = {p: p.resolve().relative_to(root).as_posix() for p, _ in results}
     best = {json.dumps(d.get("dataset_best"), sort_keys=True) for _, d in results}
     lines = []
     if len(best) == 1 and results[0][1].get("dataset_best"):
@@ -56,18 +62,19 @@ def rows(paths) -> list[str]:
         solver = d.get("solver_mpa")
         beats = d.get("beats_dataset_best")
         lines.append(
-            f"| `{p.name}` | {d['surrogate']}{f' `{fp[:8]}`' if fp else ''} | {d['method']} | {budget_of(d)} | "
+            f"| `{name[p]}` | {d['surrogate']}{f' `{fp[:8]}`' if fp else ''} | {d['method']} | {budget_of(d)} | "
             f"{d['optimum_um'][0]:.1f} / {d['optimum_um'][1]:.1f} | {d['predicted_mpa']:.4f} | "
             + ("– | – | " if solver is None else f"{solver:.4f} | {d['rel_error_pct']:.2f} | ")
             + f"{d['search_seconds']:.1f} | {d['n_evals']:,} | {'–' if beats is None else ('yes' if beats else 'no')} |")
-    lines += ["", "Commands:", ""] + [f"- `{p.name}`: `{d['command']}`" for p, d in results]
+    lines += ["", "Commands:", ""] + [f"- `{name[p]}`: `{d['command']}`" for p, d in results]
     return lines
 
 
 def main(argv=None) -> int:
     args = cli.parse(TableArgs, argv, description=__doc__, prog="python -m experiments.optimize_table")
-    paths = sorted(glob.glob(args.files)) if any(c in args.files for c in "*?[") else \
-        [s for s in args.files.split(",") if s]
+    paths = []
+    for item in (s.strip() for s in args.files.split(",") if s.strip()):
+        paths += sorted(glob.glob(item)) if any(c in item for c in "*?[") else [item]
     lines = rows(paths)
     if args.out:
         from pcmgn_jax.atomic import atomic_write_text
