@@ -49,7 +49,10 @@ def rows(paths) -> list[str]:
     results.sort(key=lambda r: (r[1].get("solver_mpa") is None, r[1].get("solver_mpa") or 0.0))
     root = Path(os.path.commonpath([p.resolve().parent for p, _ in results]))
     name = {p: p.resolve().relative_to(root).as_posix() for p, _ in results}
-    best = {json.dumps(d.get("dataset_best"), sort_keys=True) for _, d in results}
+    # the same dataset best at the table's precision (results written months apart differ in last bits)
+    best = {None if not d.get("dataset_best") else
+            (round(d["dataset_best"]["mpa"], 4), *(round(x, 1) for x in d["dataset_best"]["design_um"]))
+            for _, d in results}
     lines = []
     if len(best) == 1 and results[0][1].get("dataset_best"):
         db = results[0][1]["dataset_best"]
