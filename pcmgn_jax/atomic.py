@@ -17,7 +17,7 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        with os.fdopen(fd, "w") as f:
+        with os.fdopen(fd, "w", newline="\n") as f:   # LF on every OS (solver input decks, tables)
             f.write(text)
             f.flush()
             os.fsync(f.fileno())

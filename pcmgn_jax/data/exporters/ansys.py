@@ -40,6 +40,7 @@ from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
+from pcmgn_jax.atomic import atomic_write_text
 from pcmgn_jax.data.importers.units import (ANSYS_UNIT_SYSTEMS, length_factor, stress_factor,
                                             velocity_factor)
 from pcmgn_jax.data.importers.ansys_text import FRAME_KEYS
@@ -67,22 +68,13 @@ class ExportError(ValueError):
 
 # ---- atomic file / folder writes ------------------------------------------------------------------
 def _write_text_atomic(path: Path, text: str) -> None:
+    """:func:`pcmgn_jax.atomic.atomic_write_text`, creating the folder, with a failure as :class:`ExportError`."""
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        atomic_write_text(path, text)
     except OSError as err:
         raise ExportError(f"{path}: cannot write: {err.strerror or err}") from None
-    try:
-        with os.fdopen(fd, "w", newline="\n") as f:
-            f.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except OSError as err:
-        raise ExportError(f"{path}: cannot write: {err.strerror or err}") from None
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 @contextmanager
