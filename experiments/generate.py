@@ -1,9 +1,12 @@
 """Generate (or resume) a trajectory dataset with the built-in solver.
 
   python -m experiments.generate --preset cpu --out data/cpu          # the designs experiments.train uses
-  python -m experiments.generate --n_train 100 --n_test 50 --out data/paper --preset paper --seed 0
+  python -m experiments.generate --n_train 100 --n_val 5 --n_test 50 --out data/paper --preset paper --seed 0
   python -m experiments.generate --out data/paper --preset paper --designs "40,40;40,160;160,40;160,160" --split extrap
 
+``--n_train`` counts training trajectories, validation excluded, as in ``experiments.train``: the train
+split gets n_train + n_val designs (``experiments.train --dataset_dir OUT`` then trains on n_train and
+validates on n_val of them without size flags).
 Designs are OCA thicknesses in µm on the command line, metres in files. Rerunning skips finished,
 valid trajectories. See pcmgn_jax/data/dataset.py for the directory layout and manifest.
 """
@@ -23,8 +26,9 @@ from pcmgn_jax.scene import Scene, default_scene
 class GenerateArgs:
     out: str                                   # dataset directory
     preset: Literal[PRESETS] = "cpu"           # mesh resolution / frame count (sim.mesh.MESH_PRESETS)
-    n_train: int | None = None                 # LHS training designs; None: experiments.train's for --preset (n_train + n_val: tiny 4, cpu 14, paper 105)
-    n_test: int | None = None                  # LHS test designs; None: experiments.train's for --preset (tiny 2, cpu 6, paper 50)
+    n_train: int | None = None                 # training trajectories, validation excluded (as in experiments.train); None: the preset's (tiny 3, cpu 12, paper 100)
+    n_val: int | None = None                   # validation trajectories, written to the train split after the n_train; None: the preset's (tiny 1, cpu 2, paper 5)
+    n_test: int | None = None                  # LHS test designs; None: the preset's (tiny 2, cpu 6, paper 50)
     seed: int = 0                              # LHS seed
     low_um: float = DESIGN_LOW * 1e6           # LHS lower bound [µm]
     high_um: float = DESIGN_HIGH * 1e6         # LHS upper bound [µm]
@@ -35,10 +39,10 @@ class GenerateArgs:
     progress: bool = True                      # progress bar (--no_progress: off)
 
 
-def preset_sizes(preset: str) -> tuple[int, int]:
-    """(training designs, test designs) that ``experiments.train --preset PRESET`` asks for."""
+def preset_sizes(preset: str) -> tuple[int, int, int]:
+    """(n_train, n_val, n_test) of ``experiments.train --preset PRESET`` (the train split holds n_train + n_val)."""
     p = TRAIN_PRESETS[preset]
-    return p["n_train"] + p["n_val"], p["n_test"]
+    return p["n_train"], p["n_val"], p["n_test"]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -48,9 +52,10 @@ def main(argv: list[str] | None = None) -> int:
         designs = parse_designs(args.designs, dim=len(scene.design_layers)) if args.designs else None
         if args.split and designs is None:
             raise ValueError("--split needs --designs")
-        n_train, n_test = preset_sizes(args.preset)
-        out = ensure_dataset(args.out, preset=args.preset,
-                             n_train=n_train if args.n_train is None else args.n_train,
+        n_train, n_val, n_test = preset_sizes(args.preset)
+        n_train = n_train if args.n_train is None else args.n_train
+        n_val = n_val if args.n_val is None else args.n_val
+        out = ensure_dataset(args.out, preset=args.preset, n_train=n_train + n_val,
                              n_test=n_test if args.n_test is None else args.n_test,
                              seed=args.seed, designs=designs, split=args.split, scene=scene,
                              batch=args.batch, progress=args.progress,

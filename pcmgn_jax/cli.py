@@ -12,7 +12,10 @@ raises ``ValueError`` naming it (entry points print it and exit with status 2).
 
 Training: :func:`parse_train` reads ``--preset tiny|cpu|paper`` first, fills every default from
 ``pcmgn_jax.config.PRESETS``, then parses every :class:`TrainConfig` field as a flag, plus ``--workdir``
-and ``--resume``. With ``--resume`` the defaults come from the run's ``config.json`` instead, and a flag
+and ``--resume``. ``--formulation=paper|default|dynamic`` is read first too, wherever it stands: it sets
+the nested formulation to ``FORMULATIONS[name]`` (with the preset's formulation overrides) before the
+formulation's field flags (``--panel_target=X``, ``--rigid_ball``, ``--contact_projection``,
+``--scene_features=a,b|none``) apply. With ``--resume`` the defaults come from the run's ``config.json`` instead, and a flag
 that changes a saved value is refused (:func:`check_resume`).
 """
 from __future__ import annotations
@@ -27,9 +30,9 @@ from typing import Annotated, Any, Sequence, TypeVar
 
 import tyro
 
-from pcmgn_jax.config import PRESETS, TrainConfig
+from pcmgn_jax.config import FORMULATION_FIELDS, PRESETS, TrainConfig, resolve_formulation, scene_feature_names
 
-__all__ = ["TrainArgs", "check_resume", "config_diff", "normalize_argv", "parse", "parse_config",
+__all__ = ["TrainArgs", "check_resume", "config_diff", "given_flags", "normalize_argv", "parse", "parse_config",
            "parse_train", "preset_of"]
 
 T = TypeVar("T")
@@ -97,7 +100,7 @@ def parse(cls: type[T], argv: Sequence[str] | None = None, *, description: str |
     argv = sys.argv[1:] if argv is None else list(argv)
     kw: dict[str, Any] = {} if default is None else {"default": default}
     return tyro.cli(cls, args=normalize_argv(cls, argv), description=description, prog=prog,
-                    use_underscores=True, **kw)
+                    use_underscores=True, config=(tyro.conf.OmitArgPrefixes,), **kw)
 
 
 def run(main_fn, argv: Sequence[str] | None = None) -> int:
@@ -109,15 +112,31 @@ def run(main_fn, argv: Sequence[str] | None = None) -> int:
         return 2
 
 
-def preset_of(argv: Sequence[str], default: str = "cpu") -> str:
-    """The value of ``--preset`` in ``argv`` (``--preset X`` or ``--preset=X``), else ``default``."""
+def _value_of(argv: Sequence[str], flag: str, default: str | None) -> str | None:
+    """The last value of ``--FLAG`` in ``argv`` (``--FLAG X`` or ``--FLAG=X``), else ``default``."""
     argv = list(argv)
     found = default
     for i, arg in enumerate(argv):
-        if arg.startswith("--preset="):
+        if arg.startswith(f"--{flag}="):
             found = arg.split("=", 1)[1]
-        elif arg == "--preset" and i + 1 < len(argv):
+        elif arg == f"--{flag}" and i + 1 < len(argv):
             found = argv[i + 1]
+    return found
+
+
+def given_flags(argv: Sequence[str]) -> set[str]:
+    """Names (underscore form, without ``no_``) of the flags written in ``argv``."""
+    out = set()
+    for arg in argv:
+        if arg.startswith("--") and arg != "--":
+            key = arg[2:].partition("=")[0].replace("-", "_")
+            out.add(key[3:] if key.startswith("no_") else key)
+    return out
+
+
+def preset_of(argv: Sequence[str], default: str = "cpu") -> str:
+    """The value of ``--preset`` in ``argv`` (``--preset X`` or ``--preset=X``), else ``default``."""
+    found = _value_of(argv, "preset", default)
     if found not in PRESETS:
         raise ValueError(f"--preset: unknown preset {found!r}; choose one of {sorted(PRESETS)}")
     return found
@@ -151,10 +170,47 @@ class TrainArgs:
                                    num_processes=self.num_processes, process_id=self.process_id)
 
 
-def config_diff(old: TrainConfig, new: TrainConfig) -> dict[str, tuple[Any, Any]]:
-    """Fields whose values differ: {name: (old value, new value)}, in field order."""
-    return {f.name: (getattr(old, f.name), getattr(new, f.name)) for f in dataclasses.fields(TrainConfig)
-            if getattr(old, f.name) != getattr(new, f.name)}
+def config_diff(old, new, prefix: str = "") -> dict[str, tuple[Any, Any]]:
+    """Fields whose values differ: {name: (old value, new value)}, in field order; fields of a nested
+    dataclass are named with its field's prefix (``formulation.panel_target``)."""
+    out: dict[str, tuple[Any, Any]] = {}
+    for f in dataclasses.fields(old):
+        a, b = getattr(old, f.name), getattr(new, f.name)
+        if dataclasses.is_dataclass(a) and type(a) is type(b):
+            out.update(config_diff(a, b, prefix=f"{prefix}{f.name}."))
+        elif a != b:
+            out[prefix + f.name] = (a, b)
+    return out
+
+
+def _train_argv(argv: Sequence[str]) -> tuple[list[str], str | None]:
+    """(``argv`` without the ``--formulation`` selector, the selected name or None), with
+    ``--scene_features=a,b`` (or ``none``) rewritten as tyro's ``--scene_features a b``."""
+    name = _value_of(argv, "formulation", None)
+    out: list[str] = []
+    it = iter(argv)
+    for arg in it:
+        key = "--" + arg.partition("=")[0][2:].replace("-", "_") if arg.startswith("--") else arg
+        if key == "--formulation":
+            if "=" not in arg:
+                next(it, None)
+            continue
+        if key == "--scene_features":
+            value = arg.partition("=")[2] if "=" in arg else next(it, "")
+            out += ["--scene_features", *scene_feature_names(value)]
+            continue
+        out.append(arg)
+    return out, name
+
+
+def _select(cfg: TrainConfig, name: str | None) -> TrainConfig:
+    """``cfg`` with the formulation ``FORMULATIONS[name]`` and its preset's formulation fields (the
+    ``--formulation`` selector), or as it is."""
+    if name is None:
+        return cfg
+    return cfg.replace(**resolve_formulation(
+        {k: v for k, v in PRESETS[cfg.preset].items() if k in FORMULATION_FIELDS}, {"formulation": name},
+        check=False))
 
 
 def check_resume(cfg: TrainConfig, workdir: str | Path) -> None:
@@ -178,12 +234,13 @@ def parse_train(argv: Sequence[str] | None = None, *, description: str | None = 
     """
     argv = sys.argv[1:] if argv is None else list(argv)
     preset = preset_of(argv)
+    argv, name = _train_argv(argv)
     probe = parse(TrainArgs, argv, description=description, prog=prog,
-                  default=TrainArgs(config=TrainConfig.from_preset(preset)))
+                  default=TrainArgs(config=_select(TrainConfig.from_preset(preset), name)))
     saved = probe.run_dir / "config.json"
     if not (probe.resume and saved.exists()):
         return probe
-    base = TrainConfig.load(saved)
+    base = _select(TrainConfig.load(saved), name)
     args = parse(TrainArgs, argv, description=description, prog=prog, default=TrainArgs(config=base))
     check_resume(args.config, args.run_dir)
     return args
@@ -194,8 +251,11 @@ def parse_config(argv: Sequence[str]) -> TrainConfig:
 
     Library form: raises ``ValueError`` for an unknown flag or a bad value (tyro prints the details).
     """
+    argv = list(argv)
+    preset = preset_of(argv)
+    rest, name = _train_argv(argv)
     try:
-        return parse(TrainConfig, argv, default=TrainConfig.from_preset(preset_of(argv)),
+        return parse(TrainConfig, rest, default=_select(TrainConfig.from_preset(preset), name),
                      prog="TrainConfig.from_flags")
     except SystemExit as err:
         if err.code in (0, None):

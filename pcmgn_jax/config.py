@@ -1,6 +1,13 @@
 """Training configuration: one frozen dataclass, three presets, paper-style ``--key=value`` flags.
 
 Every default lives here with a comment. Unknown keys (in flags or JSON) raise ``ValueError``.
+The formulation (what the model predicts, :class:`pcmgn_jax.mgn.formulation.Formulation`) is one nested
+field, ``cfg.formulation``; a preset names its base (``formulation="default"``, recorded in
+``formulation_name``) and may override its fields (``scene_features=(...)``); so may
+``from_preset(..., formulation="paper", panel_target="position")``. config.json nests it
+(``{"formulation": {...}, "formulation_name": "default", ...}``); :meth:`TrainConfig.from_json` also reads
+the older flat files (``formulation`` a name, ``target`` / ``ball_model`` / ``contact_projection`` on|off
+beside it).
 
     cfg = TrainConfig.from_flags(["--preset", "tiny", "--lambda_pen=0", "--latent_size=32"])
     cfg.save_json(workdir / "config.json")
@@ -22,9 +29,9 @@ class TrainConfig:
     preset: str = "cpu"              # which preset filled the defaults (tiny | cpu | paper | family | family_tiny)
     data_preset: str = "cpu"         # mesh/solver preset handed to dataset.ensure_dataset
     dataset_dir: str = ""            # dataset root; "" -> data/<data_preset>
-    n_train: int = 12                # training trajectories
-    n_val: int = 2                   # held out from the train split for the validation rollout
-    n_test: int = 6                  # test trajectories (evaluation)
+    n_train: int = 12                # training trajectories, validation excluded (the train split holds n_train + n_val); with --dataset_dir of a generated dataset: its manifest's unless given
+    n_val: int = 2                   # held out from the train split for the validation rollout (after the n_train)
+    n_test: int = 6                  # test trajectories (evaluation); with --dataset_dir of a generated dataset: its manifest's test count unless given
     data_seed: int = 0               # seed of the Latin-hypercube designs for dataset generation
     # ---- graph ------------------------------------------------------------------------------
     contact_radius: float = 0.0      # r_w [m]; 0 -> auto: 1.5 x median CG top-surface side length
@@ -33,18 +40,9 @@ class TrainConfig:
     latent_size: int = 64            # width of every MLP layer and of the latents
     mlp_layers: int = 2              # hidden layers per MLP
     message_passing_steps: int = 8   # processor blocks
-    # ---- formulation: what the model predicts (pcmgn_jax/mgn/formulation.py) ----------------------
-    formulation: str = "default"     # paper (as published) | default (each body as what it is) | dynamic (the previous default); "" fields below keep it
-    target: str = ""                 # every node's target: velocity | displacement | position | acceleration | total_displacement
-    ball_target: str = ""            # the ball's target (default formulation: acceleration)
-    panel_target: str = ""           # the layers' target (default formulation: velocity)
-    ball_model: str = ""             # rigid (one body, driven by its contact nodes; default) | nodes (paper)
-    normalization: str = ""          # per_part (default) | global (paper: one normaliser for all nodes)
-    features: str = ""               # strain (default: deformation channels of their own) | paper
-    loss_weighting: str = ""         # parts (default: every part counts alike) | nodes (paper)
-    panel_model: str = ""            # quasi_static (default: the layers' fields as a map of the ball's state) | dynamic (their own state integrated)
-    contact_projection: str = ""     # on (default formulation: rollouts move cover-glass nodes inside the rigid ball onto its surface) | off
-    scene_features: str = ""         # comma list of per-scene node inputs: ball_radius, ball_velocity, layer_thickness, or none (default formulation: layer_thickness; family presets: ball_radius,layer_thickness)
+    # ---- formulation: what the model predicts (pcmgn_jax/mgn/formulation.py; docs/design.md §5) -----
+    formulation: Formulation = FORMULATIONS["default"]  # the formulation's fields are flags of their own (--ball_target, --panel_target, --rigid_ball, --normalization, --features, --loss_weighting, --scene_features, --panel_model, --contact_projection); --formulation=paper|default|dynamic selects the base
+    formulation_name: str = "default"  # the FORMULATIONS entry the formulation started from (paper | default | dynamic); a record: `formulation` is the truth
     # ---- loss -------------------------------------------------------------------------------
     lambda_pen: float = 0.0          # weight of the penetration term (0 = vanilla MGN; paper: 10)
     lambda_start: float = 0.0        # fraction of training before the penetration term switches on (then a 10 % linear ramp; 0 = from step 0, the paper)
@@ -79,11 +77,10 @@ class TrainConfig:
             raise ValueError(f"config: {name}={getattr(self, name)!r} {why}")
         if self.preset not in PRESETS:
             bad("preset", f"must be one of {sorted(PRESETS)}")
-        if self.formulation not in FORMULATIONS:
-            bad("formulation", f"must be one of {sorted(FORMULATIONS)}")
-        if self.ball_model not in ("", "rigid", "nodes"):
-            bad("ball_model", "must be rigid or nodes (or empty: the formulation's)")
-        self.formulation_spec()  # raises ValueError naming a bad target / normalization / features
+        if self.formulation_name not in FORMULATIONS:
+            bad("formulation_name", f"must be one of {sorted(FORMULATIONS)}")
+        if not isinstance(self.formulation, Formulation):
+            bad("formulation", "must be a pcmgn_jax.mgn.formulation.Formulation")
         if self.noise_parts not in NOISE_PARTS:
             bad("noise_parts", f"must be one of {NOISE_PARTS}")
         for name in ("n_train", "latent_size", "mlp_layers", "batch_graphs", "steps_per_dispatch",
@@ -93,8 +90,6 @@ class TrainConfig:
         for name in ("n_val", "n_test", "message_passing_steps", "num_steps", "lr_decay_steps", "devices"):
             if getattr(self, name) < 0:
                 bad(name, "must be >= 0")
-        if self.contact_projection not in ("", "on", "off"):
-            bad("contact_projection", "must be on or off (or empty: the formulation's)")
         if not 0 <= self.ema_decay < 1:
             bad("ema_decay", "must be in [0, 1) (0 = no parameter average)")
         if not 0 <= self.lambda_start < 1:
@@ -111,10 +106,7 @@ class TrainConfig:
     def from_preset(cls, preset: str = "cpu", **overrides: Any) -> "TrainConfig":
         if preset not in PRESETS:
             raise ValueError(f"config: unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
-        unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(cls)})
-        if unknown:
-            raise ValueError(f"config: unknown key(s) {unknown}")
-        return cls(**{**PRESETS[preset], "preset": preset, **overrides})
+        return cls(**resolve_formulation({**PRESETS[preset], "preset": preset}, overrides))
 
     @classmethod
     def from_flags(cls, argv: Sequence[str]) -> "TrainConfig":
@@ -125,10 +117,18 @@ class TrainConfig:
 
     @classmethod
     def from_json(cls, data: dict) -> "TrainConfig":
-        unknown = sorted(set(data) - {f.name for f in dataclasses.fields(cls)})
-        if unknown:
-            raise ValueError(f"config: unknown key(s) {unknown}")
-        return cls(**data)
+        """A config from its ``to_dict()`` form (``formulation`` nested), or from an older flat config.json
+        (``formulation`` a name, its fields beside it under their old names: converted)."""
+        data = dict(data)
+        if isinstance(data.get("formulation"), dict):
+            form = dict(data.pop("formulation"))
+            if "scene_features" in form:
+                form["scene_features"] = tuple(form["scene_features"])
+            _check_keys(form, Formulation, "config formulation")
+            data["formulation"] = Formulation(**form)
+            _check_keys(data, cls, "config")
+            return cls(**data)
+        return cls(**resolve_formulation({}, _from_flat(data)))
 
     @classmethod
     def load(cls, path: str | Path) -> "TrainConfig":
@@ -144,25 +144,76 @@ class TrainConfig:
     def replace(self, **kw) -> "TrainConfig":
         return dataclasses.replace(self, **kw)
 
-    def formulation_spec(self) -> Formulation:
-        """The :class:`Formulation` named by ``formulation`` with the non-empty override fields applied."""
-        kw = {k: getattr(self, k) for k in ("ball_target", "panel_target", "normalization", "features",
-                                            "loss_weighting", "panel_model") if getattr(self, k)}
-        if self.target:
-            kw.setdefault("ball_target", self.target)
-            kw.setdefault("panel_target", self.target)
-        if self.ball_model:
-            kw["rigid_ball"] = self.ball_model == "rigid"
-        if self.contact_projection:
-            kw["contact_projection"] = self.contact_projection == "on"
-        if self.scene_features:
-            kw["scene_features"] = tuple(f.strip() for f in self.scene_features.split(",")
-                                         if f.strip() and f.strip() != "none")
-        return FORMULATIONS[self.formulation].replace(**kw)
-
     @property
     def resolved_dataset_dir(self) -> str:
         return self.dataset_dir or f"data/{self.data_preset}"
+
+
+FORMULATION_FIELDS = tuple(f.name for f in dataclasses.fields(Formulation))
+
+
+def _check_keys(data: dict, cls, where: str) -> None:
+    unknown = sorted(set(data) - {f.name for f in dataclasses.fields(cls)})
+    if unknown:
+        raise ValueError(f"{where}: unknown key(s) {unknown}")
+
+
+def resolve_formulation(base: dict, overrides: dict, *, check: bool = True) -> dict:
+    """TrainConfig keyword arguments from ``base`` (a preset) and ``overrides``, where either may name the
+    formulation (``formulation="paper"``: sets ``formulation_name`` and the base :class:`Formulation`) and
+    give :class:`Formulation` fields by name (``panel_target="velocity"``, applied on top, the preset's first).
+    A :class:`Formulation` object as ``overrides["formulation"]`` is taken as it is (then only the overrides'
+    fields apply). Raises ``ValueError`` naming unknown keys (``check=False``: a partial set of keys)."""
+    kw = {**base, **overrides}
+    fields = {k: kw.pop(k) for k in FORMULATION_FIELDS if k in kw}
+    form = kw.pop("formulation", None)
+    if isinstance(form, Formulation):
+        fields = {k: v for k, v in fields.items() if k in overrides}
+    else:
+        name = form or kw.get("formulation_name", "default")
+        if name not in FORMULATIONS:
+            raise ValueError(f"config: formulation={name!r} must be one of {sorted(FORMULATIONS)}")
+        form, kw["formulation_name"] = FORMULATIONS[name], name
+    if "scene_features" in fields:
+        fields["scene_features"] = scene_feature_names(fields["scene_features"])
+    if check:
+        _check_keys(kw, TrainConfig, "config")
+    return {**kw, "formulation": form.replace(**fields)}
+
+
+def scene_feature_names(value) -> tuple[str, ...]:
+    """Scene feature names as a tuple, from a tuple/list or a comma list (``"ball_radius,layer_thickness"``;
+    ``"none"`` or ``""``: no features)."""
+    items = value.split(",") if isinstance(value, str) else value
+    return tuple(f.strip() for f in items if f.strip() and f.strip() != "none")
+
+
+def _from_flat(data: dict) -> dict:
+    """An older flat config.json's keys (``formulation`` a name; ``target``, ``ball_model``, ``"on"/"off"``
+    ``contact_projection``, comma-list ``scene_features``, ``""`` = the formulation's) as overrides for
+    :func:`resolve_formulation`."""
+    data = dict(data)
+    kw = {k: data.pop(k) for k in ("ball_target", "panel_target", "normalization", "features",
+                                   "loss_weighting", "panel_model") if k in data}
+    kw = {k: v for k, v in kw.items() if v}  # "" = the formulation's
+    target = data.pop("target", "")
+    if target:
+        kw.setdefault("ball_target", target)
+        kw.setdefault("panel_target", target)
+    ball_model = data.pop("ball_model", "")
+    if ball_model:
+        if ball_model not in ("rigid", "nodes"):
+            raise ValueError(f"config: ball_model={ball_model!r} must be rigid or nodes")
+        kw["rigid_ball"] = ball_model == "rigid"
+    projection = data.pop("contact_projection", "")
+    if projection:
+        if projection not in ("on", "off"):
+            raise ValueError(f"config: contact_projection={projection!r} must be on or off")
+        kw["contact_projection"] = projection == "on"
+    scene = data.pop("scene_features", "")
+    if scene:
+        kw["scene_features"] = scene_feature_names(scene)
+    return {**data, "formulation": data.get("formulation") or "default", **kw}
 
 
 def check_batch_split(batch_graphs: int, devices: int) -> None:
@@ -202,10 +253,10 @@ PRESETS: dict[str, dict[str, Any]] = {
                    message_passing_steps=8, epochs=1, num_steps=4000, steps_per_dispatch=25, batch_graphs=2,
                    log_every=100, ckpt_every=1000, val_every=500, formulation="default",
                    lambda_pen=0.0, lambda_start=0.5, noise_std=0.0, noise_rel=0.0, noise_parts="none",
-                   scene_features="ball_radius,layer_thickness", ema_decay=0.998),
+                   scene_features=("ball_radius", "layer_thickness"), ema_decay=0.998),
     # tests and smoke checks of the family path: a handful of tiny scenes, a small model, seconds
     "family_tiny": dict(data_preset="family_tiny", n_train=4, n_val=1, n_test=2, latent_size=32,
                         message_passing_steps=3, epochs=1, num_steps=60, steps_per_dispatch=20, batch_graphs=2,
                         log_every=20, ckpt_every=60, val_every=60, formulation="default", lambda_pen=10.0,
-                        noise_rel=1.0, noise_parts="panel", scene_features="ball_radius,layer_thickness"),
+                        noise_rel=1.0, noise_parts="panel", scene_features=("ball_radius", "layer_thickness")),
 }

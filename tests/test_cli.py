@@ -3,6 +3,7 @@ import pytest
 
 from pcmgn_jax import cli
 from pcmgn_jax.config import PRESETS, TrainConfig
+from pcmgn_jax.mgn.formulation import FORMULATIONS
 
 
 def test_paper_style_flags():
@@ -26,12 +27,13 @@ def test_space_separated_hyphens_and_booleans():
 
 def test_contact_projection_and_ema_flags():
     cfg = cli.parse_config(["--contact_projection=off", "--ema_decay=0.99"])
-    assert cfg.ema_decay == 0.99 and cfg.formulation_spec().contact_projection is False
-    assert TrainConfig.from_preset("cpu").formulation_spec().contact_projection is True  # the default formulation's
-    assert TrainConfig.from_preset("cpu", formulation="paper").formulation_spec().contact_projection is False
-    assert TrainConfig.from_preset("cpu", formulation="paper", contact_projection="on").formulation_spec().contact_projection
-    with pytest.raises(ValueError, match="contact_projection='yes' must be on or off"):
-        TrainConfig.from_preset("cpu", contact_projection="yes")
+    assert cfg.ema_decay == 0.99 and cfg.formulation.contact_projection is False
+    assert cli.parse_config(["--no_contact_projection"]).formulation.contact_projection is False
+    assert TrainConfig.from_preset("cpu").formulation.contact_projection is True  # the default formulation's
+    assert TrainConfig.from_preset("cpu", formulation="paper").formulation.contact_projection is False
+    assert TrainConfig.from_preset("cpu", formulation="paper", contact_projection=True).formulation.contact_projection
+    with pytest.raises(ValueError, match="cannot read 'yes!' as a boolean"):
+        cli.parse_config(["--contact_projection=yes!"])
     with pytest.raises(ValueError, match=r"ema_decay=1.0 must be in \[0, 1\)"):
         TrainConfig.from_preset("cpu", ema_decay=1.0)
 
@@ -108,8 +110,48 @@ def test_entry_point_flags(tmp_path, capsys):
     assert (args.n_train, args.n_test, args.out) == (14, 6, "data/cpu")
     args = cli.parse(generate.GenerateArgs, ["--designs", "40,40;40,160", "--split", "extrap", "--out", "d"])
     assert args.designs == "40,40;40,160" and args.split == "extrap" and args.n_train is None
-    assert generate.preset_sizes("cpu") == (PRESETS["cpu"]["n_train"] + PRESETS["cpu"]["n_val"],
+    assert generate.preset_sizes("cpu") == (PRESETS["cpu"]["n_train"], PRESETS["cpu"]["n_val"],
                                             PRESETS["cpu"]["n_test"])
     assert cli.parse(panel_report.PanelReportArgs, ["--preset", "cpu", "--frames", "130"]).frames == 130
     assert generate.main(["--out", str(tmp_path), "--bogus", "1"]) == 2
     assert "unknown flag(s): --bogus" in capsys.readouterr().err
+
+
+def test_formulation_selector_and_nested_flags():
+    cfg = cli.parse_config(["--preset", "tiny", "--panel_target=velocity", "--formulation=dynamic", "--no_rigid_ball",
+                            "--scene_features=ball_radius,layer_thickness"])
+    assert cfg.formulation_name == "dynamic"  # the selector applies first, wherever it stands
+    assert cfg.formulation == FORMULATIONS["dynamic"].replace(
+        rigid_ball=False, scene_features=("ball_radius", "layer_thickness"))
+    assert cli.parse_config(["--preset", "family", "--scene_features=none"]).formulation.scene_features == ()
+    assert cli.parse_config(["--preset", "family"]).formulation.scene_features == ("ball_radius", "layer_thickness")
+    with pytest.raises(ValueError, match="unknown flag.*--target"):
+        cli.parse_config(["--target=velocity"])
+    with pytest.raises(ValueError, match="formulation='nope'"):
+        cli.parse_config(["--formulation=nope"])
+
+
+def test_config_json_nests_the_formulation_and_reads_old_flat_files(tmp_path):
+    cfg = TrainConfig.from_preset("family_tiny", formulation="paper", panel_target="position")
+    d = cfg.to_dict()
+    assert d["formulation"]["panel_target"] == "position" and d["formulation_name"] == "paper"
+    cfg.save_json(tmp_path / "config.json")
+    assert TrainConfig.load(tmp_path / "config.json") == cfg
+    flat = {k: v for k, v in d.items() if k not in ("formulation", "formulation_name")}
+    flat.update(formulation="paper", target="velocity", panel_target="position", ball_target="", ball_model="rigid",
+                normalization="", features="", loss_weighting="", panel_model="", contact_projection="on",
+                scene_features="ball_radius")
+    old = TrainConfig.from_json(flat)
+    assert old.formulation_name == "paper" and old.formulation == FORMULATIONS["paper"].replace(
+        panel_target="position", rigid_ball=True, contact_projection=True, scene_features=("ball_radius",))
+    with pytest.raises(ValueError, match=r"unknown key\(s\) \['bogus'\]"):
+        TrainConfig.from_json({**d, "bogus": 1})
+
+
+def test_resume_names_nested_fields(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    TrainConfig.from_preset("tiny").save_json(run / "config.json")
+    with pytest.raises(ValueError, match=r"formulation\.panel_target: saved 'total_displacement', given 'velocity'"):
+        cli.parse_train(["--preset", "tiny", "--workdir", str(run), "--resume", "--panel_target=velocity",
+                         "--panel_model=dynamic"])

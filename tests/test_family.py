@@ -57,7 +57,7 @@ def test_padding_and_other_graphs_change_no_loss_or_gradient(mixed):
 
     alone = one_union(setup, trajs, [pair_a], graph_ids=[7])
     together = one_union(setup, trajs, [pair_b, pair_a], graph_ids=[5, 7])  # a is graph 1, other offsets
-    assert together["graph"].points.shape[0] > alone["graph"].points.shape[0]  # more padding too
+    assert together.graph.points.shape[0] > alone.graph.points.shape[0]  # more padding too
     (la, ga), (lt, gt) = graph_loss(alone, 0), graph_loss(together, 1)
     assert float(la) > 0 and abs(float(la) - float(lt)) <= 1e-5 * float(la)
     flat = lambda t: np.concatenate([np.ravel(np.asarray(x)) for x in jax.tree.leaves(t)])  # noqa: E731
@@ -123,3 +123,20 @@ def test_family_tiny_train_and_evaluate_end_to_end(family_tiny, tmp_path):
         assert np.isfinite(b[kind]["position_mae_um"]), b[kind]
     for kind in ("poly2", "rbf"):
         assert "shared topology" in b[kind]["not_applicable"]
+
+
+@pytest.mark.slow  # ~90 s: the solver for 5 tiny scenes, then 20 training steps
+def test_train_on_a_generated_dataset_at_its_manifest_sizes(tmp_path):
+    """generate --n_train 3 --n_test 1 (3 + the preset's 1 validation design), then train with no size flags."""
+    from experiments import generate, train
+    data, run = tmp_path / "data", tmp_path / "run"
+    assert generate.main(["--preset", "family_tiny", "--n_train", "3", "--n_test", "1", "--out", str(data),
+                          "--no_progress"]) == 0
+    man = json.loads((data / "manifest.json").read_text())
+    assert len(man["splits"]["train"]["trajectories"]) == 4 and len(man["splits"]["test"]["trajectories"]) == 1
+    assert train.main(["--preset", "family_tiny", f"--dataset_dir={data}", f"--workdir={run}", "--num_steps=20",
+                       "--val_every=20", "--no_progress"]) == 0
+    cfg = json.loads((run / "config.json").read_text())
+    assert (cfg["n_train"], cfg["n_val"], cfg["n_test"]) == (3, 1, 1)
+    rec = json.loads((run / "data.json").read_text())
+    assert len(rec["train"]) == 3 and len(rec["val"]) == 1

@@ -115,7 +115,7 @@ def test_loss_and_gradient_finite_on_extrapolated_frames(solver_trajs, hard_run)
     """Every (frame, next frame) pair of every extrapolated design, noise on, lambda_pen = 10."""
     _, extra = solver_trajs
     cfg, _, summary = hard_run
-    setup, params = summary["setup"], summary["state"]["params"]
+    setup, params = summary["setup"], summary["state"].params
     spec = setup.spec
     assert spec.cfg.lambda_pen == 10.0 and spec.cfg.noise_std == 3e-7 and setup.graphs[0].sigma.any()
     table = pair_table(extra)
@@ -149,10 +149,10 @@ def test_loss_and_gradient_finite_on_extrapolated_frames(solver_trajs, hard_run)
     check(batch, "solver frames")
     # The trained model's predictions may not penetrate at all (then only the zero branch of L_pen is
     # exercised): push the ball 5 µm into the glass on the contact frames so the penetration term is active.
-    ball = np.zeros(batch["u"].shape[1], bool)  # the union's nodes: the trajectory's, then padding
+    ball = np.zeros(batch.u.shape[1], bool)  # the union's nodes: the trajectory's, then padding
     ball[:extra[0].n_nodes] = extra[0].node_part == 0
-    pushed = dict(batch, u=batch["u"].copy())
-    pushed["u"][np.ix_(contact, ball, [1])] -= 5e-6
+    pushed = batch._replace(u=batch.u.copy())
+    pushed.u[np.ix_(contact, ball, [1])] -= 5e-6
     pen = check(pushed, "ball pushed 5 µm into the glass")
     assert np.any(pen[contact] > 0)
 

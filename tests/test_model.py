@@ -69,5 +69,5 @@ def test_config_flags():
     with pytest.raises(ValueError, match="unknown flag"):
         TrainConfig.from_flags(["--lamda_pen=10"])
     with pytest.raises(ValueError):
-        TrainConfig.from_flags(["--target=jerk"])
+        TrainConfig.from_flags(["--ball_target=jerk"])
     assert TrainConfig.from_json(cfg.to_dict()) == cfg

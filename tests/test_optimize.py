@@ -253,8 +253,8 @@ def test_optimize_cli_end_to_end_on_the_tiny_preset(tmp_path):
     """Generate a tiny dataset, fit poly2, GA + gradient, solver re-check, JSON and PNG."""
     from experiments import generate, optimize
     data = tmp_path / "data"
-    assert generate.main(["--out", str(data), "--preset", "tiny", "--n_train", "8", "--n_test", "1",
-                          "--no_progress"]) == 0
+    assert generate.main(["--out", str(data), "--preset", "tiny", "--n_train", "7", "--n_val", "1",
+                          "--n_test", "1", "--no_progress"]) == 0
     run = tmp_path / "run"
     run.mkdir()
     from pcmgn_jax.config import TrainConfig

@@ -11,7 +11,7 @@ def _args(t):
 
 def test_long_rollout_finite_and_bcs(tiny_run, tiny_trajs):
     _, _, summary = tiny_run
-    s, params = summary["setup"], summary["state"]["params"]
+    s, params = summary["setup"], summary["state"].params
     t = tiny_trajs[3]
     n = 5 * (t.n_frames - 1)
     res, _ = rl.rollout_checked(s.spec.sim, n, params, s.stats, s.graphs[0].topology, s.graphs[0].index, *_args(t))
@@ -25,7 +25,7 @@ def test_long_rollout_finite_and_bcs(tiny_run, tiny_trajs):
 
 def test_scan_equals_python_loop_and_vmap(tiny_run, tiny_trajs):
     _, _, summary = tiny_run
-    s, params = summary["setup"], summary["state"]["params"]
+    s, params = summary["setup"], summary["state"].params
     t = tiny_trajs[3]
     pts, u, v, vm = _args(t)
     res = rl.rollout(s.spec.sim, 6, params, s.stats, s.graphs[0].topology, s.graphs[0].index, pts, u, v, vm)
@@ -42,7 +42,7 @@ def test_scan_equals_python_loop_and_vmap(tiny_run, tiny_trajs):
 
 def test_rollout_no_recompilation(tiny_run, tiny_trajs):
     _, _, summary = tiny_run
-    s, params = summary["setup"], summary["state"]["params"]
+    s, params = summary["setup"], summary["state"].params
     rl.rollout(s.spec.sim, 4, params, s.stats, s.graphs[0].topology, s.graphs[0].index, *_args(tiny_trajs[0]))
     with CompileCounter("_rollout") as c:
         for t in tiny_trajs:
@@ -132,7 +132,7 @@ def test_quasi_static_panel_is_evaluated_at_the_balls_new_state(tiny_run, tiny_t
     """The default (quasi-static) panel: frame t+1's panel fields are the network's output at the ball's
     state of frame t+1 (not one frame behind it), and that output does not depend on the panel's state."""
     _, _, summary = tiny_run
-    s, params = summary["setup"], summary["state"]["params"]
+    s, params = summary["setup"], summary["state"].params
     sim, topo, idx = s.spec.sim, s.graphs[0].topology, s.graphs[0].index
     assert sim.formulation.panel_model == "quasi_static"
     t = tiny_trajs[3]

@@ -56,17 +56,17 @@ with CompileCounter("train_chunk") as compiles:
         s = runs[devices]["setup"]
         state, m = train_chunk(s.spec, put(runs[1]["state"]), put(s.stats), batch, k)
         chunk[devices] = (state, jax.device_get(m))
-sharded = dp.put_batch(hosts[8], 8)["u"]
+sharded = dp.put_batch(hosts[8], 8).u
 # gradients of one batch from the same parameters: what the all-reduce must reproduce
 spec = runs[1]["setup"].spec
 grad = jax.jit(jax.grad(lambda p, *args: batch_loss(p, spec, *args)[0]))
 grads = {}
 for devices, batch, k, put in placements:
     s = runs[devices]["setup"]
-    grads[devices] = grad(put(runs[1]["state"]["params"]), put(s.stats), jax.tree.map(lambda v: v[0], batch), k)
+    grads[devices] = grad(put(runs[1]["state"].params), put(s.stats), jax.tree.map(lambda v: v[0], batch), k)
 flat = lambda t: np.concatenate([np.ravel(np.asarray(x)) for x in jax.tree.leaves(t)])  # noqa: E731
 diff = lambda a, b: np.abs(flat(a) - flat(b))  # noqa: E731
-p1, p8 = runs[1]["state"]["params"], runs[8]["state"]["params"]
+p1, p8 = runs[1]["state"].params, runs[8]["state"].params
 try:
     data_parallel(0, 12)
     split_error = ""
@@ -79,11 +79,11 @@ print(json.dumps(dict(
     # parameters: after the 20 steps of train() (99th percentile and largest difference), and after the
     # 10 steps of the chunk from one state (share of entries beyond float rounding, largest difference)
     param_p99_train=float(np.quantile(diff(p1, p8), 0.99)), param_max_train=float(diff(p1, p8).max()),
-    param_off_chunk=float(np.mean(diff(chunk[1][0]["params"], chunk[8][0]["params"]) > 1e-6)),
-    param_max_chunk=float(diff(chunk[1][0]["params"], chunk[8][0]["params"]).max()), lr=cfg.learning_rate,
+    param_off_chunk=float(np.mean(diff(chunk[1][0].params, chunk[8][0].params) > 1e-6)),
+    param_max_chunk=float(diff(chunk[1][0].params, chunk[8][0].params).max()), lr=cfg.learning_rate,
     batch_devices=len(sharded.sharding.device_set),
     shard_shapes=sorted({tuple(sh.data.shape) for sh in sharded.addressable_shards}),
-    params_devices=len(jax.tree.leaves(chunk[8][0]["params"])[0].sharding.device_set),
+    params_devices=len(jax.tree.leaves(chunk[8][0].params)[0].sharding.device_set),
     params_replicated=all(x.sharding.is_fully_replicated for x in jax.tree.leaves(chunk[8][0])),
     recompiles=compiles.count, split_error=split_error)))
 '''

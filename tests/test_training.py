@@ -50,7 +50,7 @@ def test_checkpoint_restore_identical_predictions(tiny_run, tiny_trajs):
     args = (t.points, t.displacement[0], t.velocity[0], t.von_mises[0])
     a = rl.rollout(sim.spec, 5, sim.params, sim.stats, sim.topology, sim.index, *args)
     s0 = summary["setup"]
-    b = rl.rollout(s0.spec.sim, 5, summary["state"]["params"], s0.stats, s0.graphs[0].topology, s0.graphs[0].index, *args)
+    b = rl.rollout(s0.spec.sim, 5, summary["state"].params, s0.stats, s0.graphs[0].topology, s0.graphs[0].index, *args)
     np.testing.assert_array_equal(np.asarray(a.displacement), np.asarray(b.displacement))
     np.testing.assert_array_equal(np.asarray(a.von_mises), np.asarray(b.von_mises))
 
@@ -60,7 +60,7 @@ def test_resume_reaches_same_parameters(tiny_run, tiny_trajs, tmp_path):
     training.train(cfg, tmp_path, train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:], stop_after=80)
     res = training.train(cfg, tmp_path, train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:], resume=True)
     assert res["step"] == summary["step"] == cfg.num_steps
-    for a, b in zip(jax.tree.leaves(res["state"]["params"]), jax.tree.leaves(summary["state"]["params"])):
+    for a, b in zip(jax.tree.leaves(res["state"].params), jax.tree.leaves(summary["state"].params)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
@@ -108,21 +108,37 @@ def test_ema_parameters_are_the_average_and_what_the_best_checkpoint_keeps(tiny_
     state = init_state(setup.spec, training.init_params(setup, tiny_trajs[0], cfg.seed))
     table = pair_table(tiny_trajs[:3])
     form = setup.spec.sim.formulation
-    ema = jax.tree.map(np.asarray, state["params"])
+    ema = jax.tree.map(np.asarray, state.params)
     for step in range(3):
         ids = sample_ids(cfg.seed, step, 1, 1, setup.n_pairs)
         batch = gather_unions(form, tiny_trajs[:3], setup.graphs, table, ids, dt=setup.spec.sim.dt, sizes=setup.sizes)
         state, _ = train_chunk(setup.spec, state, setup.stats, batch, jax.random.PRNGKey(cfg.seed + 1))
-        ema = jax.tree.map(lambda e, p: d * e + (1 - d) * np.asarray(p), ema, state["params"])
-    for a, b in zip(jax.tree.leaves(eval_params(state)), jax.tree.leaves(ema)):
+        ema = jax.tree.map(lambda e, p: d * e + (1 - d) * np.asarray(p), ema, state.params)
+    for a, b in zip(jax.tree.leaves(eval_params(cfg, state)), jax.tree.leaves(ema)):
         np.testing.assert_allclose(np.asarray(a), b, rtol=1e-5, atol=1e-7)
     assert not all(np.array_equal(np.asarray(a), np.asarray(b))
-                   for a, b in zip(jax.tree.leaves(state["ema_params"]), jax.tree.leaves(state["params"])))
+                   for a, b in zip(jax.tree.leaves(state.ema_params), jax.tree.leaves(state.params)))
     res = training.train(cfg, tmp_path, train_trajs=tiny_trajs[:3])  # no validation: best = the final state
     last = res["state"]
     best = checkpoint.load(tmp_path, tiny_trajs[0], which="best")
-    for a, b in zip(jax.tree.leaves(best.params), jax.tree.leaves(last["ema_params"])):
+    for a, b in zip(jax.tree.leaves(best.params), jax.tree.leaves(last.ema_params)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    restored, _, _ = checkpoint.restore(tmp_path / "checkpoints" / "periodic", init_state(setup.spec, last["params"]))
-    for a, b in zip(jax.tree.leaves(restored["ema_params"]), jax.tree.leaves(last["ema_params"])):
+    restored, _, _ = checkpoint.restore(tmp_path / "checkpoints" / "periodic", init_state(setup.spec, last.params).to_dict())
+    for a, b in zip(jax.tree.leaves(restored["ema_params"]), jax.tree.leaves(last.ema_params)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_lambda_pen_keeps_a_best_checkpoint_trained_with_the_term(tiny_trajs, tmp_path):
+    """--lambda_pen=10 with the term from half-way: validations before it do not compete for best."""
+    cfg = tiny_config(num_steps=80, lambda_pen=10.0, lambda_start=0.5, val_every=20, poly_ball=2, poly_panel=3)
+    res = training.train(cfg, tmp_path / "a", train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:])
+    step, meta = checkpoint.read_meta(tmp_path / "a" / "checkpoints" / "best")
+    assert step >= cfg.lambda_start * 80 and meta["best_step"] == step and meta["best_predates_penalty"] is False
+    vals = [json.loads(r) for r in (tmp_path / "a" / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in vals if "val_position_mae_um" in r] == [20, 40, 60, 80]  # all validated, 2 compete
+    assert res["best_predates_penalty"] is False
+    # a term that never switches on (its start past the end): the final state is kept and says so
+    late = cfg.replace(num_steps=40, lr_decay_steps=1000)
+    res = training.train(late, tmp_path / "b", train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:])
+    step, meta = checkpoint.read_meta(tmp_path / "b" / "checkpoints" / "best")
+    assert step == 40 and meta["best_predates_penalty"] is True and res["best_predates_penalty"] is True

@@ -175,7 +175,8 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
     cfg = None
     if contact_projection:
         from pcmgn_jax.config import TrainConfig
-        cfg = TrainConfig.load(workdir / "config.json").replace(contact_projection=contact_projection)
+        cfg = TrainConfig.load(workdir / "config.json")
+        cfg = cfg.replace(formulation=cfg.formulation.replace(contact_projection=contact_projection == "on"))
     mgn = MGNSurrogate(workdir, ref, which=which, batch=batch, cfg=cfg)
     pu, ps = mgn.rollout_trajectories(test_trajs)
     _, panel_part = contact_parts(scene)

@@ -328,3 +328,8 @@ class MGNSurrogate:
         part = self.ref.node_part if node_part is None else node_part
         v0[:, np.asarray(part) == 0, 1] = -Scene.from_dict(self.ref.meta["scene"]).ball.velocity
         return np.zeros_like(pts), v0, np.zeros(pts.shape[:2])
+
+
+def poly2_features(z) -> np.ndarray:
+    """(B, (D + 1)(D + 2) / 2) the poly2 baseline's features of scaled inputs z (B, D): 1, z_i, z_i z_j (i <= j)."""
+    return FieldRegression._poly(np.atleast_2d(np.asarray(z, np.float64)))

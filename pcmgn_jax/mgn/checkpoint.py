@@ -43,7 +43,7 @@ class Loaded(NamedTuple):
 
 def make_spec(cfg: TrainConfig, dt: float) -> Spec:
     """The static simulator settings (model sizes, formulation, frame interval [s]) of a config."""
-    form = cfg.formulation_spec()
+    form = cfg.formulation
     model = EncodeProcessDecode(output_size=form.output_size, latent_size=cfg.latent_size,
                                 mlp_layers=cfg.mlp_layers, message_passing_steps=cfg.message_passing_steps)
     return Spec(model=model, formulation=form, dt=float(dt))

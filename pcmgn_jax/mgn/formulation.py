@@ -139,15 +139,15 @@ BALL_PART = 0  # scene convention: part 0 is the ball, 1.. the layers from the t
 class Formulation:
     """Static description of what the MGN predicts (a jit cache key; see the module docstring)."""
 
-    ball_target: str = "acceleration"
-    panel_target: str = "velocity"
-    rigid_ball: bool = True
-    normalization: str = "per_part"
-    features: str = "strain"
-    loss_weighting: str = "parts"
-    scene_features: tuple = ()
-    panel_model: str = "dynamic"
-    contact_projection: bool = False
+    ball_target: str = "acceleration"   # the ball's target: velocity | displacement | position | acceleration | total_displacement
+    panel_target: str = "velocity"      # the layers' target (same choices)
+    rigid_ball: bool = True             # the ball as one rigid body driven by its contact nodes (False: every node free, the paper)
+    normalization: str = "per_part"     # per_part (one normaliser per node type) | global (the paper)
+    features: str = "strain"            # strain (deformation channels of their own) | paper
+    loss_weighting: str = "parts"       # parts (every part counts alike) | nodes (the paper: mean over nodes)
+    scene_features: tuple[str, ...] = ()  # per-scene node inputs: ball_radius, ball_velocity, layer_thickness (flag: comma list or none)
+    panel_model: str = "dynamic"        # dynamic (the layers' state integrated) | quasi_static (their fields a map of the ball's state)
+    contact_projection: bool = False    # rollouts move cover-glass nodes inside the rigid ball onto its surface
 
     def __post_init__(self):
         bad = [f for f in self.scene_features if f not in SCENE_FEATURES]

@@ -7,7 +7,10 @@
   up to whole chunks). A contact-buffer overflow grows the buffer and re-runs the chunk.
 - Validation: full rollouts of the validation trajectories, position MAE by
   :func:`pcmgn_jax.eval.metrics.position_mae_um`; the best one is kept in ``checkpoints/best``. With
-  ``ema_decay`` > 0 the moving average of the parameters is what is validated and kept as best.
+  ``ema_decay`` > 0 the moving average of the parameters is what is validated and kept as best. With
+  ``lambda_pen`` > 0 only validations after the penetration term has switched on (:func:`penalty_on`)
+  compete for best; if none did, the final state is kept as best and its meta says
+  ``best_predates_penalty`` (the summary and a printed line too).
 - ``--resume`` continues from the latest periodic checkpoint with its statistics and buffer size; the
   data order is a pure function of (seed, step), so the result equals an uninterrupted run.
 - Batches: each step is one padded disjoint union of ``batch_graphs`` graphs per device
@@ -39,7 +42,7 @@ from pcmgn_jax.mgn.rollout import input_graph, rollout_designs
 from pcmgn_jax.train.sampling import gather_unions, pair_table, sample_ids
 from pcmgn_jax.train.setup import Setup, graph_for, prepare
 from pcmgn_jax.train.sharding import DataParallel, data_parallel
-from pcmgn_jax.train.step import eval_params, init_state, learning_rate, penalty_weight, train_chunk
+from pcmgn_jax.train.step import TrainState, eval_params, init_state, learning_rate, penalty_weight, train_chunk
 
 
 class TrainingDiverged(RuntimeError):
@@ -89,11 +92,17 @@ def _grown(setup: Setup, needed: int) -> Setup:
                           graphs=[g._replace(index=g.index.replace(capacity=cap)) for g in setup.graphs])
 
 
-def _best(state: dict) -> dict:
-    """What the best checkpoint keeps: the state with ``params`` the evaluated ones (:func:`eval_params`),
-    so every reader of a checkpoint's ``params`` gets the model that was validated (and no second copy
-    of the average: only the periodic checkpoint, which ``--resume`` reads, needs both)."""
-    return {**{k: v for k, v in state.items() if k != "ema_params"}, "params": eval_params(state)}
+def _best(cfg: TrainConfig, state: TrainState) -> dict:
+    """What the best checkpoint keeps (checkpoint layout): the state with ``params`` the evaluated ones
+    (:func:`eval_params`), so every reader of a checkpoint's ``params`` gets the model that was validated
+    (and no second copy of the average: only the periodic checkpoint, which ``--resume`` reads, needs both)."""
+    return state._replace(params=eval_params(cfg, state), ema_params=None).to_dict()
+
+
+def penalty_on(setup: Setup, step: int) -> bool:
+    """Whether the model at optimiser step ``step`` has trained with the penetration term (λ > 0 in at
+    least its last step; always True with ``lambda_pen`` = 0: there is no term to wait for)."""
+    return setup.spec.cfg.lambda_pen <= 0 or (step > 0 and float(penalty_weight(setup.spec, step - 1)) > 0)
 
 
 def _meta(cfg: TrainConfig, setup: Setup, **extra) -> dict:
@@ -118,7 +127,8 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
         setup = prepare(cfg, train_trajs, capacity=meta["contact_capacity"], radius=meta["contact_radius"],
                         stats=checkpoint.restore_stats(periodic_dir))
         template = init_state(setup.spec, init_params(setup, train_trajs[0], cfg.seed))
-        state, _, meta = checkpoint.restore(periodic_dir, template)
+        saved, _, meta = checkpoint.restore(periodic_dir, template.to_dict())
+        state = TrainState.from_dict(saved)
         best_val = meta.get("best_val") or float("inf")
         mode = "a"
     else:
@@ -143,7 +153,7 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
     rows = None  # the shards this process gathers: all, except on several hosts
     if dp is not None:
         seed_key, rows = dp.replicate(seed_key), dp.local_rows(K, shards)
-    step = int(state["step"])
+    step = int(state.step)
     total = setup.total_steps
     end = total if stop_after is None else min(total, step + stop_after)
     last_good = periodic.latest_step()
@@ -192,23 +202,32 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
                     rec["loss_pen"], rec["lambda"] = float(np.mean(m["loss_pen"])), lam
                     rec["pen_ratio"] = float(lam * rec["loss_pen"] / max(rec["loss_data"], 1e-30))
             if val_trajs and (step % val_every == 0 or step >= total):
-                val, finite = validation_mae_um(setup, eval_params(state), val_trajs)
+                val, finite = validation_mae_um(setup, eval_params(cfg, state), val_trajs)
                 rec = rec or dict(step=step)
                 rec["val_position_mae_um"] = val
-                if finite and val < best_val:
+                if finite and val < best_val and penalty_on(setup, step):
                     best_val = val
-                    checkpoint.save(best_mgr, _best(state), setup.stats, _meta(cfg, setup, best_val=best_val))
+                    checkpoint.save(best_mgr, _best(cfg, state), setup.stats,
+                                    _meta(cfg, setup, best_val=best_val, best_step=step, best_predates_penalty=False))
             if rec is not None:
                 log.write(json.dumps(rec) + "\n")
                 log.flush()
             if step % ckpt_every == 0 or step >= end:
-                checkpoint.save(periodic, state, setup.stats,
+                checkpoint.save(periodic, state.to_dict(), setup.stats,
                                 _meta(cfg, setup, best_val=best_val if np.isfinite(best_val) else None))
                 last_good = step
     if bar is not None:
         bar.close()
-    if not val_trajs and step >= total:
-        checkpoint.save(best_mgr, _best(state), setup.stats, _meta(cfg, setup, best_val=None))
+    predates = False
+    if step >= total and (not val_trajs or (cfg.lambda_pen > 0 and not np.isfinite(best_val))):
+        # no validation, or none with the penetration term on: the final state is the kept model
+        predates = not penalty_on(setup, step)
+        checkpoint.save(best_mgr, _best(cfg, state), setup.stats,
+                        _meta(cfg, setup, best_val=None, best_step=step, best_predates_penalty=predates))
+        if val_trajs and primary:
+            print(f"lambda_pen={cfg.lambda_pen:g}: no finite validation with the penetration term on; the final "
+                  f"state (step {step}) is kept as best" + (" and predates the term (it never switched on)"
+                                                          if predates else ""))
     return dict(step=step, best_val_position_mae_um=best_val, state=state, setup=setup,
-                seconds=time.perf_counter() - t_start)
+                seconds=time.perf_counter() - t_start, best_predates_penalty=predates)
 

@@ -1,6 +1,6 @@
 """Ball / cover-glass penetration loss: stable polynomial fits and the paper's loss term.
 
-Paper section 2.3 (DESIGN.md §6), made numerically safe:
+Paper section 2.3 (docs/design.md §6), made numerically safe:
 
 1. (in :mod:`pcmgn_jax.geometry`) ``boundary_nodes`` (host, NumPy, once per reference mesh): ball bottom nodes and cover-glass (CG) top
    nodes, sorted by reference x, plus a fixed fit interval ``[x_lo, x_hi]``.

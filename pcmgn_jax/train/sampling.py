@@ -9,6 +9,8 @@ an uninterrupted run would have seen.
 """
 from __future__ import annotations
 
+from typing import Any, NamedTuple
+
 import jax
 import numpy as np
 
@@ -72,6 +74,31 @@ def gather(form: Formulation, trajs, table, ids: np.ndarray, *, dt: float,
     return out
 
 
+class TrainBatch(NamedTuple):
+    """One padded training union (:func:`union_batch`): N union nodes (padding rows zero), G graph slots
+    (the last a padding slot), Mb / Mp boundary-node budgets. :func:`gather_unions` stacks it (K, S, ...)."""
+
+    graph: Any            # GraphBatch: union topology (+ scene features), layout, contact index, points (N, 2) [m]
+    u: Any                # (N, 2) float32 input displacement [m]
+    v: Any                # (N, 2) float32 input velocity [m/s]
+    target: Any           # (N, 3) float32 physical target of each node [SI] (motion target, von Mises [Pa])
+    ball: Any             # (G, 2) float32 each graph's rigid-ball target [SI]
+    sigma: Any            # (N,) float32 input noise std [m] (0: not noised)
+    w_motion: Any         # (N,) float32 loss weight of the motion channels
+    w_stress: Any         # (N,) float32 loss weight of the von Mises channel
+    perturbed: Any        # (N,) float32 1 on the noised (or pushed-forward) nodes
+    w_ball: Any           # (G,) float32 loss weight of the rigid-ball target
+    graph_id: Any         # (G,) int32 each graph's noise id (its global batch column; padding: >= 2**30)
+    graph_mask: Any       # (G,) bool: a real graph (False on padding slots)
+    pen_ball: Any         # (G, Mb) int32 ball boundary nodes (union node numbers) of the penetration term
+    pen_ball_mask: Any    # (G, Mb) bool: a real entry of pen_ball
+    pen_panel: Any        # (G, Mp) int32 cover-glass boundary nodes (union node numbers)
+    pen_panel_mask: Any   # (G, Mp) bool: a real entry of pen_panel
+    u_prev_in: Any = None  # (N, 2) float32 the previous frame's displacement input [m] (pushforward only)
+    v_prev_in: Any = None  # (N, 2) float32 the previous frame's velocity input [m/s] (pushforward only)
+    has_prev: Any = None   # (G,) float32 1 where the frame has a previous one (pushforward only)
+
+
 def _pad_rows(rows, width: int, fill=0, dtype=np.int32):
     """A list of 1-D arrays -> (len(rows), width) array and mask (False on padding)."""
     out = np.full((len(rows), width), fill, dtype)
@@ -83,11 +110,11 @@ def _pad_rows(rows, width: int, fill=0, dtype=np.int32):
 
 
 def union_batch(form: Formulation, trajs, graphs, pairs, *, dt: float, sizes, graph_ids,
-                previous: bool = False) -> dict:
+                previous: bool = False) -> TrainBatch:
     """One training union: the graphs of the (trajectory, frame) ``pairs`` as a padded disjoint union of
     the static ``sizes`` (:class:`pcmgn_jax.train.setup.UnionSizes`), with everything the loss reads.
 
-    Returns a pytree: ``graph`` (:class:`pcmgn_jax.mgn.batching.GraphBatch`: union topology with the
+    Returns a :class:`TrainBatch`: ``graph`` (:class:`pcmgn_jax.mgn.batching.GraphBatch`: union topology with the
     scene features, layout, per-graph contact index, reference points [m]); node arrays [N] / [N, k]
     zero on padding: u, v [m, m/s] inputs, target (N, 3) [SI], sigma [m], w_motion, w_stress, perturbed;
     per-graph-slot arrays [G] (G = slots + 1; padding slots zero / False): ball (G, 2) rigid-ball target,
@@ -128,7 +155,7 @@ def union_batch(form: Formulation, trajs, graphs, pairs, *, dt: float, sizes, gr
         prev = [sample(form, trajs[i], int(t) - 1, dt) if t > 0 else s for (i, t), s in zip(pairs, smp)]
         out.update(u_prev_in=node([p["u"] for p in prev]), v_prev_in=node([p["v"] for p in prev]),
                    has_prev=per_graph([float(t > 0) for _, t in pairs]))
-    return out
+    return TrainBatch(**out)
 
 
 def gather_unions(form: Formulation, trajs, graphs, table, ids: np.ndarray, *, dt: float, sizes,
@@ -136,7 +163,8 @@ def gather_unions(form: Formulation, trajs, graphs, table, ids: np.ndarray, *, d
     """Host batch of K steps: ``ids`` (K, B) global batch columns -> a pytree of (K, S_local, ...) arrays,
     one padded union (:func:`union_batch`) per step and shard; shard s holds columns
     [s B/S, (s+1) B/S) of the global batch (``local_shards``: the shards this process feeds, default all).
-    Each graph's noise id is its global column, so the losses do not depend on the shard count."""
+    Each graph's noise id is its global column, so the losses do not depend on the shard count.
+    Returns a :class:`TrainBatch` of (K, S_local, ...) leaves."""
     K, B = ids.shape
     per = B // shards
     local = range(shards) if local_shards is None else local_shards

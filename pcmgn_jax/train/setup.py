@@ -245,7 +245,7 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
         if scene_of(t).part_names != scene.part_names:
             raise ValueError(f"training trajectory {i} ({name}): parts {scene_of(t).part_names} differ from "
                              f"trajectory 0's {scene.part_names}; one set of node types per dataset")
-    form = cfg.formulation_spec()
+    form = cfg.formulation
     ball_part, panel_part = contact_lib.contact_parts(scene)
     r_w = radius or cfg.contact_radius or contact_lib.auto_radius(ref.points, ref.cells, ref.cell_part, panel_part)
     groups: dict[tuple, list[int]] = {}

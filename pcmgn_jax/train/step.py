@@ -20,6 +20,7 @@ not depend on the union either.
 from __future__ import annotations
 
 import functools
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -60,18 +61,35 @@ def make_optimizer(spec: TrainSpec) -> optax.GradientTransformation:
     return optax.adam(functools.partial(learning_rate, spec))
 
 
-def init_state(spec: TrainSpec, params) -> dict:
-    """Optimiser state; with ``ema_decay`` > 0 also ``ema_params``, the parameters' moving average."""
-    state = dict(step=jnp.zeros((), jnp.int32), params=params, opt_state=make_optimizer(spec).init(params))
-    if spec.cfg.ema_decay > 0:
-        state["ema_params"] = jax.tree.map(jnp.array, params)
-    return state
+class TrainState(NamedTuple):
+    """What training carries from one optimiser step to the next (a pytree; checkpoints store
+    :meth:`to_dict`, whose keys are these names)."""
+
+    step: Any                # () int32: optimiser steps taken
+    params: Any              # the model's parameters (flax variables), float32
+    opt_state: Any           # Adam's state (optax; moments shaped like params)
+    ema_params: Any = None   # the parameters' moving average (like params) when cfg.ema_decay > 0, else None
+
+    def to_dict(self) -> dict:
+        """The checkpoint layout: {step, params, opt_state[, ema_params]} (ema_params only when kept)."""
+        return {k: v for k, v in self._asdict().items() if v is not None}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TrainState":
+        return cls(step=d["step"], params=d["params"], opt_state=d["opt_state"], ema_params=d.get("ema_params"))
 
 
-def eval_params(state: dict):
-    """The parameters a run validates, keeps as its best checkpoint and evaluates: the moving average
-    when the run keeps one (``ema_decay`` > 0), else the optimiser's own."""
-    return state.get("ema_params", state["params"])
+def init_state(spec: TrainSpec, params) -> TrainState:
+    """Fresh optimiser state; with ``ema_decay`` > 0 the moving average starts at ``params``."""
+    ema = jax.tree.map(jnp.array, params) if spec.cfg.ema_decay > 0 else None
+    return TrainState(step=jnp.zeros((), jnp.int32), params=params, opt_state=make_optimizer(spec).init(params),
+                      ema_params=ema)
+
+
+def eval_params(cfg, state: TrainState):
+    """The parameters a run (config ``cfg``) validates, keeps as its best checkpoint and evaluates: the
+    moving average when ``cfg.ema_decay`` > 0, else the optimiser's own."""
+    return state.ema_params if cfg.ema_decay > 0 else state.params
 
 
 def _penetration(spec: TrainSpec, batch, points, u_next):
@@ -84,7 +102,7 @@ def _penetration(spec: TrainSpec, batch, points, u_next):
                                      interval=spec.pen_interval, ball_mask=bm, panel_mask=pm)
         return penetration_loss(d, valid, length_scale=cfg.pen_length_scale)
 
-    return jax.vmap(one)(batch["pen_ball"], batch["pen_ball_mask"], batch["pen_panel"], batch["pen_panel_mask"])
+    return jax.vmap(one)(batch.pen_ball, batch.pen_ball_mask, batch.pen_panel, batch.pen_panel_mask)
 
 
 def loss_fn(params, spec: TrainSpec, stats: Stats, batch, key, step=None):
@@ -93,10 +111,10 @@ def loss_fn(params, spec: TrainSpec, stats: Stats, batch, key, step=None):
     optimiser step, for the λ schedule (:func:`penalty_weight`); None = the configured λ."""
     sim = spec.sim
     form = sim.formulation
-    g = batch["graph"]
+    g = batch.graph
     topology, layout, index, points = g.topology, g.layout, g.index, g.points
     node_graph, n_graph = layout.segments
-    sample = dict(points=points, u=batch["u"], v=batch["v"], target=batch["target"], ball=batch["ball"])
+    sample = dict(points=points, u=batch.u, v=batch.v, target=batch.target, ball=batch.ball)
     dev = None
     if spec.cfg.pushforward:
         # the model's own one-step prediction of this frame (from the true previous frame) as the input:
@@ -104,20 +122,20 @@ def loss_fn(params, spec: TrainSpec, stats: Stats, batch, key, step=None):
         # the perturbed parts (noise_parts): for a body that keeps an acceleration target, landing on the
         # true next frame from a wrong position would need an unphysical one-step acceleration
         frozen = jax.lax.stop_gradient(params)
-        out0, _ = predict(sim, frozen, stats, topology, index, points, batch["u_prev_in"], batch["v_prev_in"],
+        out0, _ = predict(sim, frozen, stats, topology, index, points, batch.u_prev_in, batch.v_prev_in,
                           layout)
-        u_hat, _, _ = integrate_output(sim, stats, topology, points, batch["u_prev_in"], batch["v_prev_in"],
+        u_hat, _, _ = integrate_output(sim, stats, topology, points, batch.u_prev_in, batch.v_prev_in,
                                        out0, layout)
-        on = batch["has_prev"][node_graph] * batch["perturbed"]
-        dev = jax.lax.stop_gradient(u_hat - batch["u"]) * on[:, None]
-    sample = perturb(sim, topology, sample, batch["sigma"], key, dev, layout=layout, graph_ids=batch["graph_id"])
+        on = batch.has_prev[node_graph] * batch.perturbed
+        dev = jax.lax.stop_gradient(u_hat - batch.u) * on[:, None]
+    sample = perturb(sim, topology, sample, batch.sigma, key, dev, layout=layout, graph_ids=batch.graph_id)
     out, edges = predict(sim, params, stats, topology, index, points, sample["u"], sample["v"], layout)
     err = (out[:, :3] - normalize_target(stats, topology.node_type, sample["target"])) ** 2
-    per_node = batch["w_motion"] * (err[:, 0] + err[:, 1]) + batch["w_stress"] * err[:, 2]
+    per_node = batch.w_motion * (err[:, 0] + err[:, 1]) + batch.w_stress * err[:, 2]
     loss_data = jax.ops.segment_sum(per_node, node_graph, num_segments=n_graph)
     if form.rigid_ball:
         e_ball = axial((ball_output(topology, out, layout) - (sample["ball"] - stats.ball_mean) / stats.ball_std) ** 2)
-        loss_data = loss_data + batch["w_ball"] * jnp.sum(e_ball, axis=-1)
+        loss_data = loss_data + batch.w_ball * jnp.sum(e_ball, axis=-1)
     loss_data = loss_data / 3.0
     if spec.cfg.lambda_pen > 0:
         u_next, _, _ = integrate_output(sim, stats, topology, points, sample["u"], sample["v"], out, layout)
@@ -128,7 +146,7 @@ def loss_fn(params, spec: TrainSpec, stats: Stats, batch, key, step=None):
         loss_pen = jnp.zeros(n_graph, jnp.float32)
     lam = spec.cfg.lambda_pen if step is None else penalty_weight(spec, step)
     loss = loss_data + lam * loss_pen
-    real = batch["graph_mask"]
+    real = batch.graph_mask
     mean = lambda a: jnp.sum(jnp.where(real, a, 0.0)) / jnp.maximum(jnp.sum(real), 1)  # noqa: E731
     return mean(loss), dict(loss_data=mean(loss_data), loss_pen=mean(loss_pen), loss_graph=loss,
                             overflow=jnp.any(edges.overflow), contact_count=jnp.max(edges.count))
@@ -150,15 +168,16 @@ def train_chunk(spec: TrainSpec, state, stats, batches, seed_key):
     (spec, union size bucket): every batch of a dataset has the same static shapes."""
     tx = make_optimizer(spec)
 
-    def one(state, batch):
-        key = jax.random.fold_in(seed_key, state["step"])
-        (loss, aux), grads = jax.value_and_grad(batch_loss, has_aux=True)(state["params"], spec, stats, batch, key,
-                                                                           state["step"])
-        updates, opt_state = tx.update(grads, state["opt_state"], state["params"])
-        params = optax.apply_updates(state["params"], updates)
-        new = dict(step=state["step"] + 1, params=params, opt_state=opt_state)
-        if "ema_params" in state:  # Polyak average: ema <- d ema + (1 - d) params
-            new["ema_params"] = optax.incremental_update(params, state["ema_params"], 1.0 - spec.cfg.ema_decay)
-        return new, dict(loss=loss, **aux)
+    def one(state: TrainState, batch):
+        key = jax.random.fold_in(seed_key, state.step)
+        (loss, aux), grads = jax.value_and_grad(batch_loss, has_aux=True)(state.params, spec, stats, batch, key,
+                                                                           state.step)
+        updates, opt_state = tx.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        ema = None
+        if spec.cfg.ema_decay > 0:  # Polyak average: ema <- d ema + (1 - d) params
+            ema = optax.incremental_update(params, state.ema_params, 1.0 - spec.cfg.ema_decay)
+        return TrainState(step=state.step + 1, params=params, opt_state=opt_state, ema_params=ema), \
+            dict(loss=loss, **aux)
 
     return jax.lax.scan(one, state, batches)

@@ -1,0 +1,104 @@
+"""``rom``: a field reduced-order model across meshes (a scene family, each scene its own mesh).
+
+    r = Rom(train_trajs)                        # trajectories with meta['scene_params']
+    us, vms = r.predict_trajectories(trajs)     # lists: u (T, N_b, 2) [m], vm (T, N_b) [Pa], each on its mesh
+    r.warnings                                  # queries outside the training box (strings for metrics.json)
+
+1. Reference mesh: the FIRST training trajectory's mesh (points, node_part, scene). Every training scene's
+   fields are carried onto it by :func:`surrogates.transfer_fields` (part-relative coordinates, the rule
+   of the ``nearest`` baseline).
+2. Snapshots: per scene the row [u / s_u, vm / s_vm] of every frame and reference node (T·N·3 values);
+   s_u [m] and s_vm [Pa] are the RMS of the centred u and vm snapshots (1 where a field never varies),
+   so the two fields are each O(1).
+3. POD + GP (:class:`response_surfaces.PodGP`): SVD of the centred snapshots, the fewest modes holding
+   :data:`POD_ENERGY` of sum S², one GP with the kriging kernel on their coefficients over the scene
+   parameters scaled to [-1, 1] (:class:`response_surfaces.ParameterBox`).
+4. Prediction: the GP mean at a query's scene parameters, unscaled, carried from the reference mesh to
+   the query's mesh by :func:`surrogates.transfer_fields` (the identity when it is the reference mesh).
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Sequence
+
+import numpy as np
+
+from pcmgn_jax.eval.response_surfaces import ParameterBox, PodGP, not_applicable
+from pcmgn_jax.eval.scene_inputs import TrainingScenes, trajectory_labels
+from pcmgn_jax.eval.surrogates import transfer_fields
+
+POD_ENERGY = 0.9999   # fraction of the centred snapshots' energy (sum of squared singular values) kept
+
+
+def _spread(a: np.ndarray) -> float:
+    """RMS of the snapshots (B, ...) about their mean snapshot, 1.0 when they do not vary."""
+    s = float(np.sqrt(np.mean((a - a.mean(0)) ** 2)))
+    return s if s > 0 else 1.0
+
+
+class Rom:
+    """POD of training fields on a reference mesh + a GP on the coefficients (module docstring).
+    Attributes: ``names`` the scene parameters, ``ref`` the reference trajectory, ``pod`` the fitted
+    :class:`PodGP` (``n_modes``, ``energy_kept``), ``u_scale`` [m], ``vm_scale`` [Pa], ``fit_seconds``,
+    ``warnings`` the queries outside the training box so far (strings for metrics.json)."""
+
+    name = "rom"
+
+    def __init__(self, train_trajs: Sequence, *, energy: float = POD_ENERGY):
+        trajs = list(train_trajs)
+        if not trajs:
+            raise ValueError("rom: needs training trajectories")
+        t0 = time.perf_counter()
+        self.scenes = TrainingScenes(trajs)
+        self.names, x = self.scenes.names, self.scenes.x
+        self.box = ParameterBox(x, self.names, model=self.name)
+        self.warnings = self.box.warnings                     # queries outside the box (for metrics.json)
+        if (why := not_applicable("kriging", len(trajs), self.box.n_inputs)) is not None:
+            raise ValueError(f"rom: {why}")
+        self.ref = trajs[0]
+        self._check_frames(trajs)
+        u, vm = zip(*(self._carry(t, self.ref, t.displacement, t.von_mises) for t in trajs))
+        u, vm = np.stack(u), np.stack(vm)                     # (B, T, N_ref, 2) [m], (B, T, N_ref) [Pa]
+        self.u_scale, self.vm_scale = _spread(u), _spread(vm)
+        B = len(trajs)
+        Y = np.concatenate([u.reshape(B, -1) / self.u_scale, vm.reshape(B, -1) / self.vm_scale], axis=1)
+        self.pod = PodGP(self.box.scale(x), Y, energy=energy)
+        self.fit_seconds = time.perf_counter() - t0
+
+    def _check_frames(self, trajs):
+        for label, t in zip(trajectory_labels(trajs), trajs):
+            if t.n_frames != self.ref.n_frames:
+                raise ValueError(f"rom: {label} has {t.n_frames} frames, the reference "
+                                 f"{trajectory_labels([self.ref])[0]} {self.ref.n_frames}")
+            if "scene" not in t.meta:
+                raise ValueError(f"rom: {label} has no meta['scene'] (needed to carry fields between meshes)")
+
+    @staticmethod
+    def _carry(src, dst, u, vm) -> tuple[np.ndarray, np.ndarray]:
+        """Fields u (T, N_src, 2) [m], vm (T, N_src) [Pa] on ``src``'s mesh carried to ``dst``'s."""
+        u, vm = np.asarray(u, np.float64), np.asarray(vm, np.float64)
+        if src is dst or (np.array_equal(src.points, dst.points) and np.array_equal(src.node_part, dst.node_part)
+                          and src.meta["scene"] == dst.meta["scene"]):
+            return u, vm
+        return transfer_fields(dataclasses.replace(src, displacement=u, von_mises=vm),
+                               dst.points, dst.node_part, dst.meta["scene"])
+
+    def predict_trajectories(self, trajs: Sequence) -> tuple[list, list]:
+        """Per trajectory (on its own mesh, at its meta['scene_params']): displacement (T, N, 2) [m] and
+        von Mises (T, N) [Pa]. A trajectory missing a scene parameter raises ValueError naming it; one
+        outside the training box, or changing what training held fixed, is answered and recorded in
+        ``warnings`` (:mod:`scene_inputs`)."""
+        trajs = list(trajs)
+        x = self.scenes.inputs(trajs, self.box.note)
+        self._check_frames(trajs)
+        Y = self.pod.predict(self.box.scale(x, trajectory_labels(trajs)))[0]
+        shape = (self.ref.n_frames, self.ref.n_nodes)
+        n_u = 2 * int(np.prod(shape))
+        us, vms = [], []
+        for t, row in zip(trajs, Y):
+            u, vm = self._carry(self.ref, t, row[:n_u].reshape(shape + (2,)) * self.u_scale,
+                                row[n_u:].reshape(shape) * self.vm_scale)
+            us.append(u)
+            vms.append(vm)
+        return us, vms

@@ -1,0 +1,87 @@
+"""The training pipeline as a library call: ``pcmgn_jax.train.run(cfg, workdir)``.
+
+Prepares the dataset (``cfg.resolved_dataset_dir``, generated with the solver when missing,
+:func:`pcmgn_jax.data.dataset.prepare_dataset`), loads the training and validation splits, writes
+``WORKDIR/data.json`` (which trajectories the run trains and validates on) and trains
+(:func:`pcmgn_jax.train.loop.train`). ``experiments/train.py`` parses flags and calls :func:`run`.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from pcmgn_jax.config import TrainConfig
+
+
+def _dataset():
+    """The dataset module that holds ``prepare_dataset`` / ``load_splits`` (``data.splits`` once split out)."""
+    try:
+        from pcmgn_jax.data import splits as mod  # noqa: F401
+    except ImportError:
+        from pcmgn_jax.data import dataset as mod
+    return mod
+
+
+def run(cfg: TrainConfig, workdir: str | Path, *, resume: bool = False) -> dict:
+    """Train ``cfg`` in ``workdir``; returns :func:`pcmgn_jax.train.loop.train`'s result dict
+    (``step``, ``seconds``, ``best_val_position_mae_um``, ...). ``resume``: continue from the last checkpoint."""
+    from pcmgn_jax.data.dataset import IMPORTED, split_stems
+    from pcmgn_jax.train import loop as training
+    ds = _dataset()
+    root, source = ds.prepare_dataset(cfg.resolved_dataset_dir, preset=cfg.data_preset,
+                                      n_train=cfg.n_train + cfg.n_val, n_test=cfg.n_test, seed=cfg.data_seed)
+    train, val, _ = ds.load_splits(root, n_train=cfg.n_train, n_val=cfg.n_val, n_test=0)
+    if source == IMPORTED:
+        have = len(split_stems(root, "train"))
+        unused = have - len(train) - len(val)
+        print(f"data: {root} (imported, no manifest): training on the first {len(train)} and validating on the "
+              f"last {len(val)} of {have} trajectories in {root / 'train'} by name"
+              + (f"; {unused} in between unused (raise --n_train to use them)" if unused else ""))
+    write_data_record(workdir, root, source, train, val)
+    return training.train(cfg, str(workdir), train_trajs=train, val_trajs=val, resume=resume)
+
+
+SIZE_FIELDS = ("n_train", "n_val", "n_test", "data_seed")
+
+
+def fit_to_dataset(cfg: TrainConfig, *, given=()) -> TrainConfig:
+    """``cfg`` with the sizes of a generated dataset at ``cfg.dataset_dir`` (one with a manifest), except
+    the fields named in ``given`` (flags the user wrote; :data:`SIZE_FIELDS`): the manifest's train split
+    (n_train + n_val designs) is used whole: ``n_val`` is the one the manifest records, else ``cfg.n_val``,
+    capped so at least one trajectory trains, ``n_train`` the rest; ``n_test`` is the test split's count;
+    ``data_seed`` the train split's Latin-hypercube seed. Unchanged without ``dataset_dir``, for a directory
+    without a manifest (imported trajectories) or one that does not exist yet (it will be generated)."""
+    from pcmgn_jax.data.dataset import load_manifest
+    if not cfg.dataset_dir or not Path(cfg.dataset_dir).is_dir():
+        return cfg
+    man = load_manifest(cfg.dataset_dir)
+    if man is None or "train" not in man.get("splits", {}):
+        return cfg
+    train = man["splits"]["train"]
+    have = len(train.get("trajectories", []))
+    if have < 2 and "n_train" not in given:
+        return cfg  # too small to split: load_splits names what is missing
+    kw = {}
+    n_val = cfg.n_val if "n_val" in given else min(int(train.get("n_val", cfg.n_val)), have - 1)
+    kw["n_val"] = n_val
+    if "n_train" not in given:
+        kw["n_train"] = have - n_val
+    if "n_test" not in given:
+        kw["n_test"] = len(man["splits"].get("test", {}).get("trajectories", []))
+    origin = train.get("origin") or {}
+    if "data_seed" not in given and origin.get("kind") == "lhs" and "seed" in origin:
+        kw["data_seed"] = int(origin["seed"])
+    return cfg.replace(**kw)
+
+
+def write_data_record(workdir, root, source: str, train, val) -> None:
+    """RUN/data.json (atomic; process 0 only): which trajectories this run trains and validates on."""
+    import jax
+    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    if jax.process_index() != 0:
+        return
+    item = lambda t: {"name": t.meta.get("name"), "sha256": t.meta.get("source_sha256"),  # noqa: E731
+                      "source": t.meta.get("source"), "n_nodes": int(t.n_nodes)}
+    Path(workdir).mkdir(parents=True, exist_ok=True)
+    atomic_write_json(Path(workdir) / "data.json", {
+        "format": "pcmgn_jax.run_data", "format_version": 1, "dataset_dir": str(Path(root).resolve()),
+        "source": source, "train": [item(t) for t in train], "val": [item(t) for t in val]})
