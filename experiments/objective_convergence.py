@@ -1,4 +1,4 @@
-"""How each reading of the design objective converges with the mesh (DESIGN §8, issue 13).
+"""How each reading of the design objective converges with the mesh (docs/design.md §8, issue 13).
 
   python -m experiments.objective_convergence            # cpu, cpu_fine, paper at (100, 100) and (145.2, 99.3) µm
 

@@ -229,7 +229,7 @@ def write(args, table_ref, steps, study_cells, forms, seeds, results, argv, quie
     lines = [f"# Study `{args.name}` (paper {table_ref})", "", *([f"> {note}", ""] if note else []),
              f"`{command}`: cpu preset, {steps} steps per cell (trimmed to fit about an hour; the paper trained "
              f"~20 h on a GPU), seeds {seeds}, scored on {where}; mean ± std over seeds. Position and stress MAE "
-             "in µm and MPa; objective error: the section area mean (DESIGN §8). Every cell is scored with "
+             "in µm and MPa; objective error: the section area mean (docs/design.md §8). Every cell is scored with "
              "its best checkpoint by validation position MAE; a cell whose best is not its last step says so. "
              "A penetration term (λ > 0) starts half-way through training (the cpu preset's lambda_start = 0.5) "
              "unless the study adds `--lambda_start=0` below. "

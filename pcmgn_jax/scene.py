@@ -83,7 +83,7 @@ class Ball:
 
 
 def paper_layers(t_oca1: float = 100e-6, t_oca2: float = 100e-6) -> tuple[Layer, ...]:
-    """The paper's stack (Table 'Material properties'); densities are assumptions (DESIGN §2)."""
+    """The paper's stack (Table 'Material properties'); densities are assumptions (docs/design.md §2)."""
     return (
         Layer("CG", 77.0e9, 0.21, 100e-6, 2500.0),
         Layer("OCA1", 0.01e9, 0.45, t_oca1, 1050.0),

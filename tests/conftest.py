@@ -13,6 +13,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pcmgn_jax.heap import keep_freed_memory
+
+keep_freed_memory()  # before any JAX computation, as the entry points do (pcmgn_jax/heap.py)
+
 from pcmgn_jax.scene import Layer, Scene
 from pcmgn_jax.trajectory import Trajectory
 

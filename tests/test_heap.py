@@ -13,6 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = r"""
 import resource, time
 import pcmgn_jax.heap as heap
+heap.keep_freed_memory()
 import jax, jax.numpy as jnp
 f = jax.jit(lambda a: jnp.sum(jnp.tanh(a[:, None] * a[None, :]) ** 2 + jnp.cos(a[:, None] - a[None, :])))
 a = jnp.arange(4000.0) / 4000
@@ -44,3 +45,17 @@ def test_scratch_buffer_is_not_faulted_again():
     assert faults < 0.05 * pages
     applied, pages, faults = _run("0")  # opt-out: glibc's default, every call faults the buffer in
     assert not applied and faults > 0.9 * pages
+
+
+def test_importing_the_library_leaves_malloc_alone():
+    """The mallopt settings are the entry points' choice (experiments/, benchmarks/): ``import pcmgn_jax``
+    and its modules change nothing in the process; ``import experiments`` applies them."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT), PCMGN_KEEP_HEAP="1")
+    code = ("import pcmgn_jax, pcmgn_jax.train, pcmgn_jax.heap as h; a = h.applied(); import experiments; "
+            "print(a, h.applied())")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    before, after = out.stdout.split()[-2:]
+    assert before == "False"
+    if platform.system() == "Linux" and platform.libc_ver()[0] == "glibc":
+        assert after == "True"

@@ -7,7 +7,7 @@ from pcmgn_jax.sim.hertz import hertz_check, hertz_impact, hertz_scene
 
 
 def test_theory_matches_design_figures():
-    """DESIGN §3: steel R 5 mm at 0.62631 m/s on glass: delta 10.56 um, F 190.8 N, tc 49.64 us."""
+    """docs/design.md §3: steel R 5 mm at 0.62631 m/s on glass: delta 10.56 um, F 190.8 N, tc 49.64 us."""
     scene = hertz_scene(radius=5e-3, velocity=0.62631, target="glass")
     t = hertz_impact(radius=5e-3, velocity=0.62631, ball=scene.ball, youngs=77e9, poisson=0.21)
     assert t["max_indentation_m"] == pytest.approx(10.56e-6, rel=2e-3)

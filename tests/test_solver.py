@@ -178,7 +178,7 @@ def test_energy_conservation_tiny():
 
 
 def test_stable_step_bounds_the_coupled_eigenvalue(runs):
-    """dt comes from Weyl's bound mesh + Gershgorin(contact) (DESIGN §3), which lies above the
+    """dt comes from Weyl's bound mesh + Gershgorin(contact) (docs/design.md §3), which lies above the
     largest eigenvalue of M^-1 (K + K_contact) with every spring engaged, itself above the mesh's."""
     p = runs["batch"].prepared
     assert np.all(p.omega2_coupled >= p.omega2_mesh * (1 - 1e-3))

@@ -1,6 +1,6 @@
 """Trajectory files: ``NAME.xdmf`` + ``NAME.h5`` (meshio XDMF time series) + ``NAME.json`` sidecar.
 
-This is the one interchange format of the project (DESIGN.md §4). All values are SI (m, s, m/s, Pa).
+This is the one interchange format of the project (docs/design.md §4). All values are SI (m, s, m/s, Pa).
 
 XDMF/HDF5 content (opens in ParaView with the "XDMF Reader"):
   geometry:  reference points, written as (N, 3) float64 with z = 0 (x = radius/width, y = height)

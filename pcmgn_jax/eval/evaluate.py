@@ -6,7 +6,7 @@ Metrics (definitions in :mod:`pcmgn_jax.eval.metrics`; SI in, reports in µm and
   position_mae_um / position_rmse_um   |u_pred - u_true| per node and component
   stress_mae_mpa / stress_rmse_mpa     von Mises
   per_frame_*_mean / *_std             per-frame MAE, mean and std across test trajectories
-  oled_objective_*                     DESIGN §8's objective in the paper's reading (node mean): truth,
+  oled_objective_*                     docs/design.md §8's objective in the paper's reading (node mean): truth,
                                        prediction, error; oled_objective_area_*: the section's area mean
   baselines                            the same summary keys for none / nearest / poly2 / rbf, or
                                        {"not_applicable": why} (per-node regression across meshes)

@@ -11,7 +11,7 @@ Arrays are SI (m, Pa); reports are µm and MPa. A prediction is compared with th
                         trajectories (frame 0 included as 0, for plotting against time)
 - penetration           fit-free: depth of ball boundary nodes below the cover-glass top polyline
                         (:func:`penetration_stats`), pooled over all (trajectory, frame, node) triples
-- ``oled_objective``    the design objective of DESIGN §8, in four readings (:data:`OBJECTIVES`):
+- ``oled_objective``    the design objective of docs/design.md §8, in four readings (:data:`OBJECTIVES`):
                         the paper's node average, the section's area-weighted mean (the optimiser's
                         default), the 3D disc mean, the peak
 """
@@ -153,7 +153,7 @@ def objective_weights(points, cells, cell_part, node_part, *, part: int, reading
 
 
 def oled_objective(von_mises, weights, *, reading: str = DEFAULT_OBJECTIVE):
-    """DESIGN §8's objective [MPa] from nodal von Mises (..., T, N) [Pa] and :func:`objective_weights`:
+    """docs/design.md §8's objective [MPa] from nodal von Mises (..., T, N) [Pa] and :func:`objective_weights`:
     the weighted section mean averaged over all T frames of the window, or for ``peak`` the max over
     frames and the section's nodes. (..., ) out. NumPy in -> float64 NumPy out; jax in -> jax out
     (differentiable: the design optimiser takes gradients through it)."""

@@ -1,4 +1,4 @@
-"""Re-check a design with the built-in solver: every reading of DESIGN §8's objective at that design,
+"""Re-check a design with the built-in solver: every reading of docs/design.md §8's objective at that design,
 on the training data's mesh preset, cached as JSON per design (a rerun never repeats a solver run)."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Surrogate objectives for the optimiser: designs (B, D) [m] in, DESIGN §8's objective (B,) [MPa] out.
+"""Surrogate objectives for the optimiser: designs (B, D) [m] in, docs/design.md §8's objective (B,) [MPa] out.
 
 - :class:`FieldObjective` wraps any surrogate of :mod:`pcmgn_jax.eval.surrogates` (designs in, fields
   out): the objective of its predicted von Mises on each design's own mesh. Results are cached per

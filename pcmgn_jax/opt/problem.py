@@ -1,4 +1,4 @@
-"""The design problem of DESIGN §8: bounds per design layer and a band on their sum.
+"""The design problem of docs/design.md §8: bounds per design layer and a band on their sum.
 
 Designs are thicknesses [m], shape (B, D). Paper: 50 <= T1, T2 <= 150 µm, 150 <= T1 + T2 <= 250 µm.
 """

@@ -5,7 +5,7 @@ term), row-sum lumped mass, a node-to-segment penalty contact between the ball's
 surface (slaves) and the top layer's upper surface (masters), clamped plate bottom and a
 symmetry axis (u_x = 0 at x = 0). Units SI.
 
-Numerics (DESIGN §3):
+Numerics (docs/design.md §3):
 - the state is the displacement u (not absolute coordinates), so float32 keeps the ~1e-9 m
   per-step increments next to mm coordinates; world positions are formed only in the contact
   gap, relative to reference coordinates of the same magnitude;
