@@ -1,0 +1,50 @@
+"""The documentation inside the repository: links resolve, code citations of docs/design.md point to its
+sections, the README stays a front page and its test command is the one CI runs."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = sorted((ROOT / "docs").rglob("*.md")) + [ROOT / "README.md"]
+LINK = re.compile(r"\]\(([^)\s]+)\)")
+
+
+@pytest.mark.parametrize("page", DOCS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_relative_links_resolve(page):
+    missing = []
+    for target in LINK.findall(page.read_text(encoding="utf-8")):
+        if re.match(r"^[a-z]+:", target) or target.startswith("#"):
+            continue
+        path = (page.parent / target.split("#", 1)[0]).resolve()
+        if not path.exists():
+            missing.append(target)
+    assert not missing, f"{page.relative_to(ROOT)}: links to missing files {missing}"
+
+
+def test_design_citations_name_existing_sections():
+    design = (ROOT / "docs" / "design.md").read_text(encoding="utf-8")
+    sections = set(re.findall(r"^#{2,3} (\d+(?:\.\d+)?)\.? ", design, flags=re.M))
+    assert {"2", "3", "4", "5", "6", "8"} <= sections
+    bad = []
+    for folder in ("pcmgn_jax", "experiments", "benchmarks", "tests"):
+        for f in (ROOT / folder).rglob("*"):
+            if f.suffix not in (".py", ".toml", ".md") or not f.is_file():
+                continue
+            text = f.read_text(encoding="utf-8")
+            if f.name == "test_docs.py":
+                continue
+            assert "DESIGN §" not in text and "DESIGN.md" not in text, f"{f}: cites a document not in the repository"
+            bad += [(str(f.relative_to(ROOT)), n) for n in re.findall(r"docs/design\.md §(\d+(?:\.\d+)?)", text)
+                    if n not in sections]
+    assert not bad, f"citations of missing docs/design.md sections: {bad}"
+
+
+def test_readme_is_a_front_page_with_ci_test_command():
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert len(readme.encode()) <= 20_000
+    ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+    command = 'python -m pytest -q -m "not slow" --durations=15'
+    assert command in readme and command in ci
