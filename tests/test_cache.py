@@ -7,7 +7,7 @@ import numpy as np
 
 from fixtures.synthetic import assert_same, synthetic_trajectory
 from pcmgn_jax.data import cache
-from pcmgn_jax.data.dataset import split_stems
+from pcmgn_jax.data.layout import split_stems
 from pcmgn_jax.data.trajectory_io import read_trajectory, write_trajectory
 
 

@@ -9,8 +9,8 @@ regardless of size; pages are read on first touch.
 
 The cache is rebuilt exactly when the list of (trajectory name, sidecar sha256) of the split
 changes. Building reads every trajectory with hash verification (``read_trajectory(verify=True)``),
-writes into a temporary directory and swaps it in (index.json last), so a killed build never leaves a
-cache that loads. Arrays keep their dtypes; if trajectories of one split have different dtypes for a
+writes into a temporary directory and swaps it in (:func:`pcmgn_jax.atomic.atomic_dir`; index.json
+last), so a killed build never leaves a cache that loads. Arrays keep their dtypes; if trajectories of one split have different dtypes for a
 field, the field is stored in their common (promoted) dtype. Note: the cache compares hashes from
 the sidecars only; an HDF5 file modified behind an unchanged sidecar is not noticed here (the cache
 still holds the verified data it was built from).
@@ -19,17 +19,22 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from pcmgn_jax.data.dataset import split_stems
+from pcmgn_jax.atomic import atomic_dir
+from pcmgn_jax.data.layout import split_stems
+from pcmgn_jax.data.trajectory_io import (
+    ARRAY_FIELDS,
+    RESERVED_KEYS,
+    TrajectoryFileError,
+    atomic_write_json,
+    read_sidecar,
+    read_trajectory,
+)
 from pcmgn_jax.trajectory import Trajectory
-from pcmgn_jax.data.trajectory_io import (ARRAY_FIELDS, RESERVED_KEYS, TrajectoryFileError, atomic_write_json,
-                                     read_sidecar, read_trajectory)
 
 __all__ = ["CACHE_DIR", "cache_dir", "ensure_cache", "load_split"]
 
@@ -72,10 +77,7 @@ def _shapes(n: int, e: int, t: int) -> dict[str, tuple[int, ...]]:
 
 
 def _build(dataset_dir: Path, split: str, sources: list[dict[str, Any]]) -> None:
-    final = cache_dir(dataset_dir, split)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{split}.tmp-", dir=final.parent))
-    try:
+    with atomic_dir(cache_dir(dataset_dir, split)) as tmp:
         shapes = [_shapes(s["n_nodes"], s["n_cells"], s["n_frames"]) for s in sources]
         entries, outs, fields = [], {}, {}
         for f in ARRAY_FIELDS:
@@ -100,15 +102,6 @@ def _build(dataset_dir: Path, split: str, sources: list[dict[str, Any]]) -> None
             "format": CACHE_FORMAT, "format_version": CACHE_VERSION, "split": split,
             "sources": [{"name": s["name"], "sha256": s["sha256"]} for s in sources],
             "fields": fields, "trajectories": entries})
-        old = None
-        if final.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{split}.old-", dir=final.parent))
-            os.replace(final, old / split)
-        os.replace(tmp, final)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def ensure_cache(dataset_dir: str | os.PathLike, split: str, *, force: bool = False) -> tuple[Path, bool]:

@@ -1,12 +1,9 @@
-"""Trajectory datasets: design sampling, directory layout, resumable batched generation, manifest.
+"""Trajectory datasets: design sampling, scene families, resumable batched generation with the solver.
 
-Layout of a dataset directory ``OUT``::
-
-    OUT/manifest.json                    # written atomically after every solver batch
-    OUT/train/train_0000.{xdmf,h5,json}  # one trajectory (see trajectory_io.py)
-    OUT/test/test_0000.{xdmf,h5,json}
-    OUT/extrap/extrap_0000....           # any extra named split (explicit designs)
-    OUT/.cache/SPLIT/                    # packed training cache (cache.py)
+The directory layout, the manifest format and the rule for what a directory is live in
+:mod:`pcmgn_jax.data.layout`; reading splits for a run (``load_splits``, ``prepare_dataset``,
+``load_directory``) in :mod:`pcmgn_jax.data.splits`. Both are re-exported here for callers that import
+them from this module.
 
 Designs are thicknesses of ``scene.design_layers`` in metres (the manifest also lists them in µm).
 ``train`` and ``test`` come from ONE seeded Latin hypercube of ``n_train + n_test`` points over
@@ -19,25 +16,11 @@ each scaled to its own range; every scene has its own mesh (the mesh preset of t
 layers from their thickness) and is solved on its own. Each manifest entry and trajectory meta records
 ``scene_params`` ({parameter: SI value}); ``design_m`` holds the design-layer thicknesses as before.
 
-manifest.json::
-
-    {"format": "pcmgn_jax.dataset", "format_version": 1, "preset": "cpu", "scene": {...},
-     "family": null | {"parameters": [[name, low, high], ...]},
-     "design_layers": ["OCA1", "OCA2"], "units": {"design_m": "m", "design_um": "µm", "wall_time_s": "s"},
-     "splits": {"train": {"origin": {"kind": "lhs", "seed": 0, "n_total": 150, "rows": [0, 100],
-                                     "low_m": 5e-05, "high_m": 0.00015},
-                          "trajectories": [{"name": "train_0000", "path": "train/train_0000",
-                                            "design_m": [...], "design_um": [...],
-                                            "sha256": "...", "wall_time_s": 1.9}, ...]}, ...}}
-
 Resuming: a trajectory is skipped when its files read back with a matching content hash
 (``read_trajectory(verify=True)``) and its recorded design equals the requested one; anything else is
 (re)generated. A manifest written for other settings (preset, scene, designs of a split) is an error,
-never silently mixed.
-
-Datasets without a manifest (:func:`dataset_source`): ``OUT/train/*.json|.h5|.xdmf`` and
-``OUT/test/...`` as ``python -m experiments.import_ansys --exports EXPORTS --out OUT`` writes them (or any
-trajectory files in that layout) are read as they are; the solver never writes into such a directory.
+never silently mixed. The solver never writes into a directory of trajectory files without a manifest
+(an imported dataset).
 """
 from __future__ import annotations
 
@@ -46,28 +29,39 @@ import math
 import os
 import re
 import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
-from dataclasses import dataclass
-
+from pcmgn_jax.data.layout import (
+    DATASET_FORMAT,
+    GENERATE,
+    IMPORTED,
+    MANIFEST,
+    DatasetError,
+    dataset_source,
+    has_trajectory_files,
+    load_manifest,
+    split_stems,
+)
+from pcmgn_jax.data.trajectory_io import (
+    TrajectoryFileError,
+    atomic_write_json,
+    read_trajectory,
+    write_trajectory,
+)
 from pcmgn_jax.scene import Scene, default_scene, with_parameters
 from pcmgn_jax.sim.mesh import MESH_PRESETS
 from pcmgn_jax.trajectory import Trajectory
-from pcmgn_jax.data.trajectory_io import (TrajectoryFileError, atomic_write_json, read_trajectory,
-                                     write_trajectory)
 
-__all__ = ["DatasetError", "FAMILIES", "GENERATE", "IMPORTED", "MANIFEST", "PRESETS", "SceneFamily", "dataset_source",
-           "ensure_dataset", "lhs_designs", "load_directory", "load_manifest", "load_splits", "parse_designs",
-           "prepare_dataset", "split_stems"]
+_SPLITS_NAMES = ("load_directory", "load_splits", "prepare_dataset")   # re-exported from data.splits (__getattr__)
+__all__ = ["FAMILIES", "GENERATE", "IMPORTED", "MANIFEST", "PRESETS", "DatasetError", "SceneFamily", "dataset_source",
+           "ensure_dataset", "lhs_designs", "load_directory", "load_manifest", "load_splits",  # noqa: F822 (__getattr__)
+           "parse_designs", "prepare_dataset", "split_stems"]  # noqa: F822 (prepare_dataset: __getattr__)
 
-MANIFEST = "manifest.json"
-GENERATE = "generate"                  # dataset_source: absent directory or generator manifest -> the solver
-IMPORTED = "imported"                  # dataset_source: trajectory files without a manifest -> read as they are
-SPLITS = ("train", "test")             # the splits a directory without a manifest is recognised by
-DATASET_FORMAT = "pcmgn_jax.dataset"
 PRESETS = tuple(MESH_PRESETS)          # mesh resolution / frame count (names: sim.mesh.MESH_PRESETS)
 DESIGN_LOW = 50e-6                     # default design range [m] (paper: 50-150 µm)
 DESIGN_HIGH = 150e-6
@@ -117,10 +111,6 @@ FAMILIES: dict[str, SceneFamily] = {
 }
 
 
-class DatasetError(ValueError):
-    """Inconsistent dataset directory / arguments, or designs the solver could not run."""
-
-
 # ---- designs ------------------------------------------------------------------------------------
 def lhs_designs(n: int, *, seed: int, low=DESIGN_LOW, high=DESIGN_HIGH, dim: int = 2) -> np.ndarray:
     """(n, dim) float64 Latin-hypercube designs in [low, high]^dim (scipy.stats.qmc, seeded); ``low`` and
@@ -159,69 +149,6 @@ def parse_designs(text: str, *, dim: int | None = 2) -> np.ndarray:
             raise ValueError(f"--designs: design {i + 1} has {len(vals)} values, design 1 has {len(rows[0])}")
         rows.append(vals)
     return np.asarray(rows, dtype=np.float64) * 1e-6
-
-
-# ---- manifest -----------------------------------------------------------------------------------
-def load_manifest(dataset_dir: str | os.PathLike) -> dict[str, Any] | None:
-    """The dataset manifest, or None when there is none. DatasetError if it is not a manifest."""
-    import json
-
-    path = Path(dataset_dir) / MANIFEST
-    if not path.exists():
-        return None
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as err:
-        raise DatasetError(f"{path}: cannot parse manifest: {err}") from None
-    if not isinstance(data, dict) or data.get("format") != DATASET_FORMAT:
-        raise DatasetError(f"{path}: field 'format' is not {DATASET_FORMAT!r}")
-    return data
-
-
-def _has_trajectory_files(root: Path) -> bool:
-    """True when ``root/train`` or ``root/test`` holds a trajectory sidecar (``NAME.json``)."""
-    return any((root / s).is_dir() and any((root / s).glob("*.json")) for s in SPLITS)
-
-
-def dataset_source(dataset_dir: str | os.PathLike) -> str:
-    """What a dataset directory handed to training is; the one rule for whether the solver may run.
-
-    :data:`GENERATE` -- the directory does not exist, or holds a generator manifest (``manifest.json``):
-        :func:`ensure_dataset` generates the missing trajectories with the solver (resumable, verified).
-    :data:`IMPORTED` -- no manifest, but ``DIR/train/`` or ``DIR/test/`` holds trajectory files
-        (``NAME.json`` + ``.h5`` + ``.xdmf``, as ``experiments.import_ansys --exports EXPORTS --out DIR``
-        writes them): read as they are, never regenerated or added to.
-    Anything else (a directory that exists with neither, e.g. empty, or a folder of ANSYS run folders):
-    a one-line DatasetError naming the directory and what is expected. Reads only; writes nothing.
-    """
-    root = Path(dataset_dir)
-    if not root.exists() or load_manifest(root) is not None:
-        return GENERATE
-    if not root.is_dir():
-        raise DatasetError(f"{root}: not a directory; expected a dataset directory")
-    if _has_trajectory_files(root):
-        return IMPORTED
-    raise DatasetError(f"{root}: no {MANIFEST} and no trajectory files in {root / 'train'} or {root / 'test'}; "
-                       f"expected a generated dataset (python -m experiments.generate --out {root}), trajectories "
-                       f"in train/ and test/ (python -m experiments.import_ansys --exports EXPORTS --out {root}), "
-                       "or a directory that does not exist yet (generated with the solver)")
-
-
-def split_stems(dataset_dir: str | os.PathLike, split: str) -> list[Path]:
-    """Path stems (``OUT/split/name``) of a split's trajectories, in manifest order.
-
-    Without a manifest: the sorted sidecars found in ``OUT/split``. DatasetError if the split is unknown.
-    """
-    root = Path(dataset_dir)
-    man = load_manifest(root)
-    if man is not None:
-        if split not in man.get("splits", {}):
-            raise DatasetError(f"{root / MANIFEST}: no split {split!r}; have {sorted(man.get('splits', {}))}")
-        return [root / e["path"] for e in man["splits"][split]["trajectories"]]
-    folder = root / split
-    if not folder.is_dir():
-        raise DatasetError(f"{folder}: split {split!r} not found (and no {MANIFEST})")
-    return [p.with_suffix("") for p in sorted(folder.glob("*.json"))]
 
 
 def _entry(split: str, i: int, design: np.ndarray, family: SceneFamily | None = None,
@@ -300,7 +227,7 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     """
     root = Path(out_dir)
     scene = scene if scene is not None else default_scene()
-    if root.is_dir() and load_manifest(root) is None and _has_trajectory_files(root):
+    if root.is_dir() and load_manifest(root) is None and has_trajectory_files(root):
         raise DatasetError(f"{root}: holds trajectory files in train/ or test/ but no {MANIFEST} (an imported "
                            "dataset?); the solver does not write into it: use another --out")
     if preset not in PRESETS:
@@ -446,64 +373,10 @@ def _solve_checked(solve, scene: Scene, items, preset: str, family: SceneFamily 
     return trajs
 
 
-def load_directory(path: str | os.PathLike) -> list[Trajectory]:
-    """Every trajectory in a directory of trajectory files (``*.json`` sidecars beside their ``.h5``/
-    ``.xdmf``, e.g. one split of a dataset or an importer's output), sorted by name, hash-verified. Writes
-    nothing. DatasetError naming the directory when it holds none."""
-    folder = Path(path)
-    if not folder.is_dir():
-        raise DatasetError(f"{folder}: not a directory of trajectory files")
-    stems = [p.with_suffix("") for p in sorted(folder.glob("*.json")) if p.with_suffix(".h5").exists()]
-    if not stems:
-        raise DatasetError(f"{folder}: no trajectory files (NAME.json + NAME.h5) here")
-    return [read_trajectory(s) for s in stems]
-
-
-def prepare_dataset(dataset_dir: str | os.PathLike, *, preset: str, n_train: int, n_test: int, seed: int = 0,
-                    **generate) -> tuple[Path, str]:
-    """``(Path(dataset_dir), source)``: the dataset a training run reads, ready to load.
-
-    By :func:`dataset_source`: a :data:`GENERATE` directory gets its missing trajectories from the solver
-    (:func:`ensure_dataset` with ``preset``, ``n_train``, ``n_test``, ``seed`` and ``generate``); an
-    :data:`IMPORTED` one is left as it is (the preset's designs and the generation sizes play no part); anything else is
-    the DatasetError of :func:`dataset_source`, before anything is written.
-    """
-    root = Path(dataset_dir)
-    source = dataset_source(root)
-    if source == GENERATE:
-        ensure_dataset(root, preset=preset, n_train=n_train, n_test=n_test, seed=seed, **generate)
-    return root, source
-
-
-def load_splits(dataset_dir: str | os.PathLike, *, n_train: int, n_val: int, n_test: int):
-    """(train, val, test) trajectories of a dataset directory (never runs the solver).
-
-    With a manifest (a generated dataset): ``train`` and ``val`` are the first ``n_train`` and next
-    ``n_val`` trajectories of the split ``train`` (the Latin-hypercube rows are in random order, so both
-    are random subsets).
-    Without one (an imported dataset, :func:`dataset_source`; the trajectories sorted by file name):
-    ``train`` is the first ``n_train`` and ``val`` the LAST ``n_val`` of the split ``train``, so the
-    validation trajectories stay the same whatever ``n_train`` is (and with exactly n_train + n_val
-    trajectories, as ``experiments.generate`` writes them, both rules pick the same ones); trajectories
-    between the two are not used. Name the runs so that the last ones are the validation runs you want.
-    ``test`` is the first ``n_test`` of the split ``test`` either way. Reading builds the memory-mapped
-    cache in ``DIR/.cache/`` (:mod:`pcmgn_jax.data.cache`). DatasetError naming the directory (and the
-    generating command, or the flags) when the dataset is missing or too small.
-    """
-    from pcmgn_jax.data.cache import load_split
-
-    root = Path(dataset_dir)
-    if not root.exists():
-        raise DatasetError(f"{root}: no dataset here; generate it with `python -m experiments.generate "
-                           f"--out {root} ...` (or `python -m experiments.train`, which generates its preset's data)")
-    imported = dataset_source(root) == IMPORTED
-    train = load_split(root, "train") if n_train + n_val else []
-    test = load_split(root, "test") if n_test else []
-    need = n_train + n_val
-    if len(train) < need or len(test) < n_test:
-        hint = " (set --n_train, --n_val and --n_test to fit)" if imported else ""
-        raise DatasetError(f"{root}: holds {len(train)} train / {len(test)} test trajectories, the config needs "
-                           f"n_train + n_val = {need} and n_test = {n_test}{hint}")
-    if imported:
-        return train[:n_train], train[len(train) - n_val:], test[:n_test]
-    return train[:n_train], train[n_train:need], test[:n_test]
+def __getattr__(name: str):
+    """``load_directory``, ``load_splits`` and ``prepare_dataset`` from :mod:`pcmgn_jax.data.splits`, looked up
+    on first use (splits.py imports this module, so a top-level import here would be circular)."""
+    if name in _SPLITS_NAMES:
+        from pcmgn_jax.data import splits
+        return getattr(splits, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -18,11 +18,11 @@ keys ``format``, ``format_version``, ``n_nodes``, ``n_cells``, ``n_frames``, ``t
 ``units``, ``analysis``, ``scene``, ``design``, ``output_dt``, ``source``, ``solver``, ``energy``,
 ``part_names`` are always present (``null`` when the producer did not supply them).
 
-Atomicity: every file is first written into a temporary directory next to the target
-(``.NAME.tmp-XXXX/``, under its final name, because the XDMF refers to its HDF5 file by base name),
-then moved in with ``os.replace``: first an old sidecar is removed, then the HDF5 and XDMF are
-replaced, then the sidecar. A run killed at any point leaves either no sidecar or a sidecar whose hash
-does not match, and :func:`read_trajectory` refuses both. The XDMF refers to the HDF5 file by a
+Atomicity (:func:`pcmgn_jax.atomic.atomic_dir`): every file is first written into a temporary
+directory next to the target (``.NAME.tmp-XXXX/``, under its final name, because the XDMF refers to
+its HDF5 file by base name), fsynced, then moved in with ``os.replace``: first an old sidecar is
+removed, then the HDF5 and XDMF are replaced, then the sidecar. A run killed at any point leaves
+either no sidecar or a sidecar whose hash does not match, and :func:`read_trajectory` refuses both. The XDMF refers to the HDF5 file by a
 relative name, so a folder of trajectories can be moved or copied freely.
 
 Note on meshio: ``meshio.xdmf.TimeSeriesWriter`` opens its HDF5 file as ``Path(filename).stem + ".h5"``
@@ -35,20 +35,28 @@ import hashlib
 import json
 import math
 import os
-import shutil
-import tempfile
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
-from pcmgn_jax.atomic import atomic_write_text
+from pcmgn_jax.atomic import atomic_dir, atomic_write_text
 from pcmgn_jax.trajectory import Trajectory
 
 __all__ = [
-    "ARRAY_FIELDS", "FORMAT", "FORMAT_VERSION", "TrajectoryFileError", "content_hash",
-    "read_sidecar", "read_trajectory", "trajectory_paths", "write_trajectory",
-    "atomic_write_json", "to_jsonable", "write_xdmf_series",
+    "ARRAY_FIELDS",
+    "FORMAT",
+    "FORMAT_VERSION",
+    "TrajectoryFileError",
+    "atomic_write_json",
+    "content_hash",
+    "read_sidecar",
+    "read_trajectory",
+    "to_jsonable",
+    "trajectory_paths",
+    "write_trajectory",
+    "write_xdmf_series",
 ]
 
 FORMAT = "pcmgn_jax.trajectory"
@@ -112,7 +120,7 @@ def to_jsonable(obj: Any, where: str = "meta", *, nonfinite: str = "null") -> An
         out = {}
         for k, v in obj.items():
             if not isinstance(k, str):
-                raise ValueError(f"{where}: keys must be strings, got {k!r}")
+                raise ValueError(f"{where}: keys must be strings, got {k!r}")  # noqa: TRY004 (callers catch ValueError)
             out[k] = to_jsonable(v, f"{where}.{k}", nonfinite=nonfinite)
         return out
     if isinstance(obj, (list, tuple)):
@@ -134,14 +142,6 @@ def to_jsonable(obj: Any, where: str = "meta", *, nonfinite: str = "null") -> An
     if isinstance(obj, os.PathLike):
         return os.fspath(obj)
     raise ValueError(f"{where}: value of type {type(obj).__name__} is not JSON-serialisable")
-
-
-def _fsync_path(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def atomic_write_json(path: str | os.PathLike, data: Any) -> None:
@@ -244,10 +244,7 @@ def write_trajectory(traj: Trajectory, path_stem: str | os.PathLike) -> str:
     _check_dtypes(traj, where)
     digest = content_hash(traj)
     side = _sidecar(traj, digest, name)
-    parent = xdmf.parent
-    parent.mkdir(parents=True, exist_ok=True)
-    tmpdir = Path(tempfile.mkdtemp(prefix=f".{name}.tmp-", dir=parent))
-    try:
+    with atomic_dir(xdmf.parent, files=(h5.name, xdmf.name, side_path.name)) as tmpdir:   # sidecar last
         write_xdmf_series(
             tmpdir / xdmf.name, traj.points, traj.cells, traj.times,
             frame_data={"displacement": traj.displacement, "velocity": traj.velocity,
@@ -255,19 +252,6 @@ def write_trajectory(traj: Trajectory, path_stem: str | os.PathLike) -> str:
             static_point_data={"node_part": traj.node_part, "node_type": traj.node_type},
             cell_data={"part": traj.cell_part})
         (tmpdir / side_path.name).write_text(json.dumps(side, indent=1, allow_nan=False))
-        for f in (xdmf.name, h5.name, side_path.name):
-            _fsync_path(tmpdir / f)
-        if side_path.exists():          # invalidate the old commit marker first
-            side_path.unlink()
-        os.replace(tmpdir / h5.name, h5)
-        os.replace(tmpdir / xdmf.name, xdmf)
-        os.replace(tmpdir / side_path.name, side_path)   # commit
-        try:
-            _fsync_path(parent)
-        except OSError:
-            pass
-    finally:
-        shutil.rmtree(tmpdir, ignore_errors=True)
     return digest
 
 
@@ -343,7 +327,7 @@ def read_trajectory(path_stem: str | os.PathLike, *, verify: bool = True) -> Tra
                     cell_part = np.asarray(cdata["part"][0]).reshape(-1)
     except TrajectoryFileError:
         raise
-    except Exception as err:  # h5py / XML / meshio errors
+    except Exception as err:  # noqa: BLE001 (h5py / XML / meshio raise many types; all become one error)
         raise TrajectoryFileError(f"{xdmf}: cannot read XDMF/HDF5 data: {type(err).__name__}: {err}") from None
 
     points = np.asarray(points)

@@ -11,22 +11,26 @@ HDF5 referenced by relative name) on the reference mesh with, per frame (SI unit
   node_part, node_type (N,); cell data ``part`` (E,)
 
 plus ``PATH.json`` with a summary (position MAE/RMSE [µm], stress MAE/RMSE [MPa], per frame too).
-Files are written into a temporary directory and moved in (HDF5, XDMF, then JSON).
+Files are written into a temporary directory, fsynced and moved in (HDF5, XDMF, then JSON;
+:func:`pcmgn_jax.atomic.atomic_dir`).
 """
 from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from pcmgn_jax.atomic import atomic_dir
+from pcmgn_jax.data.trajectory_io import (
+    to_jsonable,
+    trajectory_paths,
+    write_xdmf_series,
+)
 from pcmgn_jax.eval.metrics import field_metrics
 from pcmgn_jax.trajectory import Trajectory
-from pcmgn_jax.data.trajectory_io import to_jsonable, trajectory_paths, write_xdmf_series
 
 __all__ = ["comparison_summary", "export_comparison"]
 
@@ -72,8 +76,7 @@ def export_comparison(truth: Trajectory, pred: np.ndarray, pred_von_mises: np.nd
     summary = {"format": COMPARISON_FORMAT, "units": {"fields": "SI (m, Pa)", "summary": "µm, MPa"},
                "truth_meta": truth.meta, "times": np.asarray(truth.times, np.float64).tolist(),
                **comparison_summary(truth, disp, vm)}
-    tmp = Path(tempfile.mkdtemp(prefix=f".{xdmf.stem}.tmp-", dir=xdmf.parent))
-    try:
+    with atomic_dir(xdmf.parent, files=(h5.name, xdmf.name, side.name)) as tmp:   # the summary JSON last
         write_xdmf_series(
             tmp / xdmf.name, np.asarray(truth.points, np.float64), truth.cells, truth.times,
             frame_data={"displacement_true": true_d, "displacement_pred": disp,
@@ -84,8 +87,4 @@ def export_comparison(truth: Trajectory, pred: np.ndarray, pred_von_mises: np.nd
             static_point_data={"node_part": truth.node_part, "node_type": truth.node_type},
             cell_data={"part": truth.cell_part})
         (tmp / side.name).write_text(json.dumps(to_jsonable(summary, str(side)), indent=1))
-        for name, dst in ((h5.name, h5), (xdmf.name, xdmf), (side.name, side)):
-            os.replace(tmp / name, dst)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return xdmf

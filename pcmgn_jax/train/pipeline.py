@@ -1,7 +1,7 @@
 """The training pipeline as a library call: ``pcmgn_jax.train.run(cfg, workdir)``.
 
 Prepares the dataset (``cfg.resolved_dataset_dir``, generated with the solver when missing,
-:func:`pcmgn_jax.data.dataset.prepare_dataset`), loads the training and validation splits, writes
+:func:`pcmgn_jax.data.splits.prepare_dataset`), loads the training and validation splits, writes
 ``WORKDIR/data.json`` (which trajectories the run trains and validates on) and trains
 (:func:`pcmgn_jax.train.loop.train`). ``experiments/train.py`` parses flags and calls :func:`run`.
 """
@@ -12,24 +12,15 @@ from pathlib import Path
 from pcmgn_jax.config import TrainConfig
 
 
-def _dataset():
-    """The dataset module that holds ``prepare_dataset`` / ``load_splits`` (``data.splits`` once split out)."""
-    try:
-        from pcmgn_jax.data import splits as mod  # noqa: F401
-    except ImportError:
-        from pcmgn_jax.data import dataset as mod
-    return mod
-
-
 def run(cfg: TrainConfig, workdir: str | Path, *, resume: bool = False) -> dict:
     """Train ``cfg`` in ``workdir``; returns :func:`pcmgn_jax.train.loop.train`'s result dict
     (``step``, ``seconds``, ``best_val_position_mae_um``, ...). ``resume``: continue from the last checkpoint."""
-    from pcmgn_jax.data.dataset import IMPORTED, split_stems
+    from pcmgn_jax.data.layout import IMPORTED, split_stems
+    from pcmgn_jax.data.splits import load_splits, prepare_dataset
     from pcmgn_jax.train import loop as training
-    ds = _dataset()
-    root, source = ds.prepare_dataset(cfg.resolved_dataset_dir, preset=cfg.data_preset,
-                                      n_train=cfg.n_train + cfg.n_val, n_test=cfg.n_test, seed=cfg.data_seed)
-    train, val, _ = ds.load_splits(root, n_train=cfg.n_train, n_val=cfg.n_val, n_test=0)
+    root, source = prepare_dataset(cfg.resolved_dataset_dir, preset=cfg.data_preset,
+                                   n_train=cfg.n_train + cfg.n_val, n_test=cfg.n_test, seed=cfg.data_seed)
+    train, val, _ = load_splits(root, n_train=cfg.n_train, n_val=cfg.n_val, n_test=0)
     if source == IMPORTED:
         have = len(split_stems(root, "train"))
         unused = have - len(train) - len(val)
@@ -50,7 +41,7 @@ def fit_to_dataset(cfg: TrainConfig, *, given=()) -> TrainConfig:
     capped so at least one trajectory trains, ``n_train`` the rest; ``n_test`` is the test split's count;
     ``data_seed`` the train split's Latin-hypercube seed. Unchanged without ``dataset_dir``, for a directory
     without a manifest (imported trajectories) or one that does not exist yet (it will be generated)."""
-    from pcmgn_jax.data.dataset import load_manifest
+    from pcmgn_jax.data.layout import load_manifest
     if not cfg.dataset_dir or not Path(cfg.dataset_dir).is_dir():
         return cfg
     man = load_manifest(cfg.dataset_dir)
@@ -76,10 +67,11 @@ def fit_to_dataset(cfg: TrainConfig, *, given=()) -> TrainConfig:
 def write_data_record(workdir, root, source: str, train, val) -> None:
     """RUN/data.json (atomic; process 0 only): which trajectories this run trains and validates on."""
     import jax
+
     from pcmgn_jax.data.trajectory_io import atomic_write_json
     if jax.process_index() != 0:
         return
-    item = lambda t: {"name": t.meta.get("name"), "sha256": t.meta.get("source_sha256"),  # noqa: E731
+    item = lambda t: {"name": t.meta.get("name"), "sha256": t.meta.get("source_sha256"),
                       "source": t.meta.get("source"), "n_nodes": int(t.n_nodes)}
     Path(workdir).mkdir(parents=True, exist_ok=True)
     atomic_write_json(Path(workdir) / "data.json", {

@@ -9,11 +9,25 @@ solver runs, and the round trip is tested (tests/test_ansys_export.py).
 """
 from __future__ import annotations
 
-from pcmgn_jax.data.exporters.ansys import (EXPORT_FORMAT, FIXED_COMPONENT, MESH_FILE, RESULTS_DIR, RUN_FILE,
-                                            SCENE_FILE, ExportError, export_dataset, export_trajectory,
-                                            find_trajectories, format_table, part_map, parts_string,
-                                            result_file, write_cdb, write_results)
+from pcmgn_jax.data.exporters.ansys import (
+    EXPORT_FORMAT,
+    FIXED_COMPONENT,
+    MESH_FILE,
+    RESULTS_DIR,
+    RUN_FILE,
+    SCENE_FILE,
+    ExportError,
+    export_dataset,
+    export_trajectory,
+    find_trajectories,
+    format_table,
+    part_map,
+    parts_string,
+    result_file,
+    write_cdb,
+    write_results,
+)
 
-__all__ = ["EXPORT_FORMAT", "ExportError", "FIXED_COMPONENT", "MESH_FILE", "RESULTS_DIR", "RUN_FILE", "SCENE_FILE",
+__all__ = ["EXPORT_FORMAT", "FIXED_COMPONENT", "MESH_FILE", "RESULTS_DIR", "RUN_FILE", "SCENE_FILE", "ExportError",
            "export_dataset", "export_trajectory", "find_trajectories", "format_table", "part_map",
            "parts_string", "result_file", "write_cdb", "write_results"]

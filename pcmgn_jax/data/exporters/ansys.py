@@ -23,262 +23,52 @@ element ``e + 1`` = cell ``e``; material number = part id + 1 (``ball=1``, first
 element components named after the parts (upper case) and a node component ``FIXED`` (the fixed nodes).
 
 Every writer is atomic: files are written into a temporary sibling (``.NAME.tmp-XXXX``) and renamed
-into place, so a failed or killed export leaves no half-written file or folder. Errors are
-:class:`ExportError` (a ``ValueError``) naming the path.
+into place (:mod:`pcmgn_jax.atomic`), so a failed or killed export leaves no half-written file or folder.
+Errors are :class:`ExportError` (a ``ValueError``) naming the path.
+
+Modules: ``cdb.py`` (the archive), ``tables.py`` (the result tables), ``common.py`` (ExportError, atomic
+writes); this one writes run folders and datasets and re-exports the writers.
 """
 from __future__ import annotations
 
 import hashlib
 import json
 import os
-import re
-import shutil
-import tempfile
-from contextlib import contextmanager
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Callable, Iterator, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
-from pcmgn_jax.atomic import atomic_write_text
-from pcmgn_jax.data.importers.units import (ANSYS_UNIT_SYSTEMS, length_factor, stress_factor,
-                                            velocity_factor)
-from pcmgn_jax.data.importers.ansys_text import FRAME_KEYS
-from pcmgn_jax.data.importers.runs import MESH_FILE, OWN_META, RESULTS_DIR, RUN_FILE, SCENE_FILES
+from pcmgn_jax.data.exporters.cdb import ANALYSIS_KEYOPT3, COMPONENT_RE, write_cdb
+from pcmgn_jax.data.exporters.common import (
+    ExportError,
+    atomic_folder,
+    write_text_atomic,
+)
+from pcmgn_jax.data.exporters.tables import (
+    format_table,
+    result_file,
+    unit_scales,
+    write_results,
+)
+from pcmgn_jax.data.importers.runs import (
+    MESH_FILE,
+    OWN_META,
+    RESULTS_DIR,
+    RUN_FILE,
+    SCENE_FILES,
+)
 from pcmgn_jax.data.trajectory_io import read_sidecar, read_trajectory, to_jsonable
 from pcmgn_jax.trajectory import Trajectory
 
-__all__ = ["ANALYSIS_KEYOPT3", "EXPORT_FORMAT", "ExportError", "MESH_FILE", "RESULTS_DIR", "RUN_FILE", "find_trajectories",
-           "SCENE_FILE", "FIXED_COMPONENT", "export_dataset", "export_trajectory", "format_table",
-           "part_map", "parts_string", "result_file", "write_cdb", "write_results"]
+__all__ = ["ANALYSIS_KEYOPT3", "EXPORT_FORMAT", "FIXED_COMPONENT", "MESH_FILE", "RESULTS_DIR", "RUN_FILE",
+           "SCENE_FILE", "ExportError", "export_dataset", "export_trajectory", "find_trajectories",
+           "format_table", "part_map", "parts_string", "result_file", "write_cdb", "write_results"]
 
 EXPORT_FORMAT = "pcmgn_jax.ansys_export"
 SCENE_FILE = SCENE_FILES[0]
 FIXED_COMPONENT = "FIXED"
-ANALYSIS_KEYOPT3 = {"axisymmetric": 1, "plane_strain": 2}
-RESULT_COLUMNS = {"deformation": ("Directional Deformation", "length"),
-                  "velocity": ("Directional Velocity", "velocity"),
-                  "stress": ("Equivalent (von-Mises) Stress", "stress")}
-_COMPONENT_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]{0,31}$")
-
-
-class ExportError(ValueError):
-    """An export could not be written (one line naming the path and the cause)."""
-
-
-# ---- atomic file / folder writes ------------------------------------------------------------------
-def _write_text_atomic(path: Path, text: str) -> None:
-    """:func:`pcmgn_jax.atomic.atomic_write_text`, creating the folder, with a failure as :class:`ExportError`."""
-    path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(path, text)
-    except OSError as err:
-        raise ExportError(f"{path}: cannot write: {err.strerror or err}") from None
-
-
-@contextmanager
-def _atomic_dir(final: Path) -> Iterator[Path]:
-    """Yield a temporary folder beside ``final``; on success it replaces ``final`` (an old folder of that
-    name is moved aside first and deleted after), on failure it is deleted and ``final`` is untouched."""
-    final = Path(final)
-    try:
-        final.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))
-    except OSError as err:
-        raise ExportError(f"{final}: cannot write: {err.strerror or err}") from None
-    try:
-        try:
-            yield tmp
-        except ExportError as err:   # name the final path, not the temporary folder
-            raise ExportError(str(err).replace(str(tmp), str(final))) from None
-        old = None
-        if final.exists():
-            if not final.is_dir():
-                raise ExportError(f"{final}: exists and is not a folder; remove it or choose another output")
-            old = Path(tempfile.mkdtemp(prefix=f".{final.name}.old-", dir=final.parent))
-            os.replace(final, old / final.name)
-        try:
-            os.replace(tmp, final)
-        except OSError:
-            if old is not None:          # put the old folder back
-                os.replace(old / final.name, final)
-                shutil.rmtree(old, ignore_errors=True)
-            raise
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    except OSError as err:
-        raise ExportError(f"{final}: cannot write: {err.strerror or err}") from None
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-
-
-# ---- the archive ----------------------------------------------------------------------------------
-def _e21(x: float) -> str:
-    """One ``e21.13e3`` field as MAPDL writes it: ' 1.2345678901234E-003'."""
-    mant, exp = f"{float(x):.13E}".split("E")
-    return f"{mant}E{int(exp):+04d}".rjust(21)
-
-
-def _ranges(members: Sequence[int]) -> list[int]:
-    """CMBLOCK items: sorted numbers with runs written as ``a, -b`` (a..b), as MAPDL writes them."""
-    vals = sorted({int(v) for v in members})
-    out: list[int] = []
-    k = 0
-    while k < len(vals):
-        j = k
-        while j + 1 < len(vals) and vals[j + 1] == vals[j] + 1:
-            j += 1
-        out += [vals[k], -vals[j]] if j > k else [vals[k]]
-        k = j + 1
-    return out
-
-
-def _keyopt3(traj: Trajectory, keyopt3: int | None, where: str) -> int:
-    if keyopt3 is not None:
-        return int(keyopt3)
-    meta = traj.meta or {}
-    analysis = meta.get("analysis") or (meta.get("scene") or {}).get("analysis")
-    if analysis not in ANALYSIS_KEYOPT3:
-        raise ExportError(f"{where}: the trajectory's analysis is {analysis!r} (meta 'analysis' / 'scene'); "
-                          f"give keyopt3= (1 axisymmetric, 2 plane strain)")
-    return ANALYSIS_KEYOPT3[analysis]
-
-
-def write_cdb(path: str | os.PathLike, traj: Trajectory, *, unit: str = "mm", units_line: bool = False,
-              mats: Sequence[int] | None = None, node_ids: Sequence[int] | None = None,
-              element_ids: Sequence[int] | None = None, keyopt3: int | None = None,
-              components: Mapping[str, tuple[str, Sequence[int]]] | None = None,
-              extra_types: Mapping[int, int] | None = None, extra_elements: str = "") -> np.ndarray:
-    """Write ``traj``'s mesh as an MAPDL archive (CDWRITE layout); return the ANSYS node numbers (N,).
-
-    ``unit``: length unit of the coordinates (m, mm, um, ...). ``units_line``: also write the matching
-    ``/UNITS`` system (MPA for mm, SI for m, ...; CDWRITE writes none). ``mats``: material number per cell
-    (default part id + 1). ``node_ids`` / ``element_ids``: ANSYS numbers (default 1..N / 1..E).
-    ``keyopt3``: 1 axisymmetric, 2 plane strain (default: from the trajectory's meta analysis).
-    ``components``: name -> ("ELEM" | "NODE", ANSYS numbers). ``extra_types``: more ET entries
-    {type number: element type}, e.g. {2: 172} for CONTA172; ``extra_elements``: raw EBLOCK records
-    appended to the element block (tests of the reader's skipping).
-    """
-    path = Path(path)
-    where = str(path)
-    n, e = traj.n_nodes, len(traj.cells)
-    s = 1.0 / length_factor(unit, f"{where}: unit")
-    ids = np.arange(1, n + 1) if node_ids is None else np.asarray(node_ids, dtype=np.int64)
-    eids = np.arange(1, e + 1) if element_ids is None else np.asarray(element_ids, dtype=np.int64)
-    mats = np.asarray(traj.cell_part, dtype=np.int64) + 1 if mats is None else np.asarray(mats, dtype=np.int64)
-    if ids.shape != (n,) or len(np.unique(ids)) != n or ids.min() < 1:
-        raise ExportError(f"{where}: node_ids must be {n} distinct numbers >= 1")
-    if eids.shape != (e,) or len(np.unique(eids)) != e or eids.min() < 1:
-        raise ExportError(f"{where}: element_ids must be {e} distinct numbers >= 1")
-    if mats.shape != (e,) or mats.min() < 1:
-        raise ExportError(f"{where}: mats must be {e} material numbers >= 1")
-    k3 = _keyopt3(traj, keyopt3, where)
-    lines = ["/COM,ANSYS RELEASE 2024 R1 (written by pcmgn_jax.data.exporters.ansys)"]
-    if units_line:
-        system = next((k for k, v in ANSYS_UNIT_SYSTEMS.items() if v == unit and k != "MKS"), None)
-        if system is None:
-            raise ExportError(f"{where}: no MAPDL /UNITS system has length unit {unit!r}; "
-                              f"use units_line=False or one of {sorted(set(ANSYS_UNIT_SYSTEMS.values()))}")
-        lines.append(f"/UNITS,{system}")
-    lines += ["/PREP7", f"ET,{1:8d},182", f"KEYOP,{1:8d},{3:2d},{k3:9d}"]
-    for itype, ename in sorted((extra_types or {}).items()):
-        lines.append(f"ET,{int(itype):8d},{int(ename)}")
-    lines += [f"NBLOCK,6,SOLID,{int(ids.max()):9d},{n:9d}", "(3i9,6e21.13e3)"]
-    pts = np.asarray(traj.points, dtype=np.float64) * s
-    for nid, (x, y) in zip(ids, pts):
-        lines.append(f"{int(nid):9d}{0:9d}{0:9d}{_e21(x)}" + (_e21(y) if y != 0 else ""))
-    lines += ["N,R5.3,LOC,       -1,"]
-    lines += [f"EBLOCK,19,SOLID,{int(eids.max()):9d},{e:9d}", "(19i9)"]
-    for eid, cell, mat in zip(eids, np.asarray(traj.cells), mats):
-        f = [int(mat), 1, 1, 1, 0, 0, 0, 0, 4, 0, int(eid)] + [int(ids[c]) for c in cell]
-        lines.append("".join(f"{v:9d}" for v in f))
-    if extra_elements:
-        lines.append(extra_elements.rstrip("\n"))
-    lines.append(f"{-1:9d}")
-    for name, (kind, members) in (components or {}).items():
-        if not _COMPONENT_RE.match(name):
-            raise ExportError(f"{where}: component name {name!r} is not a valid MAPDL name "
-                              "(a letter, then up to 31 letters, digits or _)")
-        if kind.upper() not in ("ELEM", "NODE"):
-            raise ExportError(f"{where}: component {name!r}: kind must be 'ELEM' or 'NODE', got {kind!r}")
-        items = _ranges(members)
-        lines += [f"CMBLOCK,{name:8s},{kind.upper()},{len(items):8d}  ! users component", "(8i10)"]
-        for a in range(0, len(items), 8):
-            lines.append("".join(f"{v:10d}" for v in items[a:a + 8]))
-    lines.append("FINISH")
-    _write_text_atomic(path, "\n".join(lines) + "\n")
-    return ids
-
-
-# ---- the result tables ----------------------------------------------------------------------------
-def result_file(key: str, frame: int) -> str:
-    """File name of result ``key`` (one of FRAME_KEYS) in frame ``frame``: ``deformation_x_000.txt``."""
-    if key not in FRAME_KEYS:
-        raise ValueError(f"result key {key!r} is not one of {FRAME_KEYS}")
-    return f"{key}_{frame:03d}.txt"
-
-
-def format_table(node_ids: Sequence[int], points: np.ndarray, values: np.ndarray, *, column: str,
-                 length_unit: str = "mm", value_scale: float = 1.0, order: Sequence[int] | None = None,
-                 with_z: bool = True) -> str:
-    """One Mechanical nodal text table: header, then one row per node (in ``order``, default as given).
-
-    ``points`` [m] are written in ``length_unit``; ``values`` (SI) are multiplied by ``value_scale``.
-    ``column`` is the full result header, e.g. ``'Directional Deformation (mm)'``."""
-    s = 1.0 / length_factor(length_unit, "length_unit")
-    head = ["Node Number", f"X Location ({length_unit})", f"Y Location ({length_unit})"]
-    head += [f"Z Location ({length_unit})"] if with_z else []
-    rows = ["\t".join(head + [column])]
-    pts = np.asarray(points, dtype=np.float64)
-    vals = np.asarray(values, dtype=np.float64)
-    for k in (range(len(node_ids)) if order is None else order):
-        f = [str(int(node_ids[k])), repr(float(pts[k, 0] * s)), repr(float(pts[k, 1] * s))]
-        f += ["0."] if with_z else []
-        rows.append("\t".join(f + [repr(float(vals[k] * value_scale))]))
-    return "\n".join(rows) + "\n"
-
-
-def _unit_scales(length_unit: str, velocity_unit: str, stress_unit: str) -> dict[str, float]:
-    return {"length": 1.0 / length_factor(length_unit, "length_unit"),
-            "velocity": 1.0 / velocity_factor(velocity_unit, "velocity_unit"),
-            "stress": 1.0 / stress_factor(stress_unit, "stress_unit")}
-
-
-def write_results(folder: str | os.PathLike, traj: Trajectory, node_ids: Sequence[int] | None = None, *,
-                  length_unit: str = "mm", velocity_unit: str = "mm/s", stress_unit: str = "MPa",
-                  times_file: bool = True,
-                  table_options: Callable[[str, int], Mapping[str, Any]] | None = None) -> None:
-    """Write ``traj``'s fields as Mechanical text tables into ``folder`` (replaced atomically as a whole).
-
-    One file per result per frame (:func:`result_file` names), plus ``times.txt`` [s] unless
-    ``times_file=False``. ``node_ids``: ANSYS node numbers (default 1..N). ``table_options(key, frame)``
-    may return per-table overrides of :func:`format_table` (``order=`` a row permutation, ``with_z=``),
-    e.g. to test the reader on shuffled rows; Mechanical itself writes rows by node number.
-    """
-    folder = Path(folder)
-    try:
-        scales = _unit_scales(length_unit, velocity_unit, stress_unit)
-    except ValueError as err:
-        raise ExportError(f"{folder}: {err}") from None
-    units = {"length": length_unit, "velocity": velocity_unit, "stress": stress_unit}
-    ids = np.arange(1, traj.n_nodes + 1) if node_ids is None else np.asarray(node_ids)
-    if len(ids) != traj.n_nodes:
-        raise ExportError(f"{folder}: {len(ids)} node numbers for {traj.n_nodes} nodes")
-    fields = {"deformation": np.asarray(traj.displacement), "velocity": np.asarray(traj.velocity),
-              "stress": np.asarray(traj.von_mises)}
-    with _atomic_dir(folder) as tmp:
-        for k in range(traj.n_frames):
-            for key in FRAME_KEYS:
-                kind, _, comp = key.partition("_")
-                label, quantity = RESULT_COLUMNS[kind]
-                values = fields[kind][k] if kind == "stress" else fields[kind][k, :, "xy".index(comp)]
-                opts = dict(table_options(key, k) or {}) if table_options else {}
-                text = format_table(ids, traj.points, values, column=f"{label} ({units[quantity]})",
-                                    length_unit=length_unit, value_scale=scales[quantity], **opts)
-                (tmp / result_file(key, k)).write_text(text)
-        if times_file:
-            (tmp / "times.txt").write_text("\n".join(repr(float(t)) for t in np.asarray(traj.times)) + "\n")
 
 
 # ---- one trajectory -> one run folder, a dataset -> a folder of run folders ------------------------
@@ -330,7 +120,7 @@ def export_trajectory(traj: Trajectory, run_dir: str | os.PathLike, *, length_un
     comps: dict[str, tuple[str, list[int]]] = {}
     for pid, name in enumerate(names):
         cname = name.upper()
-        if _COMPONENT_RE.match(cname):
+        if COMPONENT_RE.match(cname):
             comps[cname] = ("ELEM", (np.nonzero(np.asarray(traj.cell_part) == pid)[0] + 1).tolist())
     fixed = np.nonzero(np.asarray(traj.node_type) == len(names))[0] + 1
     if len(fixed):
@@ -345,12 +135,12 @@ def export_trajectory(traj: Trajectory, run_dir: str | os.PathLike, *, length_un
         "components": {name: c for name, c in zip(names, (n.upper() for n in names)) if c in comps},
         "node_numbers": "ANSYS node i + 1 = trajectory node i; element e + 1 = cell e",
         "analysis": meta.get("analysis") or (meta.get("scene") or {}).get("analysis"),
-        "n_nodes": traj.n_nodes, "n_cells": int(len(traj.cells)), "n_frames": traj.n_frames,
+        "n_nodes": traj.n_nodes, "n_cells": len(traj.cells), "n_frames": traj.n_frames,
         "meta": {k: v for k, v in meta.items() if k not in _IMPORTER_KEYS},
         "source": dict(source or {}),
     }
     run = to_jsonable(run, f"{run_dir / RUN_FILE}")
-    with _atomic_dir(run_dir) as tmp:
+    with atomic_folder(run_dir) as tmp:
         write_cdb(tmp / MESH_FILE, traj, unit=length_unit, units_line=units_line, components=comps)
         write_results(tmp / RESULTS_DIR, traj, length_unit=length_unit, velocity_unit=velocity_unit,
                       stress_unit=stress_unit)
@@ -439,7 +229,7 @@ def export_dataset(data_dir: str | os.PathLike, out_dir: str | os.PathLike, *, l
         found = {k: v for k, v in found.items() if k in splits}
     options = _options(length_unit, velocity_unit, stress_unit, units_line)
     try:
-        _unit_scales(length_unit, velocity_unit, stress_unit)
+        unit_scales(length_unit, velocity_unit, stress_unit)
     except ValueError as err:
         raise ExportError(f"{out}: {err}") from None
     names_seen: list[str] | None = None
@@ -467,6 +257,6 @@ def export_dataset(data_dir: str | os.PathLike, out_dir: str | os.PathLike, *, l
                "parts": parts, "part_names": names_seen, "materials": part_map(names_seen or []),
                "splits": {k: [s.name for s in v] for k, v in found.items()},
                "import_command": f"python -m experiments.import_ansys --exports {out} --out DIR"}
-    _write_text_atomic(out / "export.json", json.dumps(to_jsonable(summary), indent=1) + "\n")
-    _write_text_atomic(out / "README.md", _readme(found, out, parts, length_unit))
+    write_text_atomic(out / "export.json", json.dumps(to_jsonable(summary), indent=1) + "\n")
+    write_text_atomic(out / "README.md", _readme(found, out, parts, length_unit))
     return counts

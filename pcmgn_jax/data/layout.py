@@ -1,0 +1,106 @@
+"""Dataset directories on disk: the layout, the manifest, and what a directory handed to training is.
+
+Layout of a dataset directory ``OUT``::
+
+    OUT/manifest.json                    # written atomically after every solver batch
+    OUT/train/train_0000.{xdmf,h5,json}  # one trajectory (see trajectory_io.py)
+    OUT/test/test_0000.{xdmf,h5,json}
+    OUT/extrap/extrap_0000....           # any extra named split (explicit designs)
+    OUT/.cache/SPLIT/                    # packed training cache (cache.py)
+
+manifest.json (written by :func:`pcmgn_jax.data.dataset.ensure_dataset`)::
+
+    {"format": "pcmgn_jax.dataset", "format_version": 1, "preset": "cpu", "scene": {...},
+     "family": null | {"parameters": [[name, low, high], ...]},
+     "design_layers": ["OCA1", "OCA2"], "units": {"design_m": "m", "design_um": "µm", "wall_time_s": "s"},
+     "splits": {"train": {"origin": {"kind": "lhs", "seed": 0, "n_total": 150, "rows": [0, 100],
+                                     "low_m": 5e-05, "high_m": 0.00015},
+                          "trajectories": [{"name": "train_0000", "path": "train/train_0000",
+                                            "design_m": [...], "design_um": [...],
+                                            "sha256": "...", "wall_time_s": 1.9}, ...]}, ...}}
+
+Datasets without a manifest (:func:`dataset_source`): ``OUT/train/*.json|.h5|.xdmf`` and
+``OUT/test/...`` as ``python -m experiments.import_ansys --exports EXPORTS --out OUT`` writes them (or any
+trajectory files in that layout) are read as they are; the solver never writes into such a directory.
+Everything here only reads.
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+__all__ = ["DATASET_FORMAT", "GENERATE", "IMPORTED", "MANIFEST", "SPLITS", "DatasetError", "dataset_source",
+           "has_trajectory_files", "load_manifest", "split_stems"]
+
+MANIFEST = "manifest.json"
+GENERATE = "generate"                  # dataset_source: absent directory or generator manifest -> the solver
+IMPORTED = "imported"                  # dataset_source: trajectory files without a manifest -> read as they are
+SPLITS = ("train", "test")             # the splits a directory without a manifest is recognised by
+DATASET_FORMAT = "pcmgn_jax.dataset"
+
+
+class DatasetError(ValueError):
+    """Inconsistent dataset directory / arguments, or designs the solver could not run."""
+
+
+def load_manifest(dataset_dir: str | os.PathLike) -> dict[str, Any] | None:
+    """The dataset manifest, or None when there is none. DatasetError if it is not a manifest."""
+    path = Path(dataset_dir) / MANIFEST
+    if not path.exists():
+        return None
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise DatasetError(f"{path}: cannot parse manifest: {err}") from None
+    if not isinstance(data, dict) or data.get("format") != DATASET_FORMAT:
+        raise DatasetError(f"{path}: field 'format' is not {DATASET_FORMAT!r}")
+    return data
+
+
+def has_trajectory_files(root: Path) -> bool:
+    """True when ``root/train`` or ``root/test`` holds a trajectory sidecar (``NAME.json``)."""
+    return any((root / s).is_dir() and any((root / s).glob("*.json")) for s in SPLITS)
+
+
+def dataset_source(dataset_dir: str | os.PathLike) -> str:
+    """What a dataset directory handed to training is; the one rule for whether the solver may run.
+
+    :data:`GENERATE` -- the directory does not exist, or holds a generator manifest (``manifest.json``):
+        :func:`pcmgn_jax.data.dataset.ensure_dataset` generates the missing trajectories with the solver
+        (resumable, verified).
+    :data:`IMPORTED` -- no manifest, but ``DIR/train/`` or ``DIR/test/`` holds trajectory files
+        (``NAME.json`` + ``.h5`` + ``.xdmf``, as ``experiments.import_ansys --exports EXPORTS --out DIR``
+        writes them): read as they are, never regenerated or added to.
+    Anything else (a directory that exists with neither, e.g. empty, or a folder of ANSYS run folders):
+    a one-line DatasetError naming the directory and what is expected. Reads only; writes nothing.
+    """
+    root = Path(dataset_dir)
+    if not root.exists() or load_manifest(root) is not None:
+        return GENERATE
+    if not root.is_dir():
+        raise DatasetError(f"{root}: not a directory; expected a dataset directory")
+    if has_trajectory_files(root):
+        return IMPORTED
+    raise DatasetError(f"{root}: no {MANIFEST} and no trajectory files in {root / 'train'} or {root / 'test'}; "
+                       f"expected a generated dataset (python -m experiments.generate --out {root}), trajectories "
+                       f"in train/ and test/ (python -m experiments.import_ansys --exports EXPORTS --out {root}), "
+                       "or a directory that does not exist yet (generated with the solver)")
+
+
+def split_stems(dataset_dir: str | os.PathLike, split: str) -> list[Path]:
+    """Path stems (``OUT/split/name``) of a split's trajectories, in manifest order.
+
+    Without a manifest: the sorted sidecars found in ``OUT/split``. DatasetError if the split is unknown.
+    """
+    root = Path(dataset_dir)
+    man = load_manifest(root)
+    if man is not None:
+        if split not in man.get("splits", {}):
+            raise DatasetError(f"{root / MANIFEST}: no split {split!r}; have {sorted(man.get('splits', {}))}")
+        return [root / e["path"] for e in man["splits"][split]["trajectories"]]
+    folder = root / split
+    if not folder.is_dir():
+        raise DatasetError(f"{folder}: split {split!r} not found (and no {MANIFEST})")
+    return [p.with_suffix("") for p in sorted(folder.glob("*.json"))]

@@ -1,0 +1,81 @@
+"""What a training or evaluation run reads from a dataset directory.
+
+:func:`prepare_dataset` makes a directory ready to load (by :func:`pcmgn_jax.data.layout.dataset_source`:
+a generated dataset gets its missing trajectories from the solver, an imported one is left as it is);
+:func:`load_splits` returns its (train, val, test) trajectories through the memory-mapped cache
+(:mod:`pcmgn_jax.data.cache`) and never runs the solver; :func:`load_directory` reads any folder of
+trajectory files.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from pcmgn_jax.data.cache import load_split
+from pcmgn_jax.data.dataset import ensure_dataset
+from pcmgn_jax.data.layout import GENERATE, IMPORTED, DatasetError, dataset_source
+from pcmgn_jax.data.trajectory_io import read_trajectory
+from pcmgn_jax.trajectory import Trajectory
+
+__all__ = ["load_directory", "load_splits", "prepare_dataset"]
+
+
+def load_directory(path: str | os.PathLike) -> list[Trajectory]:
+    """Every trajectory in a directory of trajectory files (``*.json`` sidecars beside their ``.h5``/
+    ``.xdmf``, e.g. one split of a dataset or an importer's output), sorted by name, hash-verified. Writes
+    nothing. DatasetError naming the directory when it holds none."""
+    folder = Path(path)
+    if not folder.is_dir():
+        raise DatasetError(f"{folder}: not a directory of trajectory files")
+    stems = [p.with_suffix("") for p in sorted(folder.glob("*.json")) if p.with_suffix(".h5").exists()]
+    if not stems:
+        raise DatasetError(f"{folder}: no trajectory files (NAME.json + NAME.h5) here")
+    return [read_trajectory(s) for s in stems]
+
+
+def prepare_dataset(dataset_dir: str | os.PathLike, *, preset: str, n_train: int, n_test: int, seed: int = 0,
+                    **generate) -> tuple[Path, str]:
+    """``(Path(dataset_dir), source)``: the dataset a training run reads, ready to load.
+
+    By :func:`dataset_source`: a :data:`GENERATE` directory gets its missing trajectories from the solver
+    (:func:`pcmgn_jax.data.dataset.ensure_dataset` with ``preset``, ``n_train``, ``n_test``, ``seed`` and
+    ``generate``); an :data:`IMPORTED` one is left as it is (the preset's designs and the generation sizes
+    play no part); anything else is the DatasetError of :func:`dataset_source`, before anything is written.
+    """
+    root = Path(dataset_dir)
+    source = dataset_source(root)
+    if source == GENERATE:
+        ensure_dataset(root, preset=preset, n_train=n_train, n_test=n_test, seed=seed, **generate)
+    return root, source
+
+
+def load_splits(dataset_dir: str | os.PathLike, *, n_train: int, n_val: int, n_test: int):
+    """(train, val, test) trajectories of a dataset directory (never runs the solver).
+
+    With a manifest (a generated dataset): ``train`` and ``val`` are the first ``n_train`` and next
+    ``n_val`` trajectories of the split ``train`` (the Latin-hypercube rows are in random order, so both
+    are random subsets).
+    Without one (an imported dataset, :func:`dataset_source`; the trajectories sorted by file name):
+    ``train`` is the first ``n_train`` and ``val`` the LAST ``n_val`` of the split ``train``, so the
+    validation trajectories stay the same whatever ``n_train`` is (and with exactly n_train + n_val
+    trajectories, as ``experiments.generate`` writes them, both rules pick the same ones); trajectories
+    between the two are not used. Name the runs so that the last ones are the validation runs you want.
+    ``test`` is the first ``n_test`` of the split ``test`` either way. Reading builds the memory-mapped
+    cache in ``DIR/.cache/`` (:mod:`pcmgn_jax.data.cache`). DatasetError naming the directory (and the
+    generating command, or the flags) when the dataset is missing or too small.
+    """
+    root = Path(dataset_dir)
+    if not root.exists():
+        raise DatasetError(f"{root}: no dataset here; generate it with `python -m experiments.generate "
+                           f"--out {root} ...` (or `python -m experiments.train`, which generates its preset's data)")
+    imported = dataset_source(root) == IMPORTED
+    train = load_split(root, "train") if n_train + n_val else []
+    test = load_split(root, "test") if n_test else []
+    need = n_train + n_val
+    if len(train) < need or len(test) < n_test:
+        hint = " (set --n_train, --n_val and --n_test to fit)" if imported else ""
+        raise DatasetError(f"{root}: holds {len(train)} train / {len(test)} test trajectories, the config needs "
+                           f"n_train + n_val = {need} and n_test = {n_test}{hint}")
+    if imported:
+        return train[:n_train], train[len(train) - n_val:], test[:n_test]
+    return train[:n_train], train[n_train:need], test[:n_test]
