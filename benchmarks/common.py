@@ -6,8 +6,8 @@ import os
 import platform
 import statistics
 import time
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -76,11 +76,11 @@ def machine_info(torch_threads: int | None = None) -> dict:
         affinity = len(os.sched_getaffinity(0))
     except AttributeError:
         affinity = os.cpu_count()
-    info = dict(cpu=cpu, cores_visible=os.cpu_count(), cores_usable=affinity,
-                platform=platform.platform(), python=platform.python_version(),
-                jax=jax.__version__, jaxlib=jaxlib.__version__, jax_backend=jax.default_backend(),
-                xla_flags=os.environ.get("XLA_FLAGS", ""),
-                load_avg_1min=os.getloadavg()[0] if hasattr(os, "getloadavg") else None)
+    info = {"cpu": cpu, "cores_visible": os.cpu_count(), "cores_usable": affinity,
+            "platform": platform.platform(), "python": platform.python_version(),
+            "jax": jax.__version__, "jaxlib": jaxlib.__version__, "jax_backend": jax.default_backend(),
+            "xla_flags": os.environ.get("XLA_FLAGS", ""),
+            "load_avg_1min": os.getloadavg()[0] if hasattr(os, "getloadavg") else None}
     try:
         import torch
         info["torch"] = torch.__version__
@@ -129,7 +129,7 @@ def time_calls(fns: Mapping[str, Callable[[], object]], *, repeats: int = 10, wa
             block(f())
             times[k].append((time.perf_counter() - t0) * 1e3)
         r += 1
-    return {k: dict(median_ms=statistics.median(v), min_ms=min(v), max_ms=max(v), n=len(v))
+    return {k: {"median_ms": statistics.median(v), "min_ms": min(v), "max_ms": max(v), "n": len(v)}
             for k, v in times.items()}
 
 
@@ -151,8 +151,8 @@ def roi_mesh(n_nodes: int, preset: str = "auto"):
     (else 'paper'); the ROI radius (and ball height) is then bisected to get closest to n_nodes.
     Returns (submesh, info dict).
     """
-    from pcmgn_jax.sim.mesh import build_mesh, mesh_spec, roi
     from pcmgn_jax.scene import default_scene
+    from pcmgn_jax.sim.mesh import build_mesh, mesh_spec, roi
     scene = default_scene()
     if preset == "auto":
         preset = "paper"
@@ -178,7 +178,7 @@ def roi_mesh(n_nodes: int, preset: str = "auto"):
         else:
             hi = mid
     sub, roi_x = best
-    return sub, dict(mesh_preset=preset, roi_x_m=roi_x, full_mesh_nodes=full.n_nodes, scene=scene)
+    return sub, {"mesh_preset": preset, "roi_x_m": roi_x, "full_mesh_nodes": full.n_nodes, "scene": scene}
 
 
 def bench_graph(n_nodes: int, preset: str = "auto", seed: int = 0) -> dict:
@@ -191,24 +191,19 @@ def bench_graph(n_nodes: int, preset: str = "auto", seed: int = 0) -> dict:
     import jax.numpy as jnp
 
     from pcmgn_jax.mgn import contact as contact_lib
-    from pcmgn_jax.mgn.graphs import build_graph, make_topology
+    from pcmgn_jax.mgn.graphs import build_graph
+    from pcmgn_jax.mgn.inputs import graph_inputs
 
     mesh, info = roi_mesh(n_nodes, preset)
     scene = info.pop("scene")
-    n_parts = len(mesh.part_names)
-    topo = make_topology(points=mesh.points, cells=mesh.cells, node_type=mesh.node_type, n_parts=n_parts)
     ball = mesh.node_part == 0
     u = np.zeros_like(mesh.points)
     u[ball, 1] = -(scene.ball.gap + 3e-6)
     v = np.zeros_like(mesh.points)
     v[ball, 1] = -scene.ball.velocity
-    top = contact_lib.surface_nodes(mesh.points, mesh.cells, mesh.cell_part, 1, facing="up")
-    xs = np.sort(mesh.points[top, 0])
-    d = np.diff(xs)[:20]
-    radius = float(1.5 * np.median(d[d > 0]))
-    index = contact_lib.allocate(points=mesh.points, cells=mesh.cells, cell_part=mesh.cell_part,
-                                 ball_part=0, panel_part=1, radius=radius, positions=[mesh.points + u],
-                                 capacity_factor=2.0)
+    # contact radius: contact_lib.auto_radius of the cover glass (the default of graph_inputs)
+    topo, index, _ = graph_inputs(mesh, scene, positions=[mesh.points + u], capacity_factor=2.0)
+    radius = index.radius
     edges = contact_lib.update(index, jnp.asarray(mesh.points + u, jnp.float32))
     g = build_graph(topo, points=mesh.points, displacement=u, velocity=v, contact=edges)
 
@@ -225,15 +220,15 @@ def bench_graph(n_nodes: int, preset: str = "auto", seed: int = 0) -> dict:
     cmask = np.asarray(edges.mask)
     cfeat = np.where(cmask[:, None], z(g.edges["contact"].features, cmask), 0.0).astype(np.float32)
     rng = np.random.default_rng(seed)
-    out = dict(nodes=nodes,
-               mesh_features=z(g.edges["mesh"].features),
-               mesh_senders=np.asarray(topo.mesh_senders, np.int32),
-               mesh_receivers=np.asarray(topo.mesh_receivers, np.int32),
-               contact_features=cfeat,
-               contact_senders=np.asarray(edges.senders, np.int32),
-               contact_receivers=np.asarray(edges.receivers, np.int32),
-               contact_mask=cmask,
-               target=rng.standard_normal((mesh.n_nodes, 3)).astype(np.float32))
+    out = {"nodes": nodes,
+           "mesh_features": z(g.edges["mesh"].features),
+           "mesh_senders": np.asarray(topo.mesh_senders, np.int32),
+           "mesh_receivers": np.asarray(topo.mesh_receivers, np.int32),
+           "contact_features": cfeat,
+           "contact_senders": np.asarray(edges.senders, np.int32),
+           "contact_receivers": np.asarray(edges.receivers, np.int32),
+           "contact_mask": cmask,
+           "target": rng.standard_normal((mesh.n_nodes, 3)).astype(np.float32)}
     info.update(n_nodes=int(mesh.n_nodes), n_mesh_edges=int(topo.mesh_senders.shape[0]),
                 n_contact_edges_active=int(cmask.sum()), contact_capacity=int(index.capacity),
                 node_feature_dim=int(nodes.shape[1]), contact_radius_m=radius)
@@ -278,5 +273,5 @@ def mgn_flops(n_nodes: int, n_edges: Mapping[str, int], in_dims: Mapping[str, in
     fwd = enc + steps * per_step + dec
     # concat-first-layer variant (E x 3L input) for reference
     per_step_cat = sum(mlp(e, 3 * L, L) for e in n_edges.values()) + mlp(n_nodes, L * (1 + len(n_edges)), L)
-    return dict(forward=fwd, train_step_approx=3 * fwd,
-                forward_concat_variant=enc + steps * per_step_cat + dec)
+    return {"forward": fwd, "train_step_approx": 3 * fwd,
+            "forward_concat_variant": enc + steps * per_step_cat + dec}

@@ -47,13 +47,13 @@ def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2,
                   seed: int = 0) -> dict:
     """Model spec, random params, stats, topology, contact index and per-design initial states."""
     import jax
-    from pcmgn_jax.mgn import contact as contact_lib
-    from pcmgn_jax.mgn.graphs import make_topology
-    from pcmgn_jax.sim.mesh import build_mesh, roi
+
+    from pcmgn_jax.mgn.inputs import graph_inputs
     from pcmgn_jax.mgn.model import EncodeProcessDecode
     from pcmgn_jax.mgn.normalization import normalize_graph
     from pcmgn_jax.mgn.rollout import Spec, input_graph
     from pcmgn_jax.scene import default_scene
+    from pcmgn_jax.sim.mesh import build_mesh, roi
 
     base = default_scene()
     side = int(np.ceil(np.sqrt(n_designs)))
@@ -64,25 +64,19 @@ def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2,
     for m in meshes[1:]:
         if not np.array_equal(m.cells, m0.cells):
             raise ValueError("designs do not share one topology")
-    n_parts = len(m0.part_names)
-    from pcmgn_jax.mgn.formulation import FORMULATIONS, scene_feature_rows
+    from pcmgn_jax.mgn.formulation import FORMULATIONS
     form = FORMULATIONS["default"]
-    topo = make_topology(points=m0.points, cells=m0.cells, node_type=m0.node_type, n_parts=n_parts,
-                         scene_features=scene_feature_rows(base.to_dict(), form.scene_features, m0.node_type))
     ball = m0.node_part == 0
-    top = contact_lib.surface_nodes(m0.points, m0.cells, m0.cell_part, 1, facing="up")
-    xs = np.sort(m0.points[top, 0])
-    d = np.diff(xs)[:20]
-    radius = float(1.5 * np.median(d[d > 0]))
-    # buffer sized on the ball pressed up to 20 µm into the glass (a realistic peak)
+    # contact radius: the default (auto_radius); buffer sized on the ball pressed up to 20 µm into the
+    # glass (a realistic peak)
     pressed = []
     for depth in (0.0, 10e-6, 20e-6):
         u = np.zeros_like(m0.points)
         u[ball, 1] = -(base.ball.gap + depth)
         pressed.append(m0.points + u)
-    index = contact_lib.allocate(points=m0.points, cells=m0.cells, cell_part=m0.cell_part, ball_part=0,
-                                 panel_part=1, radius=radius, positions=[np.stack(pressed)],
-                                 capacity_factor=2.0)
+    topo, index, _ = graph_inputs(m0, base, scene_features=form.scene_features, positions=[np.stack(pressed)],
+                                  capacity_factor=2.0)
+    radius = index.radius
     points = np.stack([m.points for m in meshes]).astype(np.float32)
     u0 = np.zeros_like(points)
     v0 = np.zeros_like(points)
@@ -93,8 +87,9 @@ def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2,
     g, _ = input_graph(form, topo, index, m0.points, pressed[-1] - m0.points, v0[0])
     k = topo.n_node_types
     node_type = np.asarray(topo.node_type)
-    acc = dict(node=TypedAccumulator(k, g.nodes.shape[1] - k), mesh=TypedAccumulator(k, 6), contact=Accumulator(3),
-               motion=TypedAccumulator(k, 2), stress=TypedAccumulator(k, 1), ball=Accumulator(2))
+    acc = {"node": TypedAccumulator(k, g.nodes.shape[1] - k), "mesh": TypedAccumulator(k, 6),
+           "contact": Accumulator(3), "motion": TypedAccumulator(k, 2), "stress": TypedAccumulator(k, 1),
+           "ball": Accumulator(2)}
     acc["node"].add(np.asarray(g.nodes[:, k:]), node_type)
     acc["mesh"].add(np.asarray(g.edges["mesh"].features), node_type[np.asarray(topo.mesh_receivers)])
     stats = make_stats(**acc, per_part=True, contact_default_std=radius)
@@ -102,9 +97,10 @@ def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2,
                                 message_passing_steps=layers)
     spec = Spec(model=model, formulation=form, dt=float(base.output_dt))
     params = model.init(jax.random.PRNGKey(seed), normalize_graph(stats, g, node_type))
-    return dict(spec=spec, params=params, stats=stats, topology=topo, index=index, points=points,
-                u0=u0, v0=v0, vm0=vm0, n_nodes=int(m0.n_nodes), n_mesh_edges=int(topo.mesh_senders.shape[0]),
-                contact_capacity=int(index.capacity), designs_m=designs)
+    return {"spec": spec, "params": params, "stats": stats, "topology": topo, "index": index, "points": points,
+            "u0": u0, "v0": v0, "vm0": vm0, "n_nodes": int(m0.n_nodes),
+            "n_mesh_edges": int(topo.mesh_senders.shape[0]), "contact_capacity": int(index.capacity),
+            "designs_m": designs}
 
 
 def _tile(x, b):
@@ -196,10 +192,10 @@ def main(argv=None) -> dict:
         compile_s[f"union{b}"] = time.perf_counter() - t0
         fns[f"union{b}"] = (lambda fn=fn, batch=batch, init=init: blk(fn(s["params"], s["stats"], batch, *init)))
         per_call[f"union{b}"] = b
-        union_info[str(b)] = dict(nodes=int(batch.points.shape[0]), real_nodes=int(batch.n_node.sum()),
-                                  mesh_edges=int(batch.topology.mesh_senders.shape[0]),
-                                  graph_slots=int(batch.layout.n_node.shape[0]),
-                                  contact_capacity_per_graph=int(batch.index.capacity))
+        union_info[str(b)] = {"nodes": int(batch.points.shape[0]), "real_nodes": int(batch.n_node.sum()),
+                              "mesh_edges": int(batch.topology.mesh_senders.shape[0]),
+                              "graph_slots": int(batch.layout.n_node.shape[0]),
+                              "contact_capacity_per_graph": int(batch.index.capacity)}
     for b in batches:
         args = tuple(_tile(x, b) for x in (s["points"], s["u0"], s["v0"], s["vm0"]))
         t0 = time.perf_counter()
@@ -221,34 +217,35 @@ def main(argv=None) -> dict:
     times = common.time_calls(fns, repeats=a.repeats, warmup=1)
     ms = {k: times[k]["median_ms"] / per_call[k] for k in fns}  # per design
     ref = ms["single"]
-    result = dict(single=dict(rollout_ms=ref, per_frame_ms=ref / T, compile_s=compile_s["single"],
-                              timing=times["single"]))
+    result = {"single": {"rollout_ms": ref, "per_frame_ms": ref / T, "compile_s": compile_s["single"],
+                         "timing": times["single"]}}
     if not a.no_loop:
-        result["python_loop"] = dict(rollout_ms=ms["python_loop"], loop_over_scan=ms["python_loop"] / ref)
+        result["python_loop"] = {"rollout_ms": ms["python_loop"], "loop_over_scan": ms["python_loop"] / ref}
     result["union"] = {str(b): dict(batch=b, ms_per_design=ms[f"union{b}"], designs_per_s=1e3 / ms[f"union{b}"],
                                     speedup_vs_single=ref / ms[f"union{b}"],
                                     compile_s=compile_s[f"union{b}"], timing=times[f"union{b}"],
                                     **union_info[str(b)]) for b in unions}
-    result["batched"] = {str(b): dict(batch=b, rollout_ms=times[f"vmap{b}"]["median_ms"], ms_per_design=ms[f"vmap{b}"],
-                                      designs_per_s=1e3 / ms[f"vmap{b}"], speedup_vs_single=ref / ms[f"vmap{b}"],
-                                      compile_s=compile_s[f"vmap{b}"], timing=times[f"vmap{b}"]) for b in batches}
+    result["batched"] = {str(b): {"batch": b, "rollout_ms": times[f"vmap{b}"]["median_ms"],
+                                  "ms_per_design": ms[f"vmap{b}"], "designs_per_s": 1e3 / ms[f"vmap{b}"],
+                                  "speedup_vs_single": ref / ms[f"vmap{b}"], "compile_s": compile_s[f"vmap{b}"],
+                                  "timing": times[f"vmap{b}"]} for b in batches}
     for b in unions:
         if str(b) in result["batched"]:
             result["union"][str(b)]["speedup_vs_vmap"] = ms[f"vmap{b}"] / ms[f"union{b}"]
     if a.profile and unions:
         result["profile_step_ms_per_design"] = _profile(spec, common_args, one, s, unions[0])
-    config = dict(preset=a.preset, n_nodes=s["n_nodes"], n_mesh_edges=s["n_mesh_edges"],
-                  contact_capacity=s["contact_capacity"], latent=a.latent, layers=a.layers,
-                  mlp_layers=a.mlp_layers, frames=T, repeats=a.repeats, params="random (timing only)",
-                  command="python -m benchmarks.rollout_throughput " +
-                  " ".join(sys.argv[1:] if argv is None else argv))
+    config = {"preset": a.preset, "n_nodes": s["n_nodes"], "n_mesh_edges": s["n_mesh_edges"],
+              "contact_capacity": s["contact_capacity"], "latent": a.latent, "layers": a.layers,
+              "mlp_layers": a.mlp_layers, "frames": T, "repeats": a.repeats, "params": "random (timing only)",
+              "command": "python -m benchmarks.rollout_throughput " +
+              " ".join(sys.argv[1:] if argv is None else argv)}
     machine = common.machine_info()
     machine["load_avg_1min_start"] = load0
     result.update(config=config, machine=machine)
-    md = [f"## Surrogate rollout throughput — {a.preset} ROI mesh ({s['n_nodes']} nodes, "
-          f"{s['n_mesh_edges']} mesh edges), {a.layers} steps x latent {a.latent}, {T} frames, random params\n",
-          f"`{config['command']}` — {machine['cpu']}, {machine['cores_usable']} cores, jax {machine['jax']}, "
-          f"load {load0:.1f} -> {machine['load_avg_1min']:.1f}; interleaved, median of {a.repeats}\n\n",
+    md = [(f"## Surrogate rollout throughput — {a.preset} ROI mesh ({s['n_nodes']} nodes, "
+           f"{s['n_mesh_edges']} mesh edges), {a.layers} steps x latent {a.latent}, {T} frames, random params\n"),
+          (f"`{config['command']}` — {machine['cpu']}, {machine['cores_usable']} cores, jax {machine['jax']}, "
+           f"load {load0:.1f} -> {machine['load_avg_1min']:.1f}; interleaved, median of {a.repeats}\n\n"),
           f"One rollout (lax.scan): {ref:.1f} ms ({ref / T:.2f} ms/frame; compile {compile_s['single']:.1f} s).\n"]
     if "python_loop" in result:
         md.append(f"Python loop of jitted steps: {ms['python_loop']:.1f} ms = "

@@ -93,7 +93,8 @@ def test_union_chunk_compiles_once_across_meshes(mixed):
 
 @pytest.mark.slow
 def test_family_tiny_generation_has_differing_meshes(family_tiny):
-    from pcmgn_jax.data.dataset import load_directory, load_manifest
+    from pcmgn_jax.data.layout import load_manifest
+    from pcmgn_jax.data.splits import load_directory
     man = load_manifest(family_tiny)
     assert man["preset"] == "family_tiny" and [p[0] for p in man["family"]["parameters"]] == \
         ["ball.radius", "ball.velocity", "OCA1", "OCA2", "POL"]

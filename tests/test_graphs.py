@@ -4,8 +4,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pcmgn_jax.mgn import contact
-from pcmgn_jax.mgn import graphs
+from pcmgn_jax.mgn import contact, graphs
+
 #   3 --- 4 --- 5          y = 1e-5
 #   |  0  |  1  |
 #   0 --- 1 --- 2          y = 0
@@ -30,7 +30,7 @@ def test_two_cell_mesh_edges_and_features():
     g = graphs.build_graph(topo, points=POINTS, displacement=u, velocity=v, contact=edges)
     assert g.nodes.shape == (6, 3 + 4)
     np.testing.assert_allclose(g.nodes[4], [0, 1, 0, H + 1e-6, H - 2e-6, 8, 9], rtol=1e-6)
-    k = [i for i, (s, r) in enumerate(zip(topo.mesh_senders, topo.mesh_receivers)) if (s, r) == (4, 1)][0]
+    k = next(i for i, (s, r) in enumerate(zip(topo.mesh_senders, topo.mesh_receivers)) if (s, r) == (4, 1))
     # u_41 = X4 - X1 = (0, H); x_41 = (1e-6, H - 2e-6)
     expect = [0, H, H, 1e-6, H - 2e-6, np.hypot(1e-6, H - 2e-6)]
     np.testing.assert_allclose(g.edges["mesh"].features[k], expect, rtol=1e-5, atol=1e-12)
@@ -69,7 +69,7 @@ def test_contact_candidates_radius_and_overflow():
 
 
 def test_contact_excludes_mesh_edges():
-    pts, cells, cell_part = _two_body()
+    pts, cells, _cell_part = _two_body()
     cells = np.concatenate([cells, [[2, 3, 5, 4]]])       # a bridging cell makes 2-4, 3-5 mesh edges
     idx = contact.allocate(points=pts, cells=cells, cell_part=np.array([1, 0, 2]), radius=6e-6, capacity=8)
     e = contact.update(idx, jnp.asarray(pts, jnp.float32))
@@ -103,6 +103,7 @@ def test_mesh_receivers_sorted_alone_and_in_a_union():
     """The model sums mesh messages with indices_are_sorted=True: quad_edges and the padded disjoint
     union (offset designs, padding edges on the padding node) keep the mesh receivers ascending."""
     from conftest import drop_last_column, make_synthetic_trajectory
+
     from pcmgn_jax.mgn import batching
     trajs = [make_synthetic_trajectory(0.9), drop_last_column(make_synthetic_trajectory(1.2))]
     trajs = trajs + trajs[::-1]
@@ -113,3 +114,81 @@ def test_mesh_receivers_sorted_alone_and_in_a_union():
     b = batching.batch_graphs(topos, idx, [t.points for t in trajs])
     assert (~b.layout.edge_mask).any()  # padding edges present
     assert np.all(np.diff(b.topology.mesh_receivers) >= 0)
+
+
+def _same_topology(a, b):
+    assert a.n_node_types == b.n_node_types
+    for k in ("node_type", "mesh_senders", "mesh_receivers", "fixed", "axis"):
+        x, y = np.asarray(getattr(a, k)), np.asarray(getattr(b, k))
+        assert x.dtype == y.dtype and np.array_equal(x, y), k
+    if a.scene_features is None or b.scene_features is None:
+        assert a.scene_features is None and b.scene_features is None
+    else:
+        x, y = np.asarray(a.scene_features), np.asarray(b.scene_features)
+        assert x.dtype == y.dtype == np.float32 and np.array_equal(x, y)
+
+
+def _same_index(a, b):
+    assert a.radius == b.radius and a.capacity == b.capacity
+    for k in ("ball_nodes", "panel_nodes", "allowed"):
+        assert np.array_equal(np.asarray(getattr(a, k)), np.asarray(getattr(b, k))), k
+
+
+def test_graph_inputs_are_what_training_surrogates_and_objectives_build():
+    """mgn.inputs.graph_inputs (the one rule: mesh + scene -> topology, scene features, contact index) gives
+    bit for bit what train.setup.prepare builds per trajectory (two meshes, auto radius, per-trajectory
+    scene features), what MGNSurrogate._design builds on the reference and on another mesh, and the scene
+    features the MGN objective traces with the design."""
+    from types import SimpleNamespace
+
+    from conftest import drop_last_column, make_synthetic_trajectory, tiny_config
+
+    from pcmgn_jax.eval.surrogates import MGNSurrogate, design_of
+    from pcmgn_jax.mgn.inputs import graph_inputs, with_scene
+    from pcmgn_jax.train.setup import contact_positions, graph_for, prepare
+
+    trajs = [make_synthetic_trajectory(0.9), drop_last_column(make_synthetic_trajectory(1.1)),
+             make_synthetic_trajectory(1.0)]
+    names = ("ball_radius", "layer_thickness")
+    cfg = tiny_config(contact_radius=0.0, scene_features=",".join(names))
+    setup = prepare(cfg, trajs, stats_max_frames=2)
+    form = setup.spec.sim.formulation
+    assert form.scene_features == names
+    members = {0: [0, 2], 1: [1]}  # trajectories 0 and 2 share a mesh
+    cap = setup.graphs[0].index.capacity
+    for i, t in enumerate(trajs):
+        g = members.get(i, members[0])
+        inp = graph_inputs(t, t.meta["scene"], scene_features=names, radius=None,
+                           positions=[contact_positions(form, trajs[j]) for j in g],
+                           capacity_factor=cfg.contact_capacity_factor)
+        _same_topology(inp.topology, setup.graphs[i].topology)
+        if i in members:
+            assert inp.index.radius == setup.radius
+            _same_index(inp.index.replace(capacity=cap), setup.graphs[i].index)
+        assert inp.points.dtype == np.float32 and np.array_equal(inp.points, np.asarray(t.points, np.float32))
+        # graph_for (a trajectory outside the split): the same rule at the training radius and buffer
+        d = graph_for(setup, t)
+        want = graph_inputs(t, t.meta["scene"], scene_features=names, radius=setup.radius,
+                            capacity=setup.sizes.capacity)
+        _same_topology(d["topology"], want.topology)
+        _same_index(d["index"], want.index)
+        assert set(d) == {"topology", "index", "points"} and np.array_equal(d["points"], want.points)
+
+    # the MGN surrogate: the model's topology / index on the reference mesh, its own on another mesh
+    sur = MGNSurrogate.__new__(MGNSurrogate)
+    sur.ref = trajs[0]
+    sur.sim = SimpleNamespace(topology=setup.graphs[0].topology, index=setup.graphs[0].index, spec=setup.spec.sim)
+    for i in (0, 1, 2):
+        t = trajs[i]
+        d = sur._design(t, t.displacement[0], t.velocity[0], t.von_mises[0], t.meta["scene"])
+        _same_topology(d["topology"], setup.graphs[i].topology)
+        own = graph_inputs(t, trajs[0].meta["scene"], radius=setup.radius, capacity=cap).index  # <= all pairs
+        _same_index(d["index"], setup.graphs[i].index if i != 1 else own)
+        _same_index(d["index"].replace(capacity=cap), setup.graphs[i].index)
+
+    # the MGN objective: the reference topology with the scene features traced from the design
+    traced = jax.jit(lambda x: with_scene(setup.graphs[0].topology, trajs[0].meta["scene"], names,
+                                          design=x).scene_features)
+    got = np.asarray(traced(jnp.asarray(design_of(trajs[2]), jnp.float32)))
+    want = np.asarray(setup.graphs[2].topology.scene_features)
+    assert got.dtype == want.dtype and np.array_equal(got, want)

@@ -92,7 +92,8 @@ def test_evaluate_any_directory_and_baselines_that_need_the_training_mesh(tiny_r
     nearest training scene (fields carried over to the data's mesh) and 'none' still do."""
     import dataclasses
 
-    from pcmgn_jax.data.dataset import DatasetError, load_directory
+    from pcmgn_jax.data.layout import DatasetError
+    from pcmgn_jax.data.splits import load_directory
     from pcmgn_jax.data.trajectory_io import write_trajectory
     from pcmgn_jax.eval import evaluate as evaluation
     _, workdir, _ = tiny_run

@@ -248,24 +248,17 @@ class MGNSurrogate:
         """One design for the union rollout: ``mesh`` (points, cells, cell_part, node_type) and its initial
         state; the model's topology and contact buffer when it is the reference mesh, else its own; the
         scene features (if the model has any) of ``scene`` (a scene dict; default the reference's)."""
-        from pcmgn_jax.mgn.checkpoint import contact_index_for
-        from pcmgn_jax.mgn.formulation import scene_feature_rows
-        from pcmgn_jax.mgn.graphs import make_topology, with_scene_features
-        from pcmgn_jax.scene import Scene
+        from pcmgn_jax.mgn.inputs import graph_inputs, with_scene
         s = self.sim
         topology, index = s.topology, s.index
         if not (len(mesh.points) == self.ref.n_nodes and np.array_equal(mesh.cells, self.ref.cells)
                 and np.array_equal(mesh.node_type, self.ref.node_type)):
-            topology = make_topology(points=mesh.points, cells=mesh.cells, node_type=mesh.node_type,
-                                     n_parts=s.topology.n_node_types - 1)
-            index = contact_index_for(mesh, Scene.from_dict(self.ref.meta["scene"]), radius=s.index.radius,
-                                      capacity=s.index.capacity)
-        names = s.spec.formulation.scene_features
-        if names:
-            topology = with_scene_features(topology, scene_feature_rows(scene or self.ref.meta["scene"], names,
-                                                                        topology.node_type))
-        return dict(topology=topology, index=index, points=np.asarray(mesh.points, np.float32),
-                    u0=np.asarray(u0, np.float32), v0=np.asarray(v0, np.float32), vm0=np.asarray(vm0, np.float32))
+            topology, index, _ = graph_inputs(mesh, self.ref.meta["scene"], n_parts=s.topology.n_node_types - 1,
+                                              radius=s.index.radius, capacity=s.index.capacity)
+        topology = with_scene(topology, scene or self.ref.meta["scene"], s.spec.formulation.scene_features)
+        return {"topology": topology, "index": index, "points": np.asarray(mesh.points, np.float32),
+                "u0": np.asarray(u0, np.float32), "v0": np.asarray(v0, np.float32),
+                "vm0": np.asarray(vm0, np.float32)}
 
     def _rollout(self, designs):
         """Union rollouts of ``designs`` (see :meth:`_design`): (u, vm) stacked or lists (class docstring).
@@ -323,10 +316,10 @@ class MGNSurrogate:
         """The solver's initial state on meshes (B, N, 2) [m]: u0 = 0 [m], v0 = the ball's drop velocity on
         ball nodes [m/s], von Mises 0 [Pa]. ``node_part``: the meshes' (N,) parts (default: the reference's)."""
         from pcmgn_jax.scene import Scene
+        from pcmgn_jax.sim.initial import initial_velocity
         pts = np.asarray(points, np.float64)
-        v0 = np.zeros_like(pts)
         part = self.ref.node_part if node_part is None else node_part
-        v0[:, np.asarray(part) == 0, 1] = -Scene.from_dict(self.ref.meta["scene"]).ball.velocity
+        v0 = np.broadcast_to(initial_velocity(Scene.from_dict(self.ref.meta["scene"]), part), pts.shape).copy()
         return np.zeros_like(pts), v0, np.zeros(pts.shape[:2])
 
 

@@ -126,12 +126,9 @@ def with_scene_features(topology: Topology, rows) -> Topology:
 def topology_from_trajectory(traj, scene_features: tuple = ()) -> Topology:
     """Topology of a :class:`pcmgn_jax.trajectory.Trajectory` (n_parts from its scene/part names), with the
     scene features ``scene_features`` (names, :data:`pcmgn_jax.mgn.formulation.SCENE_FEATURES`) read from
-    its meta['scene']."""
-    from pcmgn_jax.mgn.formulation import scene_feature_rows
-    topo = make_topology(points=traj.points, cells=traj.cells, node_type=traj.node_type, n_parts=n_parts_of(traj))
-    if not scene_features:
-        return topo
-    return with_scene_features(topo, scene_feature_rows(traj.meta["scene"], scene_features, traj.node_type))
+    its meta['scene'] (:func:`pcmgn_jax.mgn.inputs.design_topology`)."""
+    from pcmgn_jax.mgn.inputs import design_topology
+    return design_topology(traj, traj.meta["scene"] if scene_features else traj.meta.get("scene"), scene_features)
 
 
 def n_parts_of(traj) -> int:

@@ -156,7 +156,7 @@ class MGNObjective(FieldObjective):
         import jax
         import jax.numpy as jnp
 
-        from pcmgn_jax.mgn.formulation import scene_feature_rows
+        from pcmgn_jax.mgn.inputs import with_scene
         from pcmgn_jax.mgn.rollout import rollout
 
         s = self.surrogate.sim
@@ -169,10 +169,8 @@ class MGNObjective(FieldObjective):
 
         def objective(design, weights, index):
             pts = self.map.points(design)
-            topology = s.topology
-            if names:  # scene features that follow the design (layer_thickness) carry its tangent too
-                topology = topology.replace(scene_features=scene_feature_rows(scene, names, topology.node_type,
-                                                                              design=design))
+            # scene features that follow the design (layer_thickness) carry its tangent too
+            topology = with_scene(s.topology, scene, names, design=design)
             res = rollout(s.spec, n_steps, s.params, s.stats, topology, index, pts, u0[0], v0[0], vm0[0])
             f = metrics.oled_objective(res.von_mises, weights, reading=reading)
             return f, (f, jnp.any(res.overflow), jnp.max(res.contact_count))

@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import jax
 import numpy as np
@@ -29,11 +30,11 @@ import numpy as np
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.geometry import roi_boundary_nodes
 from pcmgn_jax.mgn import contact as contact_lib
+from pcmgn_jax.mgn.batching import bucket_size
 from pcmgn_jax.mgn.checkpoint import make_spec
 from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, is_ball, model_inputs
-from pcmgn_jax.mgn.batching import bucket_size
-from pcmgn_jax.mgn.graphs import Topology, topology_from_trajectory, with_scene_features
-from pcmgn_jax.mgn.formulation import scene_feature_rows
+from pcmgn_jax.mgn.graphs import Topology, topology_from_trajectory
+from pcmgn_jax.mgn.inputs import contact_radius, graph_inputs, with_scene
 from pcmgn_jax.mgn.normalization import Accumulator, Stats, TypedAccumulator, make_stats
 from pcmgn_jax.mgn.rollout import Spec, input_graph
 from pcmgn_jax.scene import Scene
@@ -102,7 +103,7 @@ def scene_of(traj) -> Scene:
 
 
 def total_steps(cfg: TrainConfig, n_pairs: int) -> int:
-    steps = cfg.num_steps or int(math.ceil(cfg.epochs * n_pairs / cfg.batch_graphs))
+    steps = cfg.num_steps or math.ceil(cfg.epochs * n_pairs / cfg.batch_graphs)
     k = cfg.steps_per_dispatch
     return int(k * math.ceil(steps / k))
 
@@ -139,8 +140,8 @@ def loss_weights(form: Formulation, topology: Topology) -> dict:
     if form.rigid_ball:
         w_ball = float(motion[ball].sum())
         motion[ball] = 0.0
-    return dict(motion=motion.astype(np.float32), ball=np.float32(w_ball),
-                stress=spread(np.ones(node_type.shape, bool)).astype(np.float32))
+    return {"motion": motion.astype(np.float32), "ball": np.float32(w_ball),
+            "stress": spread(np.ones(node_type.shape, bool)).astype(np.float32)}
 
 
 @functools.partial(jax.jit, static_argnames=("spec",))
@@ -178,10 +179,10 @@ def compute_stats(spec: Spec, trajs, topology, index, sigma, *, max_frames: int 
     T = topos[0].n_node_types
     n_scene = 0 if topos[0].scene_features is None else int(np.shape(topos[0].scene_features)[1])
     n_node = (6 if form.features == "strain" else 4) + n_scene + form.node_extra
-    acc = dict(node=TypedAccumulator(T, n_node), mesh=TypedAccumulator(T, 6), contact=Accumulator(3),
-               motion=TypedAccumulator(T, 2), stress=TypedAccumulator(T, 1), ball=Accumulator(2))
+    acc = {"node": TypedAccumulator(T, n_node), "mesh": TypedAccumulator(T, 6), "contact": Accumulator(3),
+           "motion": TypedAccumulator(T, 2), "stress": TypedAccumulator(T, 1), "ball": Accumulator(2)}
     key = jax.random.PRNGKey(seed)
-    f32 = lambda d: {k: np.asarray(v, np.float32) for k, v in d.items()}  # noqa: E731
+    f32 = lambda d: {k: np.asarray(v, np.float32) for k, v in d.items()}
     for n, (i, t) in enumerate(pairs):
         topo = topos[i]
         node_type = np.asarray(topo.node_type)
@@ -217,13 +218,9 @@ def mesh_key(traj) -> tuple:
 def graph_for(setup: Setup, traj) -> dict:
     """A trajectory outside the training split as a design for :func:`pcmgn_jax.mgn.rollout.rollout_designs`
     (its topology with its scene features, a contact index of the training radius and buffer size)."""
-    form = setup.spec.sim.formulation
-    ball_part, panel_part = contact_lib.contact_parts(scene_of(traj))
-    index = contact_lib.allocate(points=traj.points, cells=traj.cells, cell_part=traj.cell_part,
-                                 ball_part=ball_part, panel_part=panel_part, radius=setup.radius,
-                                 capacity=setup.sizes.capacity)
-    return dict(topology=topology_from_trajectory(traj, form.scene_features), index=index,
-                points=np.asarray(traj.points, np.float32))
+    inp = graph_inputs(traj, traj.meta["scene"], scene_features=setup.spec.sim.formulation.scene_features,
+                       radius=setup.radius, capacity=setup.sizes.capacity)
+    return inp._asdict()
 
 
 def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 2000,
@@ -246,8 +243,8 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
             raise ValueError(f"training trajectory {i} ({name}): parts {scene_of(t).part_names} differ from "
                              f"trajectory 0's {scene.part_names}; one set of node types per dataset")
     form = cfg.formulation
-    ball_part, panel_part = contact_lib.contact_parts(scene)
-    r_w = radius or cfg.contact_radius or contact_lib.auto_radius(ref.points, ref.cells, ref.cell_part, panel_part)
+    panel_part = contact_lib.contact_parts(scene)[1]
+    r_w = radius or cfg.contact_radius or contact_radius(ref, scene)
     groups: dict[tuple, list[int]] = {}
     for i, t in enumerate(train_trajs):
         groups.setdefault(mesh_key(t), []).append(i)
@@ -256,11 +253,9 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
     shared, intervals = {}, []
     for key, members in groups.items():
         g_ref = train_trajs[members[0]]
-        topo = topology_from_trajectory(g_ref)
-        index = contact_lib.allocate(points=g_ref.points, cells=g_ref.cells, cell_part=g_ref.cell_part,
-                                     ball_part=ball_part, panel_part=panel_part, radius=r_w,
-                                     positions=[contact_positions(form, train_trajs[i]) for i in members],
-                                     capacity_factor=cfg.contact_capacity_factor, capacity=capacity)
+        topo, index, _ = graph_inputs(g_ref, scene, radius=r_w,
+                                      positions=[contact_positions(form, train_trajs[i]) for i in members],
+                                      capacity_factor=cfg.contact_capacity_factor, capacity=capacity)
         pen_ball, pen_panel = np.zeros(0, np.int32), np.zeros(0, np.int32)
         if cfg.lambda_pen > 0:
             bn = penetration_nodes(cfg, g_ref, panel_part)
@@ -277,9 +272,7 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
     graphs = []
     for t in train_trajs:
         p = shared[mesh_key(t)]
-        topo = p.topology
-        if form.scene_features:
-            topo = with_scene_features(topo, scene_feature_rows(t.meta["scene"], form.scene_features, topo.node_type))
+        topo = with_scene(p.topology, t.meta["scene"], form.scene_features)
         graphs.append(p._replace(topology=topo, index=p.index.replace(capacity=cap)))
     interval = (0.0, 1.0)
     if intervals:  # one fixed fit interval covering every mesh's boundary (one mesh: its own)
@@ -300,7 +293,7 @@ def union_sizes(graphs: Sequence[GraphParts], *, per_union: int, capacity: int) 
     """The one static size of a training union of ``per_union`` graphs: room for ``per_union`` copies of
     the dataset's largest graph (a step may draw it that often), bucketed
     (:func:`pcmgn_jax.mgn.batching.bucket_size`)."""
-    top = lambda vals: per_union * max(vals)  # noqa: E731
+    top = lambda vals: per_union * max(vals)
     return UnionSizes(nodes=bucket_size(top([g.topology.n_node for g in graphs]) + 1, 64),
                       edges=bucket_size(top([len(g.topology.mesh_senders) for g in graphs]), 256),
                       slots=per_union,

@@ -1,0 +1,115 @@
+"""Graph inputs of one design: its mesh and scene -> the model's static topology and contact index.
+
+    inp = graph_inputs(mesh, scene, scene_features=names, radius=r_w, capacity=C)   # GraphInputs
+    designs = [dict(inp._asdict(), u0=..., v0=..., vm0=...)]     # for mgn.rollout.rollout_designs
+
+``mesh``: anything with reference ``points`` (N, 2) [m], ``cells`` (E, 4), ``cell_part`` (E,) and
+``node_type`` (N,) -- a :class:`pcmgn_jax.trajectory.Trajectory` or a ``pcmgn_jax.sim.mesh.Mesh``.
+``scene``: a scene dict (``Scene.to_dict()``, a trajectory's ``meta['scene']``) or a
+:class:`pcmgn_jax.scene.Scene`. The rule, written once here:
+
+- topology (:func:`pcmgn_jax.mgn.graphs.make_topology`) with n_parts = ball + layers
+  (:func:`n_parts_for`), and node types 0..n_parts (n_parts = fixed);
+- scene features (:func:`with_scene`): the rows (N, k) float32 [SI] of
+  :func:`pcmgn_jax.mgn.formulation.scene_feature_rows` of the design's scene, or none (k = 0);
+- contact index (:func:`contact_index`): candidates of the scene's contact pair
+  (:func:`pcmgn_jax.mgn.contact.contact_parts`) within r_w [m] (default
+  :func:`pcmgn_jax.mgn.contact.auto_radius` of the contact layer, :func:`contact_radius`), a buffer of
+  ``capacity`` directed edges, or one sized from ``positions`` (:func:`pcmgn_jax.mgn.contact.allocate`).
+
+All host side (NumPy), except :func:`with_scene` with a traced ``design`` (the optimiser's gradient).
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from pcmgn_jax.mgn import contact as contact_lib
+from pcmgn_jax.mgn.graphs import (
+    Topology,
+    make_topology,
+    n_parts_of,
+    with_scene_features,
+)
+from pcmgn_jax.scene import Scene
+
+
+class GraphInputs(NamedTuple):
+    """The static graph inputs of one design (field names: the design dicts of ``rollout_designs``)."""
+
+    topology: Topology                 # with the scene features (none when no names are asked for)
+    index: contact_lib.ContactIndex    # contact candidates, radius r_w [m], capacity C
+    points: np.ndarray                 # (N, 2) float32 reference coordinates [m]
+
+
+def _scene_obj(scene) -> Scene:
+    return scene if isinstance(scene, Scene) else Scene.from_dict(scene)
+
+
+def _scene_dict(scene) -> dict:
+    return scene.to_dict() if isinstance(scene, Scene) else scene
+
+
+def n_parts_for(mesh, scene=None) -> int:
+    """Number of parts (ball + layers) of ``mesh``: a trajectory's meta (:func:`pcmgn_jax.mgn.graphs.n_parts_of`),
+    else the mesh's ``part_names``, else the scene's parts."""
+    if getattr(mesh, "meta", None) is not None:
+        return n_parts_of(mesh)
+    if getattr(mesh, "part_names", None) is not None:
+        return len(mesh.part_names)
+    if scene is None:
+        raise ValueError("n_parts_for: the mesh names no parts; pass its scene")
+    return len(_scene_obj(scene).part_names)
+
+
+def with_scene(topology: Topology, scene, names, design=None) -> Topology:
+    """``topology`` with the scene features ``names`` of ``scene`` on its nodes ((N, k) float32 [SI];
+    no names: unchanged). ``design`` (D,) [m], possibly traced: the design layers' thicknesses the
+    features follow (:func:`pcmgn_jax.mgn.formulation.scene_feature_rows`)."""
+    from pcmgn_jax.mgn.formulation import scene_feature_rows
+    if not names:
+        return topology
+    rows = scene_feature_rows(_scene_dict(scene), names, topology.node_type, design=design)
+    if design is not None:  # traced rows stay JAX arrays (they carry the design's tangent)
+        return topology.replace(scene_features=rows)
+    return with_scene_features(topology, rows)
+
+
+def design_topology(mesh, scene=None, scene_features=(), *, n_parts: int | None = None) -> Topology:
+    """The topology of ``mesh`` (n_parts: :func:`n_parts_for`) with the scene features ``scene_features``
+    (names, :data:`pcmgn_jax.mgn.formulation.SCENE_FEATURES`) of ``scene``."""
+    topo = make_topology(points=mesh.points, cells=mesh.cells, node_type=mesh.node_type,
+                         n_parts=n_parts_for(mesh, scene) if n_parts is None else n_parts)
+    return with_scene(topo, scene, scene_features)
+
+
+def contact_radius(mesh, scene) -> float:
+    """Default contact radius r_w [m] of ``mesh``: :func:`pcmgn_jax.mgn.contact.auto_radius` of the
+    scene's contact layer."""
+    _, panel_part = contact_lib.contact_parts(_scene_obj(scene))
+    return contact_lib.auto_radius(mesh.points, mesh.cells, mesh.cell_part, panel_part)
+
+
+def contact_index(mesh, scene, *, radius: float | None = None, positions=(), capacity_factor: float = 2.0,
+                  capacity: int | None = None) -> contact_lib.ContactIndex:
+    """Contact candidates of the scene's contact pair on ``mesh`` within ``radius`` [m] (None:
+    :func:`contact_radius`); buffer of ``capacity`` directed edges, or sized from ``positions``
+    ((T, N, 2) world frames [m]) with ``capacity_factor`` (:func:`pcmgn_jax.mgn.contact.allocate`)."""
+    ball_part, panel_part = contact_lib.contact_parts(_scene_obj(scene))
+    r_w = contact_radius(mesh, scene) if radius is None else radius
+    return contact_lib.allocate(points=mesh.points, cells=mesh.cells, cell_part=mesh.cell_part,
+                                ball_part=ball_part, panel_part=panel_part, radius=r_w, positions=positions,
+                                capacity_factor=capacity_factor, capacity=capacity)
+
+
+def graph_inputs(mesh, scene, *, scene_features=(), radius: float | None = None, positions=(),
+                 capacity_factor: float = 2.0, capacity: int | None = None,
+                 n_parts: int | None = None) -> GraphInputs:
+    """A design's mesh + scene -> :class:`GraphInputs` (topology with its scene features, contact index,
+    float32 reference points). See the module docstring for the rule; arguments as in
+    :func:`design_topology` and :func:`contact_index`."""
+    return GraphInputs(topology=design_topology(mesh, scene, scene_features, n_parts=n_parts),
+                       index=contact_index(mesh, scene, radius=radius, positions=positions,
+                                           capacity_factor=capacity_factor, capacity=capacity),
+                       points=np.asarray(mesh.points, np.float32))
