@@ -10,9 +10,11 @@ the design). A baseline that needs the training mesh says so (``not_applicable``
 differs. Writes RUN/eval[/NAME]/metrics.json (same keys either way) and PNG plots.
 The run's splits come from its config's dataset directory by pcmgn_jax.data.dataset.load_splits, for a
 generated or an imported (manifest-less) dataset alike: test = the first n_test of DIR/test.
+The pipeline is pcmgn_jax.eval.run (pcmgn_jax/eval/pipeline.py); this module parses flags and prints.
 """
 import sys
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Literal
 
 from pcmgn_jax import cli
@@ -31,22 +33,13 @@ def main(argv=None) -> int:
     args = cli.parse(EvaluateArgs, argv, description=__doc__, prog="python -m experiments.evaluate")
     import matplotlib
     matplotlib.use("Agg")  # files only; set here, in the entry point, not in the library
-    from pcmgn_jax.eval import evaluate as evaluation
-    from pcmgn_jax.config import TrainConfig
-    from pcmgn_jax.data.dataset import load_splits
-    cfg = TrainConfig.load(f"{args.workdir}/config.json")
-    from pathlib import Path
-    train, _, test = load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train, n_val=0,
-                                 n_test=0 if args.data else cfg.n_test)
-    name = args.name or None
-    if args.data:
-        from pcmgn_jax.data.dataset import load_directory
-        test = load_directory(args.data)
-        name = args.name or Path(args.data).resolve().name
-    m = evaluation.evaluate(args.workdir, test_trajs=test, train_trajs=train, which=args.which, name=name,
-                            contact_projection=args.contact_projection)
-    print(evaluation.summary_table(m))
-    print(f"wrote {Path(args.workdir) / 'eval' / (name or '')}/metrics.json and PNGs")
+    from pcmgn_jax.eval import run
+    from pcmgn_jax.eval.evaluate import summary_table
+    from pcmgn_jax.eval.pipeline import output_name
+    m = run(args.workdir, which=args.which, data=args.data, name=args.name,
+            contact_projection=args.contact_projection)
+    print(summary_table(m))
+    print(f"wrote {Path(args.workdir) / 'eval' / (output_name(args.data, args.name) or '')}/metrics.json and PNGs")
     return 0
 
 

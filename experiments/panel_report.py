@@ -1,23 +1,17 @@
 """Impact phases of the default panel scene for a few OCA designs (issue 2's panel report).
 
 python -m experiments.panel_report --preset cpu --frames 150 --out results/panel_report
-Writes OUT.json, OUT.md (table) and OUT.png (contact force and peak OLED stress vs time).
+Writes OUT.json, OUT.md (table) and OUT.png (contact force and peak OLED stress vs time);
+the report: pcmgn_jax/eval/panel_report.py.
 """
 from __future__ import annotations
 
-import math
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Literal
 
-import numpy as np
-
 from pcmgn_jax import cli
-from pcmgn_jax.data.dataset import PRESETS, parse_designs
-from pcmgn_jax.sim import solver
-from pcmgn_jax.scene import default_scene
-from pcmgn_jax.data.trajectory_io import atomic_write_json
+from pcmgn_jax.data.dataset import PRESETS
 
 
 @dataclass(frozen=True)
@@ -31,63 +25,12 @@ class PanelReportArgs:
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = cli.parse(PanelReportArgs, argv, description=__doc__, prog="python -m experiments.panel_report")
-    base = default_scene()
-    designs = parse_designs(args.designs)
-    scenes = [base.with_design(*d) for d in designs]
-    res = solver.simulate(scenes, args.preset, n_frames=args.frames)
-    oled = np.flatnonzero(np.array(res.prepared.mesh.part_names) == "OLED")[0]
-    is_oled = res.prepared.mesh.node_part == oled
-    window = base.n_frames * base.output_dt
-    rows = []
-    for i, d in enumerate(designs):
-        ph = solver.contact_phases(res.force[i], res.dt)
-        vm = res.von_mises[i][:, is_oled].max(axis=1)
-        sep = ph["separation_s"]
-        rows.append({"t_oca1_um": d[0] * 1e6, "t_oca2_um": d[1] * 1e6,
-                     "contact_start_us": ph["contact_start_s"] * 1e6,
-                     "peak_force_time_us": ph["peak_force_time_s"] * 1e6,
-                     "peak_force_N": ph["peak_force_N"],
-                     "separation_us": sep * 1e6 if math.isfinite(sep) else None,
-                     "peak_oled_von_mises_mpa": float(vm.max() / 1e6),
-                     "peak_oled_time_us": float(np.argmax(vm) * base.output_dt * 1e6),
-                     "all_phases_in_default_window": bool(math.isfinite(sep) and sep < window),
-                     "energy_error": float(res.energy_error[i])})
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    summary = {"preset": args.preset, "default_window_us": window * 1e6, "frames_simulated": args.frames,
-               "dt_s": res.dt, "wall_time_s": res.wall_time_s, "designs": rows,
-               "command": "python -m experiments.panel_report " + " ".join(argv)}
-    atomic_write_json(out.with_suffix(".json"), summary)
-    lines = ["| T_OCA1 / T_OCA2 [µm] | contact start [µs] | peak force [N] at [µs] | separation [µs] | "
-             "peak OLED von Mises [MPa] at [µs] | all 4 phases in 400 µs? |", "|---|---|---|---|---|---|"]
-    for r in rows:
-        sep = f"{r['separation_us']:.0f}" if r["separation_us"] is not None else f"> {args.frames * 4}"
-        lines.append(f"| {r['t_oca1_um']:.0f} / {r['t_oca2_um']:.0f} | {r['contact_start_us']:.1f} | "
-                     f"{r['peak_force_N']:.1f} at {r['peak_force_time_us']:.0f} | {sep} | "
-                     f"{r['peak_oled_von_mises_mpa']:.2f} at {r['peak_oled_time_us']:.0f} | "
-                     f"{'yes' if r['all_phases_in_default_window'] else 'no'} |")
-    out.with_suffix(".md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
-
     import matplotlib
     matplotlib.use("Agg")  # files only; set here, in the entry point, not in the library
-    import matplotlib.pyplot as plt
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
-    t_sub = (np.arange(res.force[0].size) + 1) * res.dt * 1e6
-    t_frame = np.arange(res.von_mises.shape[1]) * base.output_dt * 1e6
-    for i, r in enumerate(rows):
-        label = f"OCA {r['t_oca1_um']:.0f}/{r['t_oca2_um']:.0f} µm"
-        a1.plot(t_sub, res.force[i].ravel(), label=label)
-        a2.plot(t_frame, res.von_mises[i][:, is_oled].max(axis=1) / 1e6, label=label)
-    for ax in (a1, a2):
-        ax.axvline(window * 1e6, color="k", ls="--", lw=0.8)
-        ax.set_xlabel("time [µs]")
-        ax.legend()
-    a1.set_ylabel("contact force on ball [N]")
-    a2.set_ylabel("max OLED von Mises [MPa]")
-    fig.suptitle(f"Default panel scene, preset {args.preset} (dashed: default 100 x 4 µs window)")
-    fig.tight_layout()
-    fig.savefig(out.with_suffix(".png"), dpi=110)
+    from pcmgn_jax.eval.panel_report import panel_report
+    lines = panel_report(args.preset, args.designs, args.frames, args.out,
+                         command="python -m experiments.panel_report " + " ".join(argv))
+    print("\n".join(lines))
     return 0
 
 

@@ -16,7 +16,7 @@ and ``--resume``. ``--formulation=paper|default|dynamic`` is read first too, whe
 the nested formulation to ``FORMULATIONS[name]`` (with the preset's formulation overrides) before the
 formulation's field flags (``--panel_target=X``, ``--rigid_ball``, ``--contact_projection``,
 ``--scene_features=a,b|none``) apply. With ``--resume`` the defaults come from the run's ``config.json`` instead, and a flag
-that changes a saved value is refused (:func:`check_resume`).
+that changes a saved value is refused (:func:`pcmgn_jax.config.check_resume`).
 """
 from __future__ import annotations
 
@@ -30,7 +30,8 @@ from typing import Annotated, Any, Sequence, TypeVar
 
 import tyro
 
-from pcmgn_jax.config import FORMULATION_FIELDS, PRESETS, TrainConfig, resolve_formulation, scene_feature_names
+from pcmgn_jax.config import (FORMULATION_FIELDS, PRESETS, TrainConfig, check_resume, config_diff,
+                              resolve_formulation, scene_feature_names)
 
 __all__ = ["TrainArgs", "check_resume", "config_diff", "given_flags", "normalize_argv", "parse", "parse_config",
            "parse_train", "preset_of"]
@@ -170,19 +171,6 @@ class TrainArgs:
                                    num_processes=self.num_processes, process_id=self.process_id)
 
 
-def config_diff(old, new, prefix: str = "") -> dict[str, tuple[Any, Any]]:
-    """Fields whose values differ: {name: (old value, new value)}, in field order; fields of a nested
-    dataclass are named with its field's prefix (``formulation.panel_target``)."""
-    out: dict[str, tuple[Any, Any]] = {}
-    for f in dataclasses.fields(old):
-        a, b = getattr(old, f.name), getattr(new, f.name)
-        if dataclasses.is_dataclass(a) and type(a) is type(b):
-            out.update(config_diff(a, b, prefix=f"{prefix}{f.name}."))
-        elif a != b:
-            out[prefix + f.name] = (a, b)
-    return out
-
-
 def _train_argv(argv: Sequence[str]) -> tuple[list[str], str | None]:
     """(``argv`` without the ``--formulation`` selector, the selected name or None), with
     ``--scene_features=a,b`` (or ``none``) rewritten as tyro's ``--scene_features a b``."""
@@ -211,18 +199,6 @@ def _select(cfg: TrainConfig, name: str | None) -> TrainConfig:
     return cfg.replace(**resolve_formulation(
         {k: v for k, v in PRESETS[cfg.preset].items() if k in FORMULATION_FIELDS}, {"formulation": name},
         check=False))
-
-
-def check_resume(cfg: TrainConfig, workdir: str | Path) -> None:
-    """Raise ``ValueError`` naming every field where ``cfg`` differs from ``workdir/config.json``."""
-    path = Path(workdir) / "config.json"
-    if not path.exists():
-        return
-    diff = config_diff(TrainConfig.load(path), cfg)
-    if diff:
-        lines = ", ".join(f"{k}: saved {a!r}, given {b!r}" for k, a, b in ((k, *v) for k, v in diff.items()))
-        raise ValueError(f"--resume: the config differs from the run's {path} in {sorted(diff)} ({lines}); "
-                         f"drop those flags to continue the run, or train in a new --workdir")
 
 
 def parse_train(argv: Sequence[str] | None = None, *, description: str | None = None,
@@ -256,8 +232,8 @@ def parse_config(argv: Sequence[str]) -> TrainConfig:
     rest, name = _train_argv(argv)
     try:
         return parse(TrainConfig, rest, default=_select(TrainConfig.from_preset(preset), name),
-                     prog="TrainConfig.from_flags")
+                     prog="pcmgn_jax.cli.parse_config")
     except SystemExit as err:
         if err.code in (0, None):
             raise
-        raise ValueError(f"TrainConfig.from_flags: cannot parse {list(argv)} (details above)") from None
+        raise ValueError(f"pcmgn_jax.cli.parse_config: cannot parse {list(argv)} (details above)") from None

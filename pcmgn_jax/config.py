@@ -9,8 +9,11 @@ field, ``cfg.formulation``; a preset names its base (``formulation="default"``, 
 the older flat files (``formulation`` a name, ``target`` / ``ball_model`` / ``contact_projection`` on|off
 beside it).
 
-    cfg = TrainConfig.from_flags(["--preset", "tiny", "--lambda_pen=0", "--latent_size=32"])
+    cfg = TrainConfig.from_preset("tiny", lambda_pen=0.0, latent_size=32)
     cfg.save_json(workdir / "config.json")
+
+Flags (``--key=value``) are read by the entry points' command line, :func:`pcmgn_jax.cli.parse_config` /
+:func:`pcmgn_jax.cli.parse_train`; the library takes configs, never flags.
 """
 from __future__ import annotations
 
@@ -18,7 +21,7 @@ import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 from pcmgn_jax.mgn.formulation import FORMULATIONS, NOISE_PARTS, Formulation
 
@@ -109,13 +112,6 @@ class TrainConfig:
         return cls(**resolve_formulation({**PRESETS[preset], "preset": preset}, overrides))
 
     @classmethod
-    def from_flags(cls, argv: Sequence[str]) -> "TrainConfig":
-        """Parse ``--key=value`` flags, one per field; ``--preset`` fills the defaults (pcmgn_jax.cli)."""
-        from pcmgn_jax.cli import parse_config
-
-        return parse_config(argv)
-
-    @classmethod
     def from_json(cls, data: dict) -> "TrainConfig":
         """A config from its ``to_dict()`` form (``formulation`` nested), or from an older flat config.json
         (``formulation`` a name, its fields beside it under their old names: converted)."""
@@ -147,6 +143,31 @@ class TrainConfig:
     @property
     def resolved_dataset_dir(self) -> str:
         return self.dataset_dir or f"data/{self.data_preset}"
+
+
+def config_diff(old, new, prefix: str = "") -> dict[str, tuple[Any, Any]]:
+    """Fields whose values differ: {name: (old value, new value)}, in field order; fields of a nested
+    dataclass are named with its field's prefix (``formulation.panel_target``)."""
+    out: dict[str, tuple[Any, Any]] = {}
+    for f in dataclasses.fields(old):
+        a, b = getattr(old, f.name), getattr(new, f.name)
+        if dataclasses.is_dataclass(a) and type(a) is type(b):
+            out.update(config_diff(a, b, prefix=f"{prefix}{f.name}."))
+        elif a != b:
+            out[prefix + f.name] = (a, b)
+    return out
+
+
+def check_resume(cfg: TrainConfig, workdir: str | Path) -> None:
+    """Raise ``ValueError`` naming every field where ``cfg`` differs from ``workdir/config.json``."""
+    path = Path(workdir) / "config.json"
+    if not path.exists():
+        return
+    diff = config_diff(TrainConfig.load(path), cfg)
+    if diff:
+        lines = ", ".join(f"{k}: saved {a!r}, given {b!r}" for k, a, b in ((k, *v) for k, v in diff.items()))
+        raise ValueError(f"--resume: the config differs from the run's {path} in {sorted(diff)} ({lines}); "
+                         f"drop those flags to continue the run, or train in a new --workdir")
 
 
 FORMULATION_FIELDS = tuple(f.name for f in dataclasses.fields(Formulation))

@@ -54,7 +54,7 @@ def test_unknown_flag_and_preset_errors():
     with pytest.raises(ValueError, match="unknown preset 'huge'"):
         cli.parse_train(["--preset", "huge"])
     with pytest.raises(ValueError, match="unknown flag"):
-        TrainConfig.from_flags(["--lamda_pen=10"])
+        cli.parse_config(["--lamda_pen=10"])
     with pytest.raises(ValueError, match="boolean"):
         cli.parse_config(["--progress=maybe"])
     with pytest.raises(SystemExit):                        # a value of the wrong type: tyro's message

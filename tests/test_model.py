@@ -6,6 +6,7 @@ import pytest
 
 from pcmgn_jax.mgn import contact
 from pcmgn_jax.mgn import graphs
+from pcmgn_jax import cli
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.mgn.model import EncodeProcessDecode
 
@@ -62,12 +63,12 @@ def test_sorted_mesh_aggregation_is_the_plain_sum(graph):
 
 
 def test_config_flags():
-    cfg = TrainConfig.from_flags(["--preset", "tiny", "--lambda_pen=0", "--latent_size=48", "--no-progress"])
+    cfg = cli.parse_config(["--preset", "tiny", "--lambda_pen=0", "--latent_size=48", "--no-progress"])
     assert cfg.preset == "tiny" and cfg.latent_size == 48 and cfg.progress is False and cfg.lambda_pen == 0
-    assert TrainConfig.from_flags(["--lambda_pen=10"]).lambda_pen == 10.0
+    assert cli.parse_config(["--lambda_pen=10"]).lambda_pen == 10.0
     assert TrainConfig.from_preset("paper").message_passing_steps == 15
     with pytest.raises(ValueError, match="unknown flag"):
-        TrainConfig.from_flags(["--lamda_pen=10"])
+        cli.parse_config(["--lamda_pen=10"])
     with pytest.raises(ValueError):
-        TrainConfig.from_flags(["--ball_target=jerk"])
+        cli.parse_config(["--ball_target=jerk"])
     assert TrainConfig.from_json(cfg.to_dict()) == cfg

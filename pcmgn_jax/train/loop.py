@@ -32,8 +32,7 @@ from typing import Sequence
 import jax
 import numpy as np
 
-from pcmgn_jax.cli import check_resume
-from pcmgn_jax.config import TrainConfig
+from pcmgn_jax.config import TrainConfig, check_resume
 from pcmgn_jax.eval.metrics import position_mae_um
 from pcmgn_jax.mgn import checkpoint
 from pcmgn_jax.mgn import contact as contact_lib

@@ -1,0 +1,40 @@
+"""The evaluation pipeline as a library call: ``pcmgn_jax.eval.run(workdir)``.
+
+Loads the run's splits from its config's dataset directory (:func:`pcmgn_jax.data.dataset.load_splits`,
+a generated or an imported dataset alike: test = the first ``n_test`` of DIR/test), or any directory of
+trajectory files (``data``), and scores the run's model beside the baselines fitted on its training split
+(:func:`pcmgn_jax.eval.evaluate.evaluate`). ``experiments/evaluate.py`` parses flags and calls :func:`run`.
+The caller picks the matplotlib backend (the entry point sets ``Agg``).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def output_name(data: str = "", name: str = "") -> str | None:
+    """The evaluation's folder under RUN/eval: ``name``, else the ``data`` folder's name, else None
+    (RUN/eval itself, the run's test split)."""
+    if name:
+        return name
+    return Path(data).resolve().name if data else None
+
+
+def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str = "",
+        contact_projection: str = "") -> dict:
+    """Evaluate the run in ``workdir`` and return the metrics dict written to
+    ``WORKDIR/eval[/NAME]/metrics.json`` (:mod:`pcmgn_jax.eval.evaluate`; PNG plots beside it).
+
+    ``which``: checkpoint, ``best`` (validation) or ``periodic`` (latest); ``data``: a directory of
+    trajectory files ("" = the run's test split); ``name``: the output folder under RUN/eval (""= the
+    ``data`` folder's name, :func:`output_name`); ``contact_projection``: ``on`` / ``off`` overrides the
+    run's rollout contact projection ("" = the run's)."""
+    from pcmgn_jax.config import TrainConfig
+    from pcmgn_jax.data.dataset import load_directory, load_splits
+    from pcmgn_jax.eval import evaluate as evaluation
+    cfg = TrainConfig.load(Path(workdir) / "config.json")
+    train, _, test = load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train, n_val=0,
+                                 n_test=0 if data else cfg.n_test)
+    if data:
+        test = load_directory(data)
+    return evaluation.evaluate(workdir, test_trajs=test, train_trajs=train, which=which,
+                               name=output_name(data, name), contact_projection=contact_projection)

@@ -1,0 +1,133 @@
+"""The design-optimisation pipeline as a library call: ``pcmgn_jax.opt.run(workdir, ...)`` (paper §5).
+
+Loads the run's splits, builds the surrogate objective (the run's model, ``mgn``, or a baseline fitted on
+the training split, :mod:`pcmgn_jax.opt.objectives`), searches the design box (GA, projected gradient or
+SLSQP, :mod:`pcmgn_jax.opt.search`), re-simulates the optimum with the built-in solver
+(:func:`pcmgn_jax.opt.check.solver_objectives`, cached under RUN/optimize/solver/), maps the objective on
+a grid and writes RUN/optimize/<tag>.json and .png (:func:`result_tag`). The GA is resumable through
+RUN/optimize/<tag>.resume.json, removed when the result is written. ``experiments/optimize.py`` parses
+flags and calls :func:`run`; the caller picks the matplotlib backend.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def result_tag(surrogate: str, method: str, objective: str) -> str:
+    """The result's file stem under RUN/optimize: ``<surrogate>_<method>[_<objective>]`` (no suffix for
+    the default ``area_mean``)."""
+    return f"{surrogate}_{method}" + ("" if objective == "area_mean" else f"_{objective}")
+
+
+def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", objective: str = "area_mean",
+        pop: int = 100, gens: int = 50, starts: int = 4, iters: int = 20, screen: int = 0, seed: int = 0,
+        grid: int = -1, which: str = "best", check: bool = True, progress: bool = True,
+        command: str = "") -> dict:
+    """Optimise the OCA thicknesses of the run in ``workdir`` on ``surrogate`` (mgn | nearest | poly2 | rbf)
+    with ``method`` (ga | gradient | slsqp) for the OLED objective ``objective`` (area_mean | node_mean |
+    disc_mean | peak, docs/design.md §8) and return the result dict written to RUN/optimize/<tag>.json.
+
+    ``pop`` / ``gens``: GA budget; ``starts`` / ``iters``: gradient and SLSQP starts and evaluations
+    (iterations) per start; ``screen``: SLSQP only, seeded designs screened for the start; ``seed``: GA /
+    starts seed; ``grid``: n x n objective map (-1: 21, mgn 7; 0 or 1: none); ``which``: mgn checkpoint;
+    ``check``: re-run the solver at the optimum; ``command``: recorded in the result. Designs in the result
+    in µm, objectives in MPa. Raises ``ValueError`` for ``screen`` without slsqp or data without a solver
+    preset, ``FileNotFoundError`` when ``workdir`` holds no config.json."""
+    import numpy as np
+
+    from pcmgn_jax.config import TrainConfig
+    from pcmgn_jax.data.dataset import load_splits
+    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.eval import metrics, plots
+    from pcmgn_jax.eval.surrogates import FieldRegression, MGNSurrogate, design_of
+    from pcmgn_jax.opt import search
+    from pcmgn_jax.opt.check import solver_objectives
+    from pcmgn_jax.opt.objectives import FieldObjective, MGNObjective
+    from pcmgn_jax.opt.problem import DesignBox
+    from pcmgn_jax.scene import Scene
+    from pcmgn_jax.sim.design_map import DesignMap
+
+    record = {"workdir": str(workdir), "surrogate": surrogate, "method": method, "objective": objective,
+              "pop": pop, "gens": gens, "starts": starts, "iters": iters, "screen": screen, "seed": seed,
+              "grid": grid, "which": which, "check": check, "progress": progress}
+    if screen and method != "slsqp":
+        raise ValueError(f"--screen {screen}: only for --method slsqp (got --method {method})")
+    run_dir = Path(workdir)
+    if not (run_dir / "config.json").exists():
+        raise FileNotFoundError(f"{run_dir}/config.json: not a training run directory")
+    cfg = TrainConfig.load(run_dir / "config.json")
+    train, val, test = load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train, n_val=cfg.n_val, n_test=cfg.n_test)
+    ref = train[0]
+    scene = Scene.from_dict(ref.meta["scene"])
+    preset = ref.meta.get("solver", {}).get("preset")
+    if preset is None:
+        raise ValueError(f"{cfg.resolved_dataset_dir}: the optimiser needs solver-generated data (meta.solver.preset)")
+    part = scene.part_names.index("OLED")
+    box = DesignBox(dim=len(scene.design_layers))
+    dmap = DesignMap.build(scene, preset)
+    kw = {"part": part, "reading": objective}
+    if surrogate == "mgn":
+        obj = MGNObjective(MGNSurrogate(run_dir, ref, which=which), dmap, **kw)
+    else:
+        obj = FieldObjective(FieldRegression(surrogate, train), dmap, **kw)
+
+    tag = result_tag(surrogate, method, objective)
+    dest = plots.ensure_dir(run_dir / "optimize")
+    resume = dest / f"{tag}.resume.json"
+    loaded = 0
+    if method == "ga":
+        # the GA's values go to a resume file as they come: a killed GA run again replays them and goes on
+        loaded = obj.persist(resume, {"surrogate": surrogate, "method": "ga", "pop": pop,
+                                      "gens": gens, "seed": seed, "preset": preset, "which": which})
+        if loaded:
+            print(f"{resume}: resuming with {loaded} evaluations done ({obj.prior_seconds:.0f} s of search)")
+        res = search.ga(obj, box, pop=pop, gens=gens, seed=seed, progress=progress)
+        obj.stop_timing()
+        res["seconds"] = obj.search_seconds()   # this run's and the killed runs' before it
+        budget = {"pop": pop, "gens": gens}
+    else:
+        kw = {"starts": starts, "iters": iters, "seed": seed, "progress": progress}
+        if method == "gradient":
+            res = search.gradient(obj, box, **kw)
+        else:
+            res = search.slsqp(obj, box, screen=screen, **kw)
+        budget = {"starts": starts, "iters": iters, **({"screen": screen} if screen else {})}
+    x = res["x"]
+
+    # the dataset's own solver-evaluated designs (every split the run sees), for the "beats the data" check
+    data = [(design_of(t), float(metrics.oled_objective_of(t, part=part, reading=objective)))
+            for t in [*train, *val, *test]]
+    feas = [(d, f) for d, f in data if box.violation(d)[0] <= 1e-12]
+    best_d, best_f = min(feas, key=lambda p: p[1]) if feas else (None, None)
+
+    out = {"surrogate": surrogate, "surrogate_fingerprint": obj.fingerprint(), "method": method,
+           "objective": objective, "budget": budget,
+           "optimum_um": (x * 1e6).tolist(), "predicted_mpa": res["f"], "search_seconds": res["seconds"],
+           "n_evals": res["n_evals"], "preset": preset, "units": {"objective": "MPa", "design": "µm"},
+           "dataset_best": None if best_d is None else {"design_um": (best_d * 1e6).tolist(), "mpa": best_f},
+           "command": command, "args": record, **({"resumed": {"evals_loaded": loaded}} if loaded else {})}
+    if check:
+        chk = solver_objectives(scene, x, preset, cache_dir=run_dir / "optimize" / "solver")
+        out.update(solver_mpa=chk[objective], solver_all_readings_mpa={k: chk[k] for k in metrics.OBJECTIVES},
+                   solver_seconds=chk["solver_seconds"],
+                   rel_error_pct=float(metrics.relative_error_pct(res["f"], chk[objective])),
+                   beats_dataset_best=None if best_f is None else bool(chk[objective] <= best_f))
+    out["history"] = res.get("history") or res.get("paths")
+    if res.get("screened"):
+        out["screened"] = res["screened"]
+
+    n = grid if grid >= 0 else (7 if surrogate == "mgn" else 21)
+    if n > 1:
+        designs, ok = box.grid(n)
+        f = np.full(len(designs), np.nan)
+        f[ok] = obj(designs[ok])
+        out["grid"] = {"designs_um": (designs * 1e6).tolist(), "mpa": [None if np.isnan(v) else v for v in f]}
+        pop_um = np.asarray(res["final_population"]) * 1e6 if "final_population" in res else None
+        paths = [[p["x_um"] for p in path] for path in res["paths"]] if "paths" in res else None
+        plots.objective_map(dest / f"{tag}.png", designs * 1e6, f, ok, title=f"{surrogate} {method}, "
+                            f"{objective} [MPa]", points_um=pop_um, points_label="final population",
+                            paths_um=paths, optimum_um=x * 1e6, solver_um=x * 1e6 if check else None,
+                            dataset_um=np.asarray([d for d, _ in data]) * 1e6)
+    atomic_write_json(dest / f"{tag}.json", out)
+    resume.unlink(missing_ok=True)   # the result is written: a new run of the command searches afresh
+    return out
