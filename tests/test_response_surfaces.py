@@ -164,3 +164,36 @@ def test_zero_shot_scene_is_named(family):
     assert any("stiff_plate: PLATE.youngs = 1.378e+11" in w and "held fixed" in w for w in rom.warnings)
     assert any("new_param: scene parameter PLATE = 0.0005 unknown" in w for w in rom.warnings)
     assert len(rom.warnings) == 2
+
+
+def test_evaluation_baselines_score_every_kind(tiny_trajs, family):
+    """baseline_metrics: every kind answers (numbers) or says why not, scored by the caller's own function;
+    kriging/mop score the objective directly (the synthetic objective is linear in the design: MOP exact)
+ and their field surfaces on a shared mesh (the synthetic panel has no OLED: fields only); across meshes only rom gives fields, and a zero-shot or
+    out-of-box query is listed under ``warnings``."""
+    from pcmgn_jax.eval import metrics
+    from pcmgn_jax.eval.baselines import KINDS, baseline_metrics
+
+    def scores(pu, pv, test):
+        return metrics.field_metrics(pu, pv, [t.displacement for t in test], [t.von_mises for t in test])
+
+    test = [make_synthetic_trajectory(1.0), make_synthetic_trajectory(1.1)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        b = baseline_metrics(tiny_trajs, test, lambda u, v: scores(u, v, test))
+    assert set(b) == set(KINDS)
+    assert b["poly2"]["position_mae_um"] < 1e-6 and b["mop"]["position_mae_um"] < 1e-6  # linear fields
+    assert b["mop"]["mop_fields"] == {"u": "linear", "vm": "linear"}
+    assert "no part named 'OLED'" in b["kriging"]["objective"]   # the synthetic panel has no OLED layer
+    assert b["none"]["position_mae_um"] > 0 and "fit_seconds" in b["rom"] or "not_applicable" in b["rom"]
+    train, _ = family
+    far = [_scene(1.0, 6.0, drop=True, name="fast")]   # speed outside the training box (2..4 m/s)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        b = baseline_metrics(train, far, lambda u, v: scores(u, v, far), kinds=("poly2", "kriging", "rom"))
+    assert "shared topology" in b["poly2"]["not_applicable"]
+    assert "not_applicable" in b["kriging"]   # no OLED for the objective, no shared mesh for the fields
+    assert np.isfinite(b["rom"]["position_mae_um"])
+    assert any("fast" in w for w in b["rom"]["warnings"]) 
+    with pytest.raises(ValueError, match="baseline must be one of"):
+        baseline_metrics(train, far, lambda u, v: {}, kinds=("krigging",))

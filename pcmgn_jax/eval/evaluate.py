@@ -1,5 +1,5 @@
 """Roll out a trained run on a set of trajectories and write ``eval/metrics.json`` + PNG plots,
-beside the baselines (:mod:`pcmgn_jax.eval.surrogates`) fitted on the run's training split.
+beside the baselines (:mod:`pcmgn_jax.eval.baselines`) fitted on the run's training split.
 
 Metrics (definitions in :mod:`pcmgn_jax.eval.metrics`; SI in, reports in µm and MPa), over frames
 1..T-1 of full rollouts from frame 0:
@@ -8,8 +8,8 @@ Metrics (definitions in :mod:`pcmgn_jax.eval.metrics`; SI in, reports in µm and
   per_frame_*_mean / *_std             per-frame MAE, mean and std across test trajectories
   oled_objective_*                     docs/design.md §8's objective in the paper's reading (node mean): truth,
                                        prediction, error; oled_objective_area_*: the section's area mean
-  baselines                            the same summary keys for none / nearest / poly2 / rbf, or
-                                       {"not_applicable": why} (per-node regression across meshes)
+  baselines                            the same summary keys for none / nearest / poly2 / rbf / kriging /
+                                       mop / rom (:mod:`pcmgn_jax.eval.baselines`), or {"not_applicable": why}
   penetration_*                        fit-free (ball boundary nodes below the CG top polyline,
                                        pcmgn_jax.eval.metrics.penetration_stats), prediction and truth
   rollout_seconds_per_trajectory       wall time of the batched jitted rollout (compile excluded)
@@ -21,7 +21,6 @@ vertical velocity turns upward; separated after the last contact frame.
 """
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Sequence
 
@@ -29,7 +28,8 @@ import numpy as np
 
 from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.eval import metrics, plots
-from pcmgn_jax.eval.surrogates import BASELINES, FieldRegression, MGNSurrogate, NearestScene, design_of
+from pcmgn_jax.eval.baselines import baseline_metrics
+from pcmgn_jax.eval.surrogates import MGNSurrogate
 from pcmgn_jax.geometry import roi_boundary_nodes
 from pcmgn_jax.mgn.contact import contact_parts
 from pcmgn_jax.scene import Scene
@@ -96,16 +96,6 @@ def _scores(scene: Scene, trajs, pred_u, pred_vm, bnodes, pnodes) -> dict:
     return out
 
 
-def shared_mesh(trajs) -> bool:
-    """True when every trajectory has the same mesh (node count and cells): per-node baselines apply."""
-    ref = trajs[0]
-    return all(t.n_nodes == ref.n_nodes and np.array_equal(t.cells, ref.cells) for t in trajs)
-
-
-SUMMARY_KEYS = ("position_mae_um", "position_rmse_um", "stress_mae_mpa", "stress_rmse_mpa", "penetration_max_um",
-                "penetration_mean_um", "oled_objective_rel_error_pct_mean", "oled_objective_area_rel_error_pct_mean")
-
-
 def summary_table(m: dict) -> str:
     """A Markdown table of the model's and the baselines' summary metrics (from ``evaluate``)."""
     cols = ("position_mae_um", "stress_mae_mpa", "oled_objective_rel_error_pct_mean",
@@ -121,45 +111,6 @@ def summary_table(m: dict) -> str:
         rows.append("| " + " | ".join([name] + [f"{v[c]:.4g}" if c in v else "-" for c in cols]) + " |")
     rows.append(f"| ground truth | | | | | {m.get('penetration_max_um_truth', float('nan')):.4g} |")
     return "\n".join(rows)
-
-
-def baseline_metrics(train_trajs, test_trajs, scene, bnodes, pnodes) -> dict:
-    """Every baseline of :mod:`pcmgn_jax.eval.surrogates` fitted on ``train_trajs``, scored on the test
-    trajectories like the model (a baseline that does not apply says why instead of a number).
-
-    One shared mesh (training and test): every baseline, per node. Meshes that differ (a scene family,
-    another mesh): 'none' (zero fields on each test mesh) and 'nearest' (the nearest training scene in
-    normalised scene-parameter space, its fields carried over to the test mesh:
-    :class:`pcmgn_jax.eval.surrogates.NearestScene`); 'poly2' and 'rbf' regress each node's fields over
-    the designs, which needs one node numbering: not applicable."""
-    designs = None
-    out = {}
-    shared = shared_mesh(list(train_trajs) + list(test_trajs))
-    for kind in BASELINES:
-        try:
-            t0 = time.perf_counter()
-            if shared:
-                designs = np.stack([design_of(t) for t in test_trajs]) if designs is None else designs
-                model = FieldRegression(kind, train_trajs)
-                t0 = time.perf_counter()
-                pu, ps = model.predict(designs)
-            elif kind in ("none", "nearest"):
-                model = NearestScene(train_trajs, zero=kind == "none")
-                t0 = time.perf_counter()
-                pu, ps = model.predict_trajectories(test_trajs)
-            else:
-                n_train = sorted({t.n_nodes for t in train_trajs})
-                raise ValueError(f"per-node regression needs one shared topology (one node numbering for every "
-                                 f"training and predicted design); here the meshes differ (training node counts "
-                                 f"{n_train[0]}..{n_train[-1]}, test {sorted({t.n_nodes for t in test_trajs})})")
-            seconds = time.perf_counter() - t0
-        except ValueError as err:
-            out[kind] = {"not_applicable": str(err)}
-            continue
-        m = _scores(scene, test_trajs, pu, ps, bnodes, pnodes)
-        out[kind] = {**{k: m[k] for k in SUMMARY_KEYS if k in m}, "fit_seconds": model.fit_seconds,
-                     "predict_seconds_per_trajectory": seconds / len(test_trajs)}
-    return out
 
 
 def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence = (), which: str = "best",
@@ -194,7 +145,8 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
              phases=[{k: list(v) for k, v in p.items()} for p in phases],
              window_has_all_phases=all(v[0] is not None for p in phases for v in p.values()))
     if train_trajs:
-        m["baselines"] = baseline_metrics(train_trajs, test_trajs, scene, bnodes, pnodes)
+        m["baselines"] = baseline_metrics(train_trajs, test_trajs,
+                                           lambda u, vm: _scores(scene, test_trajs, u, vm, bnodes, pnodes))
     out = plots.ensure_dir(workdir / "eval" / name if name else workdir / "eval")
     atomic_write_json(out / "metrics.json", m)
     if plot:
