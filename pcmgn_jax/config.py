@@ -254,7 +254,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     # panel, per-part normalisation, strain features, contact projection); the parameters' moving
     # average is validated and kept (validation MAE swings between checkpoints otherwise); no noise (nothing of the panel's state is an
     # input, so there is no rollout error to imitate); no penetration term: lambda = 10 from step 0 or
-    # from half-way measured harmful to this formulation (README §4, results/ablation_v2.md); with
+    # from half-way harmful to this formulation (docs/results/surrogate.md, results/ablation_v2.md); with
     # --lambda_pen > 0 the term starts half-way (lambda_start)
     "cpu": dict(data_preset="cpu", n_train=12, n_val=2, n_test=6, latent_size=64,
                 message_passing_steps=8, epochs=1, num_steps=4000, steps_per_dispatch=25,

@@ -191,6 +191,31 @@ class _Bowl:
         return None, np.broadcast_to(s[:, None, None], (len(d), 3, self.n))
 
 
+def test_surface_objective_reads_the_surface_and_caches():
+    """SurfaceObjective: the objective is the response surface's prediction for the reading (no fields),
+    cached per design, differentiated by central differences; a surface without the reading is refused."""
+    from pcmgn_jax.opt.objectives import SurfaceObjective
+    dmap = SimpleNamespace(mesh=None, points=None)
+
+    class Surface:  # area_mean = a . d * 1e6 [MPa]
+        name, calls = "kriging", 0
+        model = SimpleNamespace(models={"area_mean": None})
+        scenes = SimpleNamespace(x=np.zeros((3, 2)))
+
+        def predict(self, d):
+            self.calls += 1
+            return {"area_mean": np.asarray(d) @ np.array([2.0, -1.0]) * 1e6}
+
+    s = Surface()
+    obj = SurfaceObjective(s, dmap, part=1)
+    d = np.array([[100e-6, 80e-6], [100e-6, 80e-6], [90e-6, 70e-6]])
+    assert obj(d) == pytest.approx((d @ [2.0, -1.0]) * 1e6) and obj.n_evals == 2 and s.calls == 1
+    assert obj.value_and_grad(d[:1])[1][0] == pytest.approx([2e6, -1e6], rel=1e-6)
+    assert len(obj.fingerprint()) == 16
+    with pytest.raises(ValueError, match="not fitted for the reading 'peak'"):
+        SurfaceObjective(s, dmap, part=1, reading="peak")
+
+
 def test_ga_resumes_after_a_kill_with_the_same_result(tmp_path):
     """persist(): a GA killed part way, run again with the same seed, replays the stored values and ends
     exactly where an unbroken run does, evaluating only what the first run had not; a resume file of
@@ -268,6 +293,11 @@ def test_optimize_cli_end_to_end_on_the_tiny_preset(tmp_path):
         assert out["solver_mpa"] > 0 and np.isfinite(out["rel_error_pct"])
         assert (run / "optimize" / f"poly2_{method}.png").stat().st_size > 1000
         assert not (run / "optimize" / f"poly2_{method}.resume.json").exists()   # removed with the result
+    # a kriging response surface of the objective itself (what a DOE tool optimises)
+    assert optimize.main(["--workdir", str(run), "--surrogate", "kriging", "--method", "gradient", "--grid", "0",
+                          "--no_progress"]) == 0
+    out = json.loads((run / "optimize" / "kriging_gradient.json").read_text())
+    assert DesignBox().violation(np.array(out["optimum_um"]) * 1e-6)[0] <= 1e-12 and np.isfinite(out["rel_error_pct"])
     # the second re-check of the same optimum comes from the cache
     assert len(list((run / "optimize" / "solver").glob("*.json"))) <= 3
 

@@ -36,16 +36,15 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
   total displacement from the reference and their stress *at the input's time* as a function of the
   ball's state and the geometry (a rollout moves the ball on, then evaluates the panel at the ball's
   new state, :func:`pcmgn_jax.mgn.rollout.step`): the panel's fields are a map of the ball's motion, not a second dynamical system, so they
-  cannot drift). Measured in this scene: at the same ball displacement the panel's loading and
-  unloading fields differ by 0.03–0.05 µm, and the panel's lowest eigenperiod is far below the ~300 µs
-  contact, which is what makes the map well posed. The ball stays the one dynamical state (its
+  cannot drift). The map is well posed where the panel's lowest eigenperiod is far below the contact
+  time (docs/design.md §5.1; the measurement: docs/results/surrogate.md). The ball stays the one dynamical state (its
   acceleration is integrated). Needs ``rigid_ball`` and ``panel_target='total_displacement'``.
 - ``contact_projection``: after every rollout step, the contact layer's top-surface nodes that the
   network put inside the rigid ball are moved down onto the ball's lower surface (the polyline of its
   downward-facing surface nodes, interpolated at each node's x; :func:`pcmgn_jax.mgn.rollout.project_contact`).
   The ball is rigid, so where its surface is is known exactly; a hard constraint makes the fit-free
   penetration the facet sagitta (h^2 / 8R, ~0.02 µm at the `cpu` mesh's 25 µm) instead of whatever the
-  network left, without the penetration term's cost to the fit (README §4). Rollouts only: the training
+  network left, without the penetration term's cost to the fit. Rollouts only: the training
   loss sees the network's raw output (``lambda_pen`` still penalises it there if set). Stresses are not
   changed.
 - ``scene_features``: scene parameters given to every node as extra input channels (after the velocity),
@@ -55,8 +54,7 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
   already the ball's velocity state; ``layer_thickness`` [m] (one channel per layer; the default
   formulation's) states the design outright: the mesh shows each layer's thickness only as the
   reference positions of its nodes, and the OLED's stress depends on the OCA thicknesses several layers
-  and message-passing hops away (measured without it: the rollouts' OLED objective followed the design
-  trend poorly, -14 % to +8 % per design). Constant channels (a layer that no design changes) normalise
+  and message-passing hops away (docs/results/surrogate.md). Constant channels (a layer that no design changes) normalise
   to 0. Layer-only features are 0 on the contact pair's nodes (ball and cover glass, :func:`scene_feature_rows`). Node channels, not a graph-level global, because the processor has
   no global block and every node of a scene carries the same value (a broadcast global); empty (the
   default) for single-scene datasets, where the channel would be constant.
@@ -115,9 +113,8 @@ def scene_feature_rows(scene: dict, names, node_type, design=None):
     :func:`scene_feature_values`, except that the layer-only features (:data:`LAYER_ONLY_FEATURES`) are 0
     on the nodes of the contact pair (the ball and the layer it touches, :func:`pcmgn_jax.mgn.contact.contact_parts`): the
     bodies that touch learn the contact from the contact and their local geometry, and the design is
-    stated where the response is read out far from it (the OLED). Measured with the thicknesses on every
-    node, and with them hidden from the ball only: the ball's rollout drifted up to 7–8 µm on the test
-    design nearest the box's corner (52.7, 143.3) µm, against 0.5 µm without them (README §4).
+    stated where the response is read out far from it (the OLED); with them on the ball too, its
+    rollout drifts (docs/results/surrogate.md).
     NumPy, or JAX with a traced ``design`` (see :func:`scene_feature_values`)."""
     vals = scene_feature_values(scene, names, design)
     xp = np if design is None else jnp

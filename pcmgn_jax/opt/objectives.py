@@ -5,6 +5,7 @@
   design (rounded to ``resolution`` [m]), so a GA's repeated designs cost nothing and ``n_evals`` counts
   distinct surrogate evaluations. Its gradient is a central finite difference (the regressions are
   smooth; ``nearest`` is piecewise constant and has none).
+- :class:`SurfaceObjective`: the objective read off a kriging / MOP response surface of it (no fields).
 - :class:`MGNObjective` adds the exact gradient of the MGN's objective through the rollout and the mesh
   (:class:`~pcmgn_jax.sim.design_map.DesignMap`): forward mode (``jax.jacfwd``), because there are 2 design
   variables against ~10^5 rollout states: two tangents cost ~2 forward passes and store no activations,
@@ -111,12 +112,17 @@ class FieldObjective:
         for i in range(0, len(new), max(step, 1)):
             chunk = new[i:i + step]
             des = np.asarray(chunk, float) * self.resolution
-            _, vm = self._predict(des)
-            for key, x, v in zip(chunk, des, vm):
-                self.cache[key] = float(metrics.oled_objective(v, self.weights(x), reading=self.reading))
+            for key, v in zip(chunk, self._objectives(des)):
+                self.cache[key] = float(v)
             self.n_evals += len(chunk)
             self._flush()
         return np.array([self.cache[self._key(x)] for x in d])
+
+    def _objectives(self, designs) -> np.ndarray:
+        """(B,) objective [MPa] of new designs (B, D) [m]: the reading of the predicted von Mises."""
+        _, vm = self._predict(designs)
+        return np.array([float(metrics.oled_objective(v, self.weights(x), reading=self.reading))
+                         for x, v in zip(designs, vm)])
 
     def _predict(self, designs):
         return self.surrogate.predict(designs)
@@ -132,6 +138,25 @@ class FieldObjective:
         probe = np.concatenate([d] + [d + s for s in steps] + [d - s for s in steps])
         f = self(probe).reshape(2 * D + 1, len(d))
         return f[0], ((f[1:D + 1] - f[D + 1:]) / (2 * self.fd_step)).T
+
+
+class SurfaceObjective(FieldObjective):
+    """The objective read straight off a response surface of it (``kriging`` | ``mop``,
+    :class:`pcmgn_jax.eval.response_surfaces.ObjectiveSurface` fitted for this reading over the design):
+    what a DOE tool optimises. Cache, resume and finite-difference gradient as :class:`FieldObjective`."""
+
+    def __init__(self, surface, design_map: DesignMap, **kw):
+        super().__init__(surface, design_map, **kw)
+        if self.reading not in surface.model.models:
+            raise ValueError(f"{self.name}: the surface was not fitted for the reading {self.reading!r}")
+
+    def fingerprint(self) -> str:
+        h = hashlib.sha256(self.name.encode())
+        h.update(np.ascontiguousarray(self.surrogate.scenes.x).tobytes())
+        return h.hexdigest()[:16]
+
+    def _objectives(self, designs) -> np.ndarray:
+        return np.asarray(self.surrogate.predict(designs)[self.reading], float)
 
 
 class MGNObjective(FieldObjective):

@@ -23,7 +23,7 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", obje
         pop: int = 100, gens: int = 50, starts: int = 4, iters: int = 20, screen: int = 0, seed: int = 0,
         grid: int = -1, which: str = "best", check: bool = True, progress: bool = True,
         command: str = "") -> dict:
-    """Optimise the OCA thicknesses of the run in ``workdir`` on ``surrogate`` (mgn | nearest | poly2 | rbf)
+    """Optimise the OCA thicknesses of the run in ``workdir`` on ``surrogate`` (mgn | nearest | poly2 | rbf | kriging | mop)
     with ``method`` (ga | gradient | slsqp) for the OLED objective ``objective`` (area_mean | node_mean |
     disc_mean | peak, docs/design.md §8) and return the result dict written to RUN/optimize/<tag>.json.
 
@@ -42,7 +42,7 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", obje
     from pcmgn_jax.eval.surrogates import FieldRegression, MGNSurrogate, design_of
     from pcmgn_jax.opt import search
     from pcmgn_jax.opt.check import solver_objectives
-    from pcmgn_jax.opt.objectives import FieldObjective, MGNObjective
+    from pcmgn_jax.opt.objectives import FieldObjective, MGNObjective, SurfaceObjective
     from pcmgn_jax.opt.problem import DesignBox
     from pcmgn_jax.scene import Scene
     from pcmgn_jax.sim.design_map import DesignMap
@@ -68,6 +68,9 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", obje
     kw = {"part": part, "reading": objective}
     if surrogate == "mgn":
         obj = MGNObjective(MGNSurrogate(run_dir, ref, which=which), dmap, **kw)
+    elif surrogate in ("kriging", "mop"):
+        from pcmgn_jax.eval.response_surfaces import ObjectiveSurface
+        obj = SurfaceObjective(ObjectiveSurface(surrogate, train, readings=(objective,), part=part), dmap, **kw)
     else:
         obj = FieldObjective(FieldRegression(surrogate, train), dmap, **kw)
 

@@ -13,10 +13,8 @@ an unstructured one just ends up mostly in the remainder.
 Node arrays here are (2, B, N): component (x, y), design, node in mesh order; the node axis is
 contiguous. Stiffness entries are [N/m], displacements [m], forces [N].
 
-Why not an einsum over element matrices or a gathered node stencil: measured on the `cpu` mesh
-(3,499 nodes, 2-core Xeon, benchmarks/README §3), K u costs ~160 us per substep with element
-gathers, ~60 us with one gather per neighbour slot and ~25 us with slices; batched over 8
-designs the gathers do not vectorise (~450 us) while the slices do (~100 us).
+Why shifted slices rather than an einsum over element matrices or a gathered node stencil: slices
+vectorise over a batch of designs and gathers do not (docs/design.md §9; timings in benchmarks/README.md §3).
 """
 from __future__ import annotations
 

@@ -193,11 +193,9 @@ def penetration_depth(ball_xy, panel_xy, *, degree_ball: int = 6, degree_panel: 
     the overlap [max(min x_b, min x_p), min(max x_b, max x_p)] of the two boundaries' predicted x ranges.
     Use jax.vmap over a leading frame axis for several frames.
 
-    Fit floor (measured on the exact Hertz contact state of the paper's scene at max compression, gap
-    0 everywhere in the contact, cpu and paper meshes, windows x_max = 0.4..1.5 mm): the two fits
-    differ by up to +-0.1..0.3 µm inside the contact patch, so ground truth can show d > 0 with
-    L_pen ~ 1e-3..7e-2 (µm^2) depending on window and degrees (B.6/P.5: <= 0.03), and a real
-    penetration below ~0.1 µm can be hidden by a negative fit error. The fit-free metric
+    Fit floor: on an exact contact state (gap 0) the two fits still differ by a few tenths of a µm
+    inside the contact patch, so ground truth can show d > 0 and a real penetration below ~0.1 µm can be
+    hidden by a negative fit error (docs/design.md §6). The fit-free metric
     (``pcmgn_jax.eval.metrics.penetration_stats``) does not have this floor.
     """
     ball_xy = jnp.asarray(ball_xy)
