@@ -1,0 +1,51 @@
+"""The four-task table (issue 24): the MGN beside every baseline on each task, the winner per metric named.
+
+  python -m experiments.tasks_table --task a=runs/cpu/eval/metrics.json,runs/cpu_seed1/eval/metrics.json \
+      --task b=runs/family/eval/metrics.json --task c=runs/cpu/eval/extrap/metrics.json \
+      --out docs/results/tasks.md
+
+Each ``--task T=FILES`` gives evaluate()'s metrics.json files of task T (a | b | c | d, see
+pcmgn_jax.eval.tasks.TASKS), one per MGN seed; a task not given is listed as not measured.
+"""
+import json
+import shlex
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pcmgn_jax import cli
+
+
+@dataclass(frozen=True)
+class TasksArgs:
+    task: tuple[str, ...] = ()     # T=metrics.json[,metrics.json...] (repeat the flag per task)
+    out: str = ""                  # Markdown file to write ("" = print only)
+    note: tuple[str, ...] = field(default_factory=tuple)   # lines to put under the title (budgets, what is missing)
+
+
+def main(argv=None) -> int:
+    args = cli.parse(TasksArgs, argv, description=__doc__, prog="python -m experiments.tasks_table")
+    from pcmgn_jax.atomic import atomic_write_text
+    from pcmgn_jax.eval.tasks import task_rows, task_table
+    runs, seeds = {}, {}
+    for spec in args.task:
+        task, sep, files = spec.partition("=")
+        if not sep or not files:
+            raise ValueError(f"--task {spec!r}: expected T=metrics.json[,metrics.json...]")
+        paths = [Path(f) for f in files.split(",")]
+        for p in paths:
+            if not p.is_file():
+                raise ValueError(f"--task {task}: {p} does not exist")
+        runs[task] = [json.loads(p.read_text()) for p in paths]
+        seeds[task] = len(paths)
+    command = "python -m experiments.tasks_table " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
+    text = "\n".join(["# Four tasks: the MGN beside the response surfaces", "", f"`{command}`", "",
+                      *[f"{n}" for n in args.note], "", task_table(task_rows(runs), seeds=seeds)])
+    print(text)
+    if args.out:
+        atomic_write_text(Path(args.out), text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(cli.run(main))

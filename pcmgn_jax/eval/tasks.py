@@ -1,0 +1,83 @@
+"""The four-task comparison of issue 24: the MGN beside every baseline, per task, with the winner per metric.
+
+    rows = task_rows({"a": [m_seed0, m_seed1], "b": [m]})   # evaluate()'s metrics.json dicts per task
+    text = task_table(rows, commands)                      # Markdown
+
+Tasks (:data:`TASKS`): (a) the paper's box (``cpu`` test split), (b) the scene family's test split,
+(c) extrapolation (designs / scenes outside the training box), (d) zero-shot (scenes varying a parameter
+training held fixed). A task with no metrics is listed as not measured. Per predictor and metric: the
+mean over the given seeds' files (the baselines are deterministic, so their seeds agree), and the
+worst design's error where metrics.json has it (``*_max``). Lower is better for every metric.
+"""
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+
+TASKS = {"a": "the paper's box (cpu test split)", "b": "scene family (family test split)",
+         "c": "extrapolation (outside the training box)", "d": "zero-shot (a parameter training held fixed)"}
+METRICS = (("position_mae_um", "position MAE [µm]"), ("stress_mae_mpa", "stress MAE [MPa]"),
+           ("oled_objective_area_rel_error_pct_mean", "objective error, area mean [%]"),
+           ("oled_objective_area_rel_error_pct_max", "worst design [%]"),
+           ("penetration_max_um", "max penetration [µm]"))
+WINNER_METRICS = ("position_mae_um", "stress_mae_mpa", "oled_objective_area_rel_error_pct_mean")
+
+
+def _predictors(m: dict) -> dict[str, dict]:
+    out = {"MGN": m}
+    out.update({k: v for k, v in m.get("baselines", {}).items() if "not_applicable" not in v})
+    return out
+
+
+def task_rows(runs: Mapping[str, Sequence[dict]]) -> dict[str, dict[str, dict[str, float]]]:
+    """{task: {predictor: {metric: mean over the task's metrics files}}} (predictors that answered)."""
+    rows = {}
+    for task, files in runs.items():
+        if task not in TASKS:
+            raise ValueError(f"task must be one of {sorted(TASKS)}, got {task!r}")
+        acc: dict[str, dict[str, list]] = {}
+        for m in files:
+            for name, v in _predictors(m).items():
+                for key, _ in METRICS:
+                    if isinstance(v.get(key), (int, float)):
+                        acc.setdefault(name, {}).setdefault(key, []).append(float(v[key]))
+        rows[task] = {name: {k: float(np.mean(x)) for k, x in d.items()} for name, d in acc.items()}
+    return rows
+
+
+def winners(row: dict[str, dict[str, float]]) -> dict[str, str]:
+    """{metric: the predictor with the lowest value} among those that report it (ground truth excluded:
+    'none' is a predictor too; ties go to the first listed)."""
+    out = {}
+    for key in WINNER_METRICS:
+        have = [(v[key], name) for name, v in row.items() if key in v]
+        if have:
+            out[key] = min(have, key=lambda t: t[0])[1]
+    return out
+
+
+def task_table(rows: dict, commands: Mapping[str, str] = {}, seeds: Mapping[str, int] = {}) -> str:
+    """Markdown: one section per task (not measured ones say so), predictors as rows, winners bold."""
+    lines = []
+    for task, title in TASKS.items():
+        lines += [f"### ({task}) {title}", ""]
+        if task not in rows or not rows[task]:
+            lines += ["Not measured yet.", ""]
+            continue
+        head = ([f"`{commands[task]}`"] if task in commands else []) + \
+            ([f"({seeds[task]} seed(s) of the MGN)"] if task in seeds else [])
+        if head:
+            lines += [" ".join(head), ""]
+        win = winners(rows[task])
+        lines += ["| predictor | " + " | ".join(label for _, label in METRICS) + " |",
+                  "|---" * (len(METRICS) + 1) + "|"]
+        for name, v in rows[task].items():
+            cells = []
+            for key, _ in METRICS:
+                s = f"{v[key]:.3g}" if key in v else "–"
+                cells.append(f"**{s}**" if win.get(key) == name else s)
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        named = ", ".join(f"{dict(METRICS)[k]}: **{n}**" for k, n in win.items())
+        lines += ["", f"Winner per metric: {named}.", ""]
+    return "\n".join(lines)
