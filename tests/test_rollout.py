@@ -113,6 +113,7 @@ def test_evaluate_any_directory_and_baselines_that_need_the_training_mesh(tiny_r
     assert (workdir / "eval" / "other" / "metrics.json").exists()
 
 
+@pytest.mark.slow  # ~20 s: test_family's union tests cover several meshes in the default suite
 def test_surrogate_many_meshes(tiny_run, tiny_trajs):
     """MGNSurrogate rolls designs of different meshes out in one union batch: the same fields as each
     alone; stacked arrays when node counts agree, lists when they differ."""

@@ -121,6 +121,7 @@ def eight_devices():
     return json.loads(run.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow  # ~90 s: an 8-device child process trains twice (the default suite's 10-minute budget)
 def test_eight_devices_give_the_one_device_losses(eight_devices):
     r = eight_devices
     # one chunk of 10 steps from the same state, and the gradient of one batch: float rounding only
@@ -132,6 +133,7 @@ def test_eight_devices_give_the_one_device_losses(eight_devices):
     assert len(a) == len(b) == 2 and max(abs(x - y) / abs(x) for x, y in zip(a, b)) < 1e-4, (a, b)
 
 
+@pytest.mark.slow  # ~90 s: an 8-device child process trains twice (the default suite's 10-minute budget)
 def test_parameters_agree_but_for_float_noise_gradients(eight_devices):
     """Adam's step g / (sqrt(v) + eps) is about ±lr for any gradient far above eps = 1e-8, including
     the float noise of a gradient that is exactly 0 in exact arithmetic (the rigid ball's softmax score
@@ -145,6 +147,7 @@ def test_parameters_agree_but_for_float_noise_gradients(eight_devices):
     assert r["param_p99_train"] < 1e-4 and r["param_max_train"] <= 20 * r["lr"], r
 
 
+@pytest.mark.slow  # ~90 s: an 8-device child process trains twice (the default suite's 10-minute budget)
 def test_batch_is_split_and_state_replicated(eight_devices):
     r = eight_devices
     assert r["batch_devices"] == 8 and r["shard_shapes"] == [[10, 1, r["shard_shapes"][0][2], 2]]
@@ -152,6 +155,7 @@ def test_batch_is_split_and_state_replicated(eight_devices):
     assert r["recompiles"] == 0  # both executables were compiled by the training runs
 
 
+@pytest.mark.slow  # ~90 s: an 8-device child process trains twice (the default suite's 10-minute budget)
 def test_batch_not_divisible_names_the_fields(eight_devices):
     assert "batch_graphs=12" in eight_devices["split_error"] and "devices=8" in eight_devices["split_error"]
     with pytest.raises(ValueError, match=r"batch_graphs=6 is not divisible by devices=4"):

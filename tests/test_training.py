@@ -77,6 +77,7 @@ def test_nan_loss_stops_clearly(tiny_trajs, tmp_path):
         training.train(cfg, tmp_path, train_trajs=bad, val_trajs=())
 
 
+@pytest.mark.slow  # ~20 s: test_lambda_pen_keeps_a_best_checkpoint_trained_with_the_term covers the default path
 def test_nonzero_lambda_pen_is_wired_or_refused(tiny_trajs, tmp_path):
     cfg = tiny_config(num_steps=20, lambda_pen=10.0, poly_ball=2, poly_panel=3)
     try:
@@ -90,6 +91,7 @@ def test_nonzero_lambda_pen_is_wired_or_refused(tiny_trajs, tmp_path):
     assert "loss_pen" in rec and np.isfinite(rec["loss"]) and res["step"] == 20
 
 
+@pytest.mark.slow  # ~20 s: an option off by default (the default suite's 10-minute budget)
 def test_pushforward_training_runs_and_lowers_the_loss(tiny_trajs, tmp_path):
     cfg = tiny_config(pushforward=True, noise_rel=0.5, noise_parts="panel", num_steps=80)
     res = training.train(cfg, tmp_path, train_trajs=tiny_trajs[:3])
