@@ -18,7 +18,7 @@ from pcmgn_jax import cli
 
 @dataclass(frozen=True)
 class TasksArgs:
-    task: tuple[str, ...] = ()     # T=metrics.json[,metrics.json...] (repeat the flag per task)
+    task: tuple[str, ...] = ()     # T=metrics.json[,metrics.json...] (T: a | b | c | d, or T.VARIANT such as d.cg_thin; repeat the flag)
     out: str = ""                  # Markdown file to write ("" = print only)
     note: tuple[str, ...] = field(default_factory=tuple)   # lines to put under the title (budgets, what is missing)
 

@@ -5,7 +5,8 @@
 
 Tasks (:data:`TASKS`): (a) the paper's box (``cpu`` test split), (b) the scene family's test split,
 (c) extrapolation (designs / scenes outside the training box), (d) zero-shot (scenes varying a parameter
-training held fixed). A task with no metrics is listed as not measured. Per predictor and metric: the
+training held fixed); ``T.VARIANT`` keys (``d.cg_thin``) give a task one table per variant. A task
+with no metrics is listed as not measured. Per predictor and metric: the
 mean over the given seeds' files (the baselines are deterministic, so their seeds agree), and the
 worst design's error where metrics.json has it (``*_max``). Lower is better for every metric.
 """
@@ -34,8 +35,8 @@ def task_rows(runs: Mapping[str, Sequence[dict]]) -> dict[str, dict[str, dict[st
     """{task: {predictor: {metric: mean over the task's metrics files}}} (predictors that answered)."""
     rows = {}
     for task, files in runs.items():
-        if task not in TASKS:
-            raise ValueError(f"task must be one of {sorted(TASKS)}, got {task!r}")
+        if task.split(".", 1)[0] not in TASKS:
+            raise ValueError(f"task must be one of {sorted(TASKS)} (or T.VARIANT, e.g. d.cg_thin), got {task!r}")
         acc: dict[str, dict[str, list]] = {}
         for m in files:
             for name, v in _predictors(m).items():
@@ -60,24 +61,30 @@ def winners(row: dict[str, dict[str, float]]) -> dict[str, str]:
 def task_table(rows: dict, commands: Mapping[str, str] = {}, seeds: Mapping[str, int] = {}) -> str:
     """Markdown: one section per task (not measured ones say so), predictors as rows, winners bold."""
     lines = []
-    for task, title in TASKS.items():
-        lines += [f"### ({task}) {title}", ""]
-        if task not in rows or not rows[task]:
-            lines += ["Not measured yet.", ""]
+    for base, title in TASKS.items():
+        keys = [k for k in rows if k.split(".", 1)[0] == base and rows[k]]
+        if not keys:
+            lines += [f"### ({base}) {title}", "", "Not measured yet.", ""]
             continue
-        head = ([f"`{commands[task]}`"] if task in commands else []) + \
-            ([f"({seeds[task]} seed(s) of the MGN)"] if task in seeds else [])
-        if head:
-            lines += [" ".join(head), ""]
-        win = winners(rows[task])
-        lines += ["| predictor | " + " | ".join(label for _, label in METRICS) + " |",
-                  "|---" * (len(METRICS) + 1) + "|"]
-        for name, v in rows[task].items():
-            cells = []
-            for key, _ in METRICS:
-                s = f"{v[key]:.3g}" if key in v else "–"
-                cells.append(f"**{s}**" if win.get(key) == name else s)
-            lines.append(f"| {name} | " + " | ".join(cells) + " |")
-        named = ", ".join(f"{dict(METRICS)[k]}: **{n}**" for k, n in win.items())
-        lines += ["", f"Winner per metric: {named}.", ""]
+        for task in keys:
+            variant = task.split(".", 1)[1] if "." in task else ""
+            lines += [f"### ({base}) {title}" + (f": {variant}" if variant else ""), ""]
+            head = ([f"`{commands[task]}`"] if task in commands else []) + \
+                ([f"({seeds[task]} seed(s) of the MGN)"] if task in seeds else [])
+            if head:
+                lines += [" ".join(head), ""]
+            lines += _table(rows[task])
     return "\n".join(lines)
+
+
+def _table(row: dict[str, dict[str, float]]) -> list[str]:
+    win = winners(row)
+    lines = ["| predictor | " + " | ".join(label for _, label in METRICS) + " |", "|---" * (len(METRICS) + 1) + "|"]
+    for name, v in row.items():
+        cells = []
+        for key, _ in METRICS:
+            s = f"{v[key]:.3g}" if key in v else "–"
+            cells.append(f"**{s}**" if win.get(key) == name else s)
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    named = ", ".join(f"{dict(METRICS)[k]}: **{n}**" for k, n in win.items())
+    return lines + ["", f"Winner per metric: {named}.", ""]
