@@ -192,3 +192,29 @@ def test_graph_inputs_are_what_training_surrogates_and_objectives_build():
     got = np.asarray(traced(jnp.asarray(design_of(trajs[2]), jnp.float32)))
     want = np.asarray(setup.graphs[2].topology.scene_features)
     assert got.dtype == want.dtype and np.array_equal(got, want)
+
+
+def test_zero_shot_scenes_change_the_models_inputs_where_it_can_see_them():
+    """A scene that changes a number training held fixed: a thicker cover glass or plate changes the MGN's
+    inputs (the mesh, and the layer_thickness channels of the non-contact nodes); a layer's modulus does
+    not (no material channel): the model answers such a scene as if the modulus were unchanged."""
+    import dataclasses
+
+    from pcmgn_jax.mgn.inputs import graph_inputs
+    from pcmgn_jax.scene import default_scene
+    from pcmgn_jax.sim.mesh import build_mesh
+
+    def inputs(**change):
+        base = default_scene()
+        layers = tuple(dataclasses.replace(l, **change[l.name]) if l.name in change else l for l in base.layers)
+        scene = dataclasses.replace(base, layers=layers)
+        g = graph_inputs(build_mesh(scene, "tiny"), scene.to_dict(), scene_features=("layer_thickness",))
+        return g.points, np.asarray(g.topology.scene_features)
+
+    p0, f0 = inputs()
+    for change in ({"CG": {"thickness": 130e-6}}, {"PLATE": {"thickness": 1.5e-3}}):
+        p, f = inputs(**change)
+        assert p.shape != p0.shape or not np.array_equal(p, p0)
+        assert f.shape[0] != f0.shape[0] or not np.array_equal(f, f0)
+    p, f = inputs(OCA1={"youngs": 20e6})
+    assert np.array_equal(p, p0) and np.array_equal(f, f0)
