@@ -1,10 +1,9 @@
 """The four-task table (issue 24): the MGN beside every baseline on each task, the winner per metric named.
 
   python -m experiments.tasks_table --task a=runs/cpu/eval/metrics.json,runs/cpu_seed1/eval/metrics.json \
-      --task b=runs/family/eval/metrics.json --task c=runs/cpu/eval/extrap/metrics.json \
-      --out docs/results/tasks.md
+      b=runs/family/eval/metrics.json c=runs/cpu/eval/extrap/metrics.json --out docs/results/tasks.md
 
-Each ``--task T=FILES`` gives evaluate()'s metrics.json files of task T (a | b | c | d, see
+Each ``T=FILES`` after ``--task`` gives evaluate()'s metrics.json files of task T (a | b | c | d, see
 pcmgn_jax.eval.tasks.TASKS), one per MGN seed; a task not given is listed as not measured.
 """
 import json
@@ -18,7 +17,7 @@ from pcmgn_jax import cli
 
 @dataclass(frozen=True)
 class TasksArgs:
-    task: tuple[str, ...] = ()     # T=metrics.json[,metrics.json...] (T: a | b | c | d, or T.VARIANT such as d.cg_thin; repeat the flag)
+    task: tuple[str, ...] = ()     # T=metrics.json[,metrics.json...] ... (T: a | b | c | d, or T.VARIANT such as d.cg_thin), space-separated after one --task
     out: str = ""                  # Markdown file to write ("" = print only)
     note: tuple[str, ...] = field(default_factory=tuple)   # lines to put under the title (budgets, what is missing)
 
@@ -28,6 +27,8 @@ def main(argv=None) -> int:
     from pcmgn_jax.atomic import atomic_write_text
     from pcmgn_jax.eval.tasks import task_rows, task_table
     runs, seeds = {}, {}
+    if len({s.partition("=")[0] for s in args.task}) < len(args.task):
+        raise ValueError(f"--task: a task is given twice in {list(args.task)}")
     for spec in args.task:
         task, sep, files = spec.partition("=")
         if not sep or not files:

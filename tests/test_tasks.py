@@ -32,7 +32,8 @@ def test_cli_writes_the_table_and_names_a_missing_file(tmp_path):
     f = tmp_path / "m.json"
     f.write_text(json.dumps(_m(0.3, 2.0, 0.1, 0.05)))
     out = tmp_path / "t.md"
-    assert tasks_table.main(["--task", f"a={f}", "--out", str(out)]) == 0
-    assert "Winner per metric" in out.read_text()
+    assert tasks_table.main(["--task", f"a={f}", f"b={f},{f}", "--out", str(out)]) == 0
+    text = out.read_text()
+    assert text.count("Winner per metric") == 2 and "(2 seed(s) of the MGN)" in text
     with pytest.raises(ValueError, match="does not exist"):
         tasks_table.main(["--task", f"b={tmp_path / 'nope.json'}"])
