@@ -38,6 +38,7 @@ def _run(keep: str):
     return applied == "True", int(pages), int(faults)
 
 
+@pytest.mark.slow  # ~11 s: two child processes (the default suite's 10-minute budget); the import test stays
 @pytest.mark.skipif(platform.system() != "Linux" or platform.libc_ver()[0] != "glibc", reason="glibc only")
 def test_scratch_buffer_is_not_faulted_again():
     applied, pages, faults = _run("1")

@@ -63,6 +63,7 @@ def test_rigid_ball_gets_one_shared_draw_and_keys_matter():
     assert not np.allclose(a, c)
 
 
+@pytest.mark.slow  # ~15 s: noise is off in the default formulation (the default suite's 10-minute budget)
 def test_training_loss_runs_the_noise(tiny_trajs):
     """The training step's loss changes with the key exactly when noise is configured."""
     from conftest import tiny_config

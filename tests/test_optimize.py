@@ -248,6 +248,7 @@ def test_ga_resumes_after_a_kill_with_the_same_result(tmp_path):
         FieldObjective(_Bowl(len(pts)), dmap, part=1).persist(store, {**meta, "seed": 4})
 
 
+@pytest.mark.slow  # ~11 s (the default suite's 10-minute budget)
 def test_mgn_objective_gradient_matches_finite_differences(tiny_run, tiny_trajs):
     """Exact forward-mode gradient of (design -> mesh -> rollout -> objective) on the tiny synthetic run
     (design: the CG thickness; the CG top and the ball move with it) against central differences."""

@@ -23,6 +23,7 @@ def test_long_rollout_finite_and_bcs(tiny_run, tiny_trajs):
     assert np.all(np.asarray(res.displacement)[:, axis, 0] == 0)
 
 
+@pytest.mark.slow  # ~17 s (the default suite's 10-minute budget); test_rollout_no_recompilation and the union tests stay
 def test_scan_equals_python_loop_and_vmap(tiny_run, tiny_trajs):
     _, _, summary = tiny_run
     s, params = summary["setup"], summary["state"].params
@@ -197,6 +198,7 @@ def test_contact_projection_moves_only_nodes_inside_the_ball_onto_its_surface():
     assert np.all(clear == 0)  # no overlap, nothing moves
 
 
+@pytest.mark.slow  # ~15 s (the default suite's 10-minute budget)
 def test_contact_projection_of_a_union_is_each_graphs_own_and_has_finite_gradients():
     from pcmgn_jax.mgn import contact as contact_lib
     (p1, i1), (p2, i2) = _contact_scene(gap_um=-2.0), _contact_scene(gap_um=-5.0, spacing=30e-6)

@@ -21,6 +21,7 @@ def _no_persistent_cache(monkeypatch):
     monkeypatch.setattr(cells, "use_compilation_cache", lambda folder, min_compile_seconds=1.0: None)
 
 
+@pytest.mark.slow  # ~6 s (the default suite's 10-minute budget)
 def test_compilation_cache_is_written_and_read(tmp_path):
     """In a fresh process, a compiled function lands in the folder; a second process loads it (JAX's
     cache-hit event)."""
@@ -48,6 +49,7 @@ def _fake_metrics(pos: float) -> dict:
                                    "oled_objective_area_rel_error_pct_mean": 100.0, "penetration_max_um": 0.0}}}
 
 
+@pytest.mark.slow  # ~11 s (the default suite's 10-minute budget); test_study's cell-config tests stay
 def test_degree_study_flags_and_table(tmp_path, monkeypatch):
     calls = []
 
@@ -160,6 +162,7 @@ def test_render_rewrites_the_table_from_its_json_without_running_cells(tmp_path,
         study.main(["--name", "degree", "--render", "--out", str(tmp_path / "nothing")])
 
 
+@pytest.mark.slow  # ~8 s (the default suite's 10-minute budget)
 def test_rerunning_one_formulation_keeps_the_others_rows(tmp_path, monkeypatch):
     """``--formulations default`` after a full run re-measures the default rows only: the paper rows and
     the command that measured them survive; a re-run at other steps is refused, naming the file."""
@@ -217,6 +220,7 @@ def test_a_cell_trained_with_other_settings_is_refused(tmp_path):
         cells.run_cell(wd, {"preset": "cpu", "lambda_pen": 10.0, "lambda_start": 0.0})
 
 
+@pytest.mark.slow  # ~7 s (the default suite's 10-minute budget)
 def test_lambda_study_starts_the_paper_formulations_penalty_at_step_0(tmp_path, monkeypatch):
     calls = []
     monkeypatch.setattr(cells, "run_cell", lambda wd, settings, extra_data=None: calls.append((str(wd), settings))

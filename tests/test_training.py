@@ -64,6 +64,7 @@ def test_resume_reaches_same_parameters(tiny_run, tiny_trajs, tmp_path):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+@pytest.mark.slow  # ~11 s (the default suite's 10-minute budget)
 def test_nan_loss_stops_clearly(tiny_trajs, tmp_path):
     import copy
     bad = [copy.copy(t) for t in tiny_trajs[:3]]
