@@ -45,18 +45,20 @@ def shared_mesh(trajs) -> bool:
     return all(t.n_nodes == ref.n_nodes and np.array_equal(t.cells, ref.cells) for t in trajs)
 
 
-def objective_scores(test_trajs: Sequence, pred: dict[str, np.ndarray], *, prefix: str = "") -> dict:
-    """Relative errors [%] of predicted objective readings {reading: (B,) [MPa]} against the test
-    trajectories' own (``metrics.oled_objective_of``), under evaluate's keys (:data:`READING_KEYS`)."""
+def objective_scores(test_trajs: Sequence, pred: dict[str, np.ndarray], *, part: int | None = None) -> dict:
+    """Truth [MPa], prediction [MPa] and relative errors [%] of predicted objective readings
+    {reading: (B,) [MPa]} against the test trajectories' own (``metrics.oled_objective_of``; ``part``: the
+    OLED part id, default found by name), under evaluate's keys (:data:`READING_KEYS`). The one scoring of
+    an objective prediction: the MGN's and every baseline's."""
     out = {}
     for reading, key in READING_KEYS.items():
         if reading not in pred:
             continue
-        truth = np.array([float(metrics.oled_objective_of(t, reading=reading)) for t in test_trajs])
+        truth = np.array([float(metrics.oled_objective_of(t, part=part, reading=reading)) for t in test_trajs])
         p = np.asarray(pred[reading], np.float64)
         rel = metrics.relative_error_pct(p, truth)
-        out.update({f"{prefix}{key}_pred_mpa": p.tolist(), f"{prefix}{key}_rel_error_pct_mean": float(rel.mean()),
-                    f"{prefix}{key}_rel_error_pct_max": float(rel.max())})
+        out.update({f"{key}_true_mpa": truth.tolist(), f"{key}_pred_mpa": p.tolist(),
+                    f"{key}_rel_error_pct_mean": float(rel.mean()), f"{key}_rel_error_pct_max": float(rel.max())})
     return out
 
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.eval import metrics, plots
-from pcmgn_jax.eval.baselines import baseline_metrics
+from pcmgn_jax.eval.baselines import READING_KEYS, baseline_metrics, objective_scores
 from pcmgn_jax.eval.surrogates import MGNSurrogate
 from pcmgn_jax.geometry import roi_boundary_nodes
 from pcmgn_jax.mgn.contact import contact_parts
@@ -83,16 +83,12 @@ def _scores(scene: Scene, trajs, pred_u, pred_vm, bnodes, pnodes) -> dict:
         pen.append(metrics.penetration_stats(xy[:, bnodes[b]], xy[:, pnodes[b]]))
     out.update(metrics.penetration_summary(pen))
     if "OLED" in scene.part_names:
-        part = scene.part_names.index("OLED")
         # the paper's reading (node average) under the historical keys; the optimiser's default
         # (section area mean) under oled_objective_area_*; each trajectory on its own mesh
-        for reading, key in (("node_mean", "oled_objective"), ("area_mean", "oled_objective_area")):
-            truth = np.array([metrics.oled_objective_of(t, v, part=part, reading=reading) for t, v in zip(trajs, true_vm)])
-            pred = np.array([metrics.oled_objective_of(t, np.asarray(v), part=part, reading=reading)
-                             for t, v in zip(trajs, pred_vm)])
-            rel = metrics.relative_error_pct(pred, truth)
-            out.update({f"{key}_true_mpa": truth.tolist(), f"{key}_pred_mpa": pred.tolist(),
-                        f"{key}_rel_error_pct_mean": float(rel.mean()), f"{key}_rel_error_pct_max": float(rel.max())})
+        part = scene.part_names.index("OLED")
+        pred = {r: np.array([float(metrics.oled_objective_of(t, np.asarray(v), part=part, reading=r))
+                             for t, v in zip(trajs, pred_vm)]) for r in READING_KEYS}
+        out.update(objective_scores(trajs, pred, part=part))
     return out
 
 
