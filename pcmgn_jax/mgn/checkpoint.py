@@ -45,7 +45,8 @@ def make_spec(cfg: TrainConfig, dt: float) -> Spec:
     """The static simulator settings (model sizes, formulation, frame interval [s]) of a config."""
     form = cfg.formulation
     model = EncodeProcessDecode(output_size=form.output_size, latent_size=cfg.latent_size,
-                                mlp_layers=cfg.mlp_layers, message_passing_steps=cfg.message_passing_steps)
+                                mlp_layers=cfg.mlp_layers, message_passing_steps=cfg.message_passing_steps,
+                                decoder_condition=form.decoder_condition)
     return Spec(model=model, formulation=form, dt=float(dt))
 
 

@@ -47,6 +47,16 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
   network left, without the penetration term's cost to the fit. Rollouts only: the training
   loss sees the network's raw output (``lambda_pen`` still penalises it there if set). Stresses are not
   changed.
+- ``processor``: ``per_frame`` (the ball state is a node input, so the whole network runs every frame)
+  or ``per_design`` (``quasi_static`` only: the graph is drawn with the ball at its reference too, so
+  the encoder and the message-passing processor see only the design and run **once per design**; the
+  ball's state [u_ball,y, v_ball,y] goes straight to the decoder, a per-node MLP on [latent, ball
+  state], which is all a rollout evaluates per frame: ~1/50 of the per-frame network's cost). A
+  quasi-static panel's fields are a map of the ball's state given the design (see ``panel_model``);
+  this draws that map as "the design's latent field, read out at the ball's state" (DeepONet-like:
+  the processor is the branch, the ball state the trunk input). :mod:`pcmgn_jax.mgn.rollout` runs the
+  processor once before the scan; the training loss sees the same network (processor + decoder) per
+  sample, so training costs what it did.
 - ``scene_features``: scene parameters given to every node as extra input channels (after the velocity),
   normalised like the other node channels (per node type with ``per_part``): ``ball_radius`` [m] sets the
   rigid ball's mass (∝ R³) and curvature, which the region-of-interest graph (the ball's lowest 0.5 mm)
@@ -78,6 +88,7 @@ NORMALIZATIONS = ("global", "per_part")
 FEATURES = ("paper", "strain")
 LOSS_WEIGHTINGS = ("nodes", "parts")
 PANEL_MODELS = ("dynamic", "quasi_static")
+PROCESSORS = ("per_frame", "per_design")
 BALL_STATE_CHANNELS = 2  # quasi_static: [u_ball,y, v_ball,y] on every node (the ball moves along the axis)
 NOISE_PARTS = ("none", "ball", "panel", "all")
 SCENE_FEATURES = {"ball_radius": ("ball", "radius"), "ball_velocity": ("ball", "velocity"),  # -> scene dict keys
@@ -145,6 +156,7 @@ class Formulation:
     scene_features: tuple[str, ...] = ()  # per-scene node inputs: ball_radius, ball_velocity, layer_thickness (flag: comma list or none)
     panel_model: str = "dynamic"        # dynamic (the layers' state integrated) | quasi_static (their fields a map of the ball's state)
     contact_projection: bool = False    # rollouts move cover-glass nodes inside the rigid ball onto its surface
+    processor: str = "per_frame"        # per_frame (the ball state is a node input: the processor runs every frame) | per_design (quasi_static only: the processor runs once per design on the static graph, the ball state enters the decoder)
 
     def __post_init__(self):
         bad = [f for f in self.scene_features if f not in SCENE_FEATURES]
@@ -152,7 +164,8 @@ class Formulation:
             raise ValueError(f"formulation: scene_features {bad} must be among {sorted(SCENE_FEATURES)}")
         for name, allowed in (("ball_target", TARGETS), ("panel_target", TARGETS),
                               ("normalization", NORMALIZATIONS), ("features", FEATURES),
-                              ("loss_weighting", LOSS_WEIGHTINGS), ("panel_model", PANEL_MODELS)):
+                              ("loss_weighting", LOSS_WEIGHTINGS), ("panel_model", PANEL_MODELS),
+                              ("processor", PROCESSORS)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"formulation: {name}={getattr(self, name)!r} must be one of {allowed}")
         if self.panel_model == "quasi_static" and not (self.rigid_ball and self.panel_target == "total_displacement"):
@@ -160,11 +173,21 @@ class Formulation:
                              f"panel_target='total_displacement' (got rigid_ball={self.rigid_ball}, "
                              f"panel_target={self.panel_target!r}): a layer whose state is not an input "
                              "can only predict where it is, not how it moves on")
+        if self.processor == "per_design" and self.panel_model != "quasi_static":
+            raise ValueError("formulation: processor='per_design' needs panel_model='quasi_static' (got "
+                             f"{self.panel_model!r}): only a panel drawn at its reference has a graph that "
+                             "does not change within a rollout")
 
     @property
     def node_extra(self) -> int:
         """Node input channels beyond the features' own and the scene features (the ball state)."""
         return BALL_STATE_CHANNELS if self.panel_model == "quasi_static" else 0
+
+    @property
+    def decoder_condition(self) -> int:
+        """Node input channels (the last ones) that bypass the processor and enter the decoder:
+        the ball state with ``processor='per_design'``, else 0."""
+        return BALL_STATE_CHANNELS if self.processor == "per_design" else 0
 
     @property
     def output_size(self) -> int:
@@ -299,13 +322,17 @@ def model_inputs(form: Formulation, ball_mask, u, v, segments=None):
     (u = v = 0; the contact search then runs against the reference cover glass, so the graph is a
     function of the ball's state alone), the ball as it is, and every node carrying its graph's rigid
     ball's vertical displacement [m] and velocity [m/s] (``segments``: see :func:`rigid_mean`; the ball
-    moves along the symmetry axis, :func:`axial`). NumPy or JAX.
+    moves along the symmetry axis, :func:`axial`). With ``processor='per_design'`` the ball too is drawn
+    at its reference (its state is only in the extra channels, which the model hands to its decoder), so
+    the graph is the same in every frame of a design. NumPy or JAX.
     """
     if form.panel_model != "quasi_static":
         return u, v, None
     xp = _xp(u)
     ball = xp.asarray(ball_mask)[:, None]
     u_in, v_in = xp.where(ball, u, 0.0), xp.where(ball, v, 0.0)
+    if form.processor == "per_design":  # the ball at its reference too: the graph is the design's alone
+        u_in, v_in = xp.zeros_like(u), xp.zeros_like(v)
     state = xp.concatenate([per_body(rigid_mean(u, ball_mask, segments), segments)[:, 1:],
                             per_body(rigid_mean(v, ball_mask, segments), segments)[:, 1:]], axis=-1)
     return u_in, v_in, xp.broadcast_to(state, (u.shape[0], BALL_STATE_CHANNELS))

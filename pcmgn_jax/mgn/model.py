@@ -16,6 +16,13 @@
   W_s v_s + W_r v_r + W_e e; W_s v and W_r v are computed once per node and gathered by senders /
   receivers instead of projecting the concatenated (E, 3L) matrix.
 
+- ``decoder_condition`` = k > 0 (formulation ``processor='per_design'``): the last k node channels (the
+  ball's state) bypass the encoder and the processor and enter the decoder, whose first layer is
+  W_v v + W_c c + b. The processor's latents and W_v v + b (:meth:`EncodeProcessDecode.decoder_base`)
+  depend on the design only; a rollout computes them once and per frame only
+  :meth:`EncodeProcessDecode.decode_from_base` (``model.apply(params, base, cond, method=...)``).
+  ``model.apply(params, graph)`` is the same network in one call (training).
+
 The model reads *normalised* graphs (see :mod:`pcmgn_jax.mgn.normalization`) and returns normalised
 per-node outputs (N, output_size). Use it as a pure function: ``model.apply(params, graph)``.
 """
@@ -67,6 +74,30 @@ class EdgeFunction(nn.Module):
         return nn.LayerNorm()(x)
 
 
+class ConditionedDecoder(nn.Module):
+    """The decoder MLP on [v, c] with its first layer split: ``base(v)`` = W_v v + b (computed once per
+    design), ``finish(base, c)`` = the rest (relu(base + W_c c), hidden layers, linear output)."""
+
+    latent_size: int
+    output_size: int
+    hidden_layers: int = 2
+
+    def setup(self):
+        self.first = nn.Dense(self.latent_size, name="latent_proj")
+        self.cond = nn.Dense(self.latent_size, use_bias=False, name="condition_proj")
+        self.hidden = [nn.Dense(self.latent_size) for _ in range(self.hidden_layers - 1)]
+        self.out = nn.Dense(self.output_size)
+
+    def base(self, v):
+        return self.first(v)
+
+    def finish(self, base, c):
+        x = nn.relu(base + self.cond(c))
+        for layer in self.hidden:
+            x = nn.relu(layer(x))
+        return self.out(x)
+
+
 class EncodeProcessDecode(nn.Module):
     """MeshGraphNet. ``output_size``: per-node outputs (default 3: velocity x, y and von Mises)."""
 
@@ -76,6 +107,7 @@ class EncodeProcessDecode(nn.Module):
     message_passing_steps: int = 15
     edge_sets: Sequence[str] = EDGE_SETS
     sorted_receivers: Sequence[str] = ("mesh",)
+    decoder_condition: int = 0  # last node channels handed to the decoder, not the encoder (module docstring)
 
     def setup(self):
         if self.latent_size < 1 or self.message_passing_steps < 0 or self.mlp_layers < 1:
@@ -88,15 +120,33 @@ class EncodeProcessDecode(nn.Module):
         self.edge_fns = [{k: EdgeFunction(L, H, name=f"step{i}_{k}_edge") for k in self.edge_sets}
                          for i in range(self.message_passing_steps)]
         self.node_fns = [MLP(L, L, H, name=f"step{i}_node") for i in range(self.message_passing_steps)]
-        self.decoder = MLP(L, self.output_size, H, layer_norm=False, name="decoder")
+        if self.decoder_condition:
+            self.decoder = ConditionedDecoder(L, self.output_size, H, name="decoder")
+        else:
+            self.decoder = MLP(L, self.output_size, H, layer_norm=False, name="decoder")
 
     def __call__(self, graph: jraph.GraphsTuple) -> jnp.ndarray:
+        if self.decoder_condition:
+            return self.decode_from_base(self.decoder_base(graph), graph.nodes[:, -self.decoder_condition:])
+        return self.decoder(self.latents(graph))
+
+    def latents(self, graph: jraph.GraphsTuple) -> jnp.ndarray:
+        """(N, latent) node latents after the processor (the decoder's condition channels excluded)."""
         n = graph.nodes.shape[0]
-        v = self.node_encoder(graph.nodes)
+        nodes = graph.nodes[:, :-self.decoder_condition] if self.decoder_condition else graph.nodes
+        v = self.node_encoder(nodes)
         e = {k: self.edge_encoders[k](graph.edges[k].features) for k in self.edge_sets}
         for i in range(self.message_passing_steps):
             v, e = self._process_step(i, v, e, graph, n)
-        return self.decoder(v)
+        return v
+
+    def decoder_base(self, graph: jraph.GraphsTuple) -> jnp.ndarray:
+        """(N, latent) the conditioned decoder's design-only part, W_v latents + b."""
+        return self.decoder.base(self.latents(graph))
+
+    def decode_from_base(self, base, cond) -> jnp.ndarray:
+        """(N, output_size) outputs from :meth:`decoder_base` and the condition channels (N, k) (normalised)."""
+        return self.decoder.finish(base, cond)
 
     def _process_step(self, i, v, e, graph, n):
         new_e, aggregated = {}, []

@@ -133,7 +133,7 @@ def normalize_graph(stats: Stats, graph: jraph.GraphsTuple, node_type) -> jraph.
     k = stats.node_mean.shape[-1]
     nodes = graph.nodes
     onehot, phys = nodes[..., :-k], nodes[..., -k:]
-    nodes = jnp.concatenate([onehot, (phys - stats.node_mean[node_type]) / stats.node_std[node_type]], axis=-1)
+    nodes = jnp.concatenate([onehot, normalize_last_node_channels(stats, node_type, phys)], axis=-1)
     mesh: EdgeSet = graph.edges["mesh"]
     rt = node_type[mesh.receivers]
     mesh = mesh._replace(features=(mesh.features - stats.mesh_mean[rt]) / stats.mesh_std[rt])
@@ -141,6 +141,18 @@ def normalize_graph(stats: Stats, graph: jraph.GraphsTuple, node_type) -> jraph.
     feats = (cont.features - stats.contact_mean) / stats.contact_std
     cont = cont._replace(features=jnp.where(cont.mask[..., None], feats, 0.0))
     return graph._replace(nodes=nodes, edges={"mesh": mesh, "contact": cont})
+
+
+def normalize_last_node_channels(stats: Stats, node_type, x):
+    """Physical node channels ``x`` (N, j) -> normalised with the statistics' last j node channels (each
+    node's type row): all of them in :func:`normalize_graph`, or only the formulation's trailing state
+    channels (a ``per_design`` rollout normalises the ball state per frame without rebuilding the graph)."""
+    j = x.shape[-1]
+    if j == 0:
+        return x
+    node_type = jnp.asarray(node_type)
+    mean, std = jnp.asarray(stats.node_mean)[:, -j:], jnp.asarray(stats.node_std)[:, -j:]
+    return (x - mean[node_type]) / std[node_type]
 
 
 def normalize_target(stats: Stats, node_type, target):

@@ -28,7 +28,7 @@ from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.batching import GraphBatch, Layout, batch_graphs, split, split_graphs, to_union
 from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, integrate, model_inputs, rigidify
 from pcmgn_jax.mgn.graphs import Topology, build_graph
-from pcmgn_jax.mgn.normalization import Stats, denormalize_output, normalize_graph
+from pcmgn_jax.mgn.normalization import Stats, denormalize_output, normalize_graph, normalize_last_node_channels
 
 
 @dataclass(frozen=True)
@@ -143,12 +143,39 @@ def predict(spec: Spec, params, stats: Stats, topology: Topology, index: contact
     return spec.model.apply(params, graph), edges
 
 
+def network(spec: Spec, params, stats: Stats, topology: Topology, index, points, u0, v0,
+            layout: Layout | None = None, *, per_frame: bool = False):
+    """``net(u, v) -> (normalised output (N, k), contact edges)``: the network as a function of the state.
+
+    ``processor='per_frame'`` (or ``per_frame=True``): :func:`predict`, the whole network per call.
+    ``processor='per_design'``: the graph at the reference (it does not depend on the state, see
+    :func:`pcmgn_jax.mgn.formulation.model_inputs`; ``u0``, ``v0`` only give its shapes), the encoder,
+    the processor and the decoder's design-only part run here, once; ``net`` then normalises the ball
+    state and runs the rest of the decoder (the same network as :func:`predict`, to float round-off).
+    """
+    form = spec.formulation
+    if per_frame or form.processor != "per_design":
+        return lambda u, v: predict(spec, params, stats, topology, index, points, u, v, layout)
+    graph, edges = input_graph(form, topology, index, points, u0, v0, layout)
+    base = spec.model.apply(params, normalize_graph(stats, graph, topology.node_type), method="decoder_base")
+    ball, segments = ball_mask(topology), None if layout is None else layout.segments
+
+    def net(u, v):
+        _, _, state = model_inputs(form, ball, jnp.asarray(u, jnp.float32), jnp.asarray(v, jnp.float32), segments)
+        cond = normalize_last_node_channels(stats, topology.node_type, state)
+        return spec.model.apply(params, base, cond, method="decode_from_base"), edges
+
+    return net
+
+
 def step(spec: Spec, params, stats: Stats, topology: Topology, index, points, u, v, layout: Layout | None = None):
-    """One frame forward: (u, v) -> (u_next, v_next, vm_next, contact edges)."""
+    """One frame forward: (u, v) -> (u_next, v_next, vm_next, contact edges). The whole network per call
+    (a reference for the rollout's per-design path)."""
     out, edges = predict(spec, params, stats, topology, index, points, u, v, layout)
     if spec.formulation.panel_model == "quasi_static":
-        u_next, v_next, vm, _, edges = _advance_quasi_static(spec, params, stats, topology, index, points, u, v,
-                                                             out, layout)
+        net = network(spec, params, stats, topology, index, points, u, v, layout, per_frame=True)
+        u_next, v_next, vm, _, edges = _advance_quasi_static(spec, stats, topology, index, points, u, v, out, net,
+                                                             layout)
         return u_next, v_next, vm, edges
     u_next, v_next, vm = integrate_output(spec, stats, topology, points, u, v, out, layout)
     if spec.formulation.contact_projection:  # the moved nodes' velocity follows their new displacement
@@ -157,14 +184,14 @@ def step(spec: Spec, params, stats: Stats, topology: Topology, index, points, u,
     return u_next, v_next, vm, edges
 
 
-def _advance_quasi_static(spec: Spec, params, stats, topology, index, points, u, v, out, layout=None):
+def _advance_quasi_static(spec: Spec, stats, topology, index, points, u, v, out, net, layout=None):
     """A quasi-static panel's frame forward from the output ``out`` at the state (u, v): the ball moves
-    on by its acceleration, then the network, evaluated at the ball's new state, gives the panel's fields
-    there (the panel's outputs are fields at the input's own time, :func:`formulation.training_sample`).
-    Returns (u_next, v_next, vm_next, out_next, edges); a rollout carries ``out_next`` to the next frame,
-    so one evaluation per frame (and one for the initial state)."""
+    on by its acceleration, then the network ``net`` (:func:`network`), evaluated at the ball's new
+    state, gives the panel's fields there (the panel's outputs are fields at the input's own time,
+    :func:`formulation.training_sample`). Returns (u_next, v_next, vm_next, out_next, edges); a rollout
+    carries ``out_next`` to the next frame, so one evaluation per frame (and one for the initial state)."""
     ub, vb, _ = integrate_output(spec, stats, topology, points, u, v, out, layout)
-    out_next, edges = predict(spec, params, stats, topology, index, points, ub, vb, layout)
+    out_next, edges = net(ub, vb)
     up, _, vm = integrate_output(spec, stats, topology, points, ub, vb, out_next, layout)
     ball = ball_mask(topology)[:, None]
     u_next = jnp.where(ball, ub, up)
@@ -203,8 +230,8 @@ def _rollout(spec: Spec, n_steps: int, params, stats, topology, index, points, u
     def body(carry, _):
         u, v, out = carry
         if quasi_static:  # carry the output at (u, v): one network evaluation per frame
-            u_next, v_next, vm, out, edges = _advance_quasi_static(spec, params, stats, topology, index, points,
-                                                                   u, v, out, layout)
+            u_next, v_next, vm, out, edges = _advance_quasi_static(spec, stats, topology, index, points,
+                                                                   u, v, out, net, layout)
         else:
             u_next, v_next, vm, edges = step(spec, params, stats, topology, index, points, u, v, layout)
         return (u_next, v_next, out), (u_next, v_next, vm, edges.overflow, edges.count)
@@ -214,7 +241,8 @@ def _rollout(spec: Spec, n_steps: int, params, stats, topology, index, points, u
     if spec.formulation.rigid_ball:
         segments = None if layout is None else layout.segments
         u0, v0 = (rigidify(a, ball_mask(topology), segments) for a in (u0, v0))
-    out0 = predict(spec, params, stats, topology, index, points, u0, v0, layout)[0] if quasi_static else None
+    net = network(spec, params, stats, topology, index, points, u0, v0, layout) if quasi_static else None
+    out0 = net(u0, v0)[0] if quasi_static else None  # per_design: the processor ran once, in network()
     _, (us, vs, vms, ovf, cnt) = jax.lax.scan(body, (u0, v0, out0), None, length=n_steps)
     cat = lambda a, b: jnp.concatenate([a[None], b], axis=0)  # noqa: E731
     return Rollout(cat(u0, us), cat(v0, vs), cat(jnp.asarray(vm0, jnp.float32), vms), ovf, cnt)
