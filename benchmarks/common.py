@@ -275,3 +275,30 @@ def mgn_flops(n_nodes: int, n_edges: Mapping[str, int], in_dims: Mapping[str, in
     per_step_cat = sum(mlp(e, 3 * L, L) for e in n_edges.values()) + mlp(n_nodes, L * (1 + len(n_edges)), L)
     return {"forward": fwd, "train_step_approx": 3 * fwd,
             "forward_concat_variant": enc + steps * per_step_cat + dec}
+
+
+def profile_ops(fn, repeats: int = 3) -> dict:
+    """Device time [ms per call] of ``fn()`` by XLA op kind (fusion names without their number), from a
+    jax.profiler trace read back with ``jax.profiler.ProfileData``."""
+    import collections
+    import glob
+    import re
+    import tempfile
+
+    import jax
+    from jax.profiler import ProfileData
+    fn()
+    d = tempfile.mkdtemp(prefix="rollout_profile_")
+    jax.profiler.start_trace(d)
+    for _ in range(repeats):
+        fn()
+    jax.profiler.stop_trace()
+    tot = collections.Counter()
+    for plane in ProfileData.from_file(glob.glob(d + "/**/*.xplane.pb", recursive=True)[0]).planes:
+        for line in plane.lines:
+            if "XLA" not in line.name:
+                continue
+            for ev in line.events:
+                if not ev.name.startswith(("Thunk", "Slinky", "end:")):
+                    tot[re.sub(r"[._]?\d+$", "", ev.name)] += ev.duration_ns
+    return {k: v / repeats / 1e6 for k, v in tot.most_common()}

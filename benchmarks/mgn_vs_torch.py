@@ -47,6 +47,8 @@ def _args(argv):
     p.add_argument("--no-torch", action="store_true")
     p.add_argument("--no-torch-1thread", dest="torch_1thread", action="store_false",
                    help="skip the extra single-thread PyTorch variants")
+    p.add_argument("--profile", action="store_true", help="op-kind breakdown of the JAX forward and train "
+                   "step (jax.profiler trace; benchmarks.common.profile_ops)")
     p.add_argument("--json", default=None)
     p.add_argument("--md", default=None)
     return p.parse_args(argv)
@@ -250,6 +252,8 @@ def main(argv=None) -> dict:
     t = common.time_calls(fns, repeats=a.repeats, warmup=a.warmup)
     jres = jax_results(t, jmeta)
     jres["per_call_os"] = os_profile({k: f for k, f in fns.items() if k.startswith("jax/")}, jmeta)
+    if a.profile:  # where the time goes, by XLA op kind [ms per call]: what bounds the fraction of peak
+        jres["profile_ms"] = {k: common.profile_ops(fns[f"jax/{k}"]) for k in ("forward", "train_step")}
     tres = torch_results(t, variants, tinfo, threads) if have_torch else None
     if tres:
         best = {f"{tres['forward_variant']}/forward", f"{tres['train_step_variant']}/train_step"}

@@ -44,8 +44,9 @@ def _args(argv):
 
 
 def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2, n_designs: int = 8,
-                  seed: int = 0) -> dict:
-    """Model spec, random params, stats, topology, contact index and per-design initial states."""
+                  seed: int = 0, formulation=None) -> dict:
+    """Model spec, random params, stats, topology, contact index and per-design initial states.
+    ``formulation``: a :class:`~pcmgn_jax.mgn.formulation.Formulation` (default: the project's default)."""
     import jax
 
     from pcmgn_jax.mgn.inputs import graph_inputs
@@ -65,7 +66,7 @@ def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2,
         if not np.array_equal(m.cells, m0.cells):
             raise ValueError("designs do not share one topology")
     from pcmgn_jax.mgn.formulation import FORMULATIONS
-    form = FORMULATIONS["default"]
+    form = formulation or FORMULATIONS["default"]
     ball = m0.node_part == 0
     # contact radius: the default (auto_radius); buffer sized on the ball pressed up to 20 µm into the
     # glass (a realistic peak)
@@ -94,7 +95,7 @@ def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2,
     acc["mesh"].add(np.asarray(g.edges["mesh"].features), node_type[np.asarray(topo.mesh_receivers)])
     stats = make_stats(**acc, per_part=True, contact_default_std=radius)
     model = EncodeProcessDecode(output_size=form.output_size, latent_size=latent, mlp_layers=mlp_layers,
-                                message_passing_steps=layers)
+                                message_passing_steps=layers, decoder_condition=form.decoder_condition)
     spec = Spec(model=model, formulation=form, dt=float(base.output_dt))
     params = model.init(jax.random.PRNGKey(seed), normalize_graph(stats, g, node_type))
     return {"spec": spec, "params": params, "stats": stats, "topology": topo, "index": index, "points": points,
@@ -116,33 +117,6 @@ def union_setup(s: dict, b: int):
     return (batch,) + tuple(to_union(batch, list(a)) for a in (u0, v0, vm0))
 
 
-def profile_ops(fn, repeats: int = 3) -> dict:
-    """Device time [ms per call] of ``fn()`` by XLA op kind (fusion names without their number), from a
-    jax.profiler trace read back with ``jax.profiler.ProfileData``."""
-    import collections
-    import glob
-    import re
-    import tempfile
-
-    import jax
-    from jax.profiler import ProfileData
-    fn()
-    d = tempfile.mkdtemp(prefix="rollout_profile_")
-    jax.profiler.start_trace(d)
-    for _ in range(repeats):
-        fn()
-    jax.profiler.stop_trace()
-    tot = collections.Counter()
-    for plane in ProfileData.from_file(glob.glob(d + "/**/*.xplane.pb", recursive=True)[0]).planes:
-        for line in plane.lines:
-            if "XLA" not in line.name:
-                continue
-            for ev in line.events:
-                if not ev.name.startswith(("Thunk", "Slinky", "end:")):
-                    tot[re.sub(r"[._]?\d+$", "", ev.name)] += ev.duration_ns
-    return {k: v / repeats / 1e6 for k, v in tot.most_common()}
-
-
 def _profile(spec, common_args, one, s, b: int) -> dict:
     """Op-kind breakdown of one frame step: one design, a union of ``b``, a vmap batch of ``b``."""
     import jax
@@ -157,6 +131,7 @@ def _profile(spec, common_args, one, s, b: int) -> dict:
     vmapped = jax.jit(lambda c, p, u, v: jax.vmap(lambda p, u, v: step(spec, *c, p, u, v)[:3])(p, u, v))
     blk = jax.block_until_ready
     one = [jnp.asarray(x) for x in one[:3]]
+    from benchmarks.common import profile_ops
     out = {"1 design": profile_ops(lambda: blk(single(common_args, *one))),
            f"union {b}": profile_ops(lambda: blk(union(common_args[:2], batch, ub, vb))),
            f"vmap {b}": profile_ops(lambda: blk(vmapped(common_args, *stacked)))}
