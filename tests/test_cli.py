@@ -155,3 +155,59 @@ def test_resume_names_nested_fields(tmp_path):
     with pytest.raises(ValueError, match=r"formulation\.panel_target: saved 'total_displacement', given 'velocity'"):
         cli.parse_train(["--preset", "tiny", "--workdir", str(run), "--resume", "--panel_target=velocity",
                          "--panel_model=dynamic"])
+
+
+def test_console_help_lists_every_subcommand(capsys):
+    """``pcmgn --help``: every entry point in experiments/ with its docstring's first sentence."""
+    import ast
+    from pathlib import Path
+
+    from experiments import console
+    root = Path(console.__file__).parent
+    mains = {p.stem for p in root.glob("*.py")
+             if any(isinstance(n, ast.FunctionDef) and n.name == "main" for n in ast.parse(p.read_text()).body)}
+    assert mains - {"console"} <= set(console.COMMANDS), "an entry point missing from console.COMMANDS"
+    assert {"train", "evaluate", "generate", "optimize", "explore", "report"} <= set(console.COMMANDS)
+    assert console.main(["--help"]) == 0
+    out = capsys.readouterr().out
+    for name in console.COMMANDS:
+        assert f"\n  {name} " in out, name
+    assert "Evaluate a run on its test split" in out and "Train the MeshGraphNet" in out
+    assert "``" not in out and "python -m experiments.train [" not in out
+
+
+def test_console_runs_the_entry_points_main(tmp_path, capsys, monkeypatch):
+    from experiments import console
+    with pytest.raises(SystemExit) as exit_:
+        console.main(["optimize-table", "--help"])                # hyphen or underscore: the module's own --help
+    assert exit_.value.code == 0 and "--files" in capsys.readouterr().out
+    assert console.main(["report", "--workdir", str(tmp_path)]) == 2   # experiments.report.main's ValueError
+    assert "eval/metrics.json" in capsys.readouterr().err
+    assert console.main(["trian"]) == 2
+    assert "unknown command 'trian' (did you mean 'train'?)" in capsys.readouterr().err
+    assert console.main([]) == 2 and "no command given" in capsys.readouterr().err
+    monkeypatch.setattr(console, "COMMANDS", console.COMMANDS + ("not_built",))
+    assert console.main(["not_built"]) == 2
+    assert "experiments/not_built.py is not in this checkout" in capsys.readouterr().err
+    console.main(["--help"])
+    assert "not_built" in capsys.readouterr().out
+
+
+def test_console_script_entry_point(tmp_path):
+    """pyproject names the console script; once installed, it works from any directory."""
+    import shutil
+    import subprocess
+    import tomllib
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    project = tomllib.loads((root / "pyproject.toml").read_text())
+    assert project["project"]["scripts"]["pcmgn"] == "experiments.console:main"
+    assert "experiments*" in project["tool"]["setuptools"]["packages"]["find"]["include"]
+    exe = shutil.which("pcmgn")
+    if exe is None:
+        pytest.skip("the pcmgn script is not installed (pip install -e .)")
+    run = subprocess.run([exe, "--help"], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0 and "report" in run.stdout, run.stderr
+    run = subprocess.run([exe, "nope"], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "unknown command 'nope'" in run.stderr

@@ -48,3 +48,22 @@ def test_readme_is_a_front_page_with_ci_test_command():
     ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
     command = 'python -m pytest -q -m "not slow" --durations=15'
     assert command in readme and command in ci
+
+
+def test_docs_site_builds_strict(tmp_path):
+    """mkdocs.yml over docs/ (material theme): `mkdocs build --strict` fails on any warning (a link that
+    leaves docs/, a page missing from the nav's files, a broken anchor)."""
+    pytest.importorskip("mkdocs", reason="mkdocs is not installed (pip install -e '.[docs]')")
+    pytest.importorskip("material", reason="mkdocs-material is not installed (pip install -e '.[docs]')")
+    import os
+    import subprocess
+    import sys
+    run = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(tmp_path / "site")],
+                         cwd=ROOT, capture_output=True, text=True, timeout=120,
+                         env=dict(os.environ, NO_MKDOCS_2_WARNING="1", NO_COLOR="1"))
+    assert run.returncode == 0, f"mkdocs build --strict failed:\n{run.stdout}\n{run.stderr}"
+    assert (tmp_path / "site" / "index.html").exists() and (tmp_path / "site" / "design" / "index.html").exists()
+    nav = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
+    missing = [p.relative_to(ROOT / "docs").as_posix() for p in (ROOT / "docs").rglob("*.md")
+               if p.relative_to(ROOT / "docs").as_posix() not in nav]
+    assert not missing, f"docs pages missing from the mkdocs.yml nav: {missing}"

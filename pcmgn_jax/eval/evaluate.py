@@ -157,8 +157,12 @@ def _plots(out, traj, pu, ps, bnodes, pnodes, m, phases):
     frames = sorted({max(1, T // 4), peak, min(T - 1, (3 * T) // 4), T - 1})
     plots.deformed_mesh(out / "deformed_mesh_pred.png", traj.points, traj.cells, pu[peak], ps[peak],
                         title=f"prediction, frame {peak} (peak stress)")
+    names = list(traj.meta.get("part_names") or [])
     plots.compare_frames(out / "pred_truth_error.png", traj.points, traj.cells, pu, traj.displacement, ps,
-                         np.asarray(traj.von_mises), frames, times_us=times_us)
+                         np.asarray(traj.von_mises), frames, times_us=times_us, node_part=traj.node_part,
+                         part_names=names)
+    if "OLED" in names:
+        plots.objective_vs_time(out / "oled_objective_vs_time.png", traj, ps, times_us=times_us, phases=phases)
     xy_p = traj.points[None] + pu
     xy_t = traj.positions
     plots.contact_zoom(out / "contact_zoom.png", xy_p[peak, bnodes], xy_p[peak, pnodes], xy_t[peak, bnodes],
