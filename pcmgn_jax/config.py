@@ -57,6 +57,7 @@ class TrainConfig:
     noise_rel: float = 0.0           # used when noise_std = 0: sigma per part = noise_rel x its RMS motion per frame
     noise_parts: str = "none"        # none | ball | panel | all
     pushforward: bool = False        # inputs of the noise_parts = the model's own one-step prediction (no gradient through it)
+    frames_per_sample: int = 1       # processor='per_design' only: frames of each sample's trajectory decoded from its one processor pass per step (the sample's and F-1 more, evenly spread)
     # ---- optimisation -----------------------------------------------------------------------
     seed: int = 0                    # model init, data order and noise
     learning_rate: float = 1e-3      # Adam initial learning rate (paper)
@@ -101,6 +102,11 @@ class TrainConfig:
             bad("contact_radius/noise_std/noise_rel/lambda_pen", "must be >= 0")
         if not 0 < self.learning_rate < 1:
             bad("learning_rate", "must be in (0, 1)")
+        if self.frames_per_sample < 1:
+            bad("frames_per_sample", "must be >= 1")
+        if self.frames_per_sample > 1 and (self.formulation.processor != "per_design" or self.pushforward):
+            bad("frames_per_sample", "> 1 needs formulation processor='per_design' (one processor pass shared by the "
+                "frames of a design) and no pushforward")
         if self.devices:  # 0 (all devices) is checked once jax knows how many (train.sharding)
             check_batch_split(self.batch_graphs, self.devices)
 

@@ -93,3 +93,51 @@ def test_per_design_gradient_through_the_rollout_is_finite(tiny_run, tiny_trajs)
 
     g = jax.grad(f)(jnp.asarray(t.points, jnp.float32))
     assert np.all(np.isfinite(np.asarray(g))) and float(jnp.abs(g).max()) > 0
+
+
+def test_multi_frame_loss_is_the_mean_of_its_frames_losses(tiny_trajs):
+    """frames_per_sample = F: one processor pass, F readouts; the loss is the mean of the F single-frame
+    losses (each the per-frame network's loss of that frame: same network, one pass each)."""
+    from conftest import tiny_config
+    from pcmgn_jax.train.loop import init_params
+    from pcmgn_jax.train.setup import prepare
+    from pcmgn_jax.train.sampling import sample_frames, union_batch
+    from pcmgn_jax.train.setup import union_sizes
+    from pcmgn_jax.train.step import loss_fn
+
+    trajs = tiny_trajs[:2]
+    cfg = tiny_config(processor="per_design", frames_per_sample=3)
+    setup = prepare(cfg, trajs)
+    params = init_params(setup, trajs[0], 0)
+    sizes = union_sizes(setup.graphs, per_union=2, capacity=setup.sizes.capacity)
+    form, dt = setup.spec.sim.formulation, setup.spec.sim.dt
+    pairs = [(0, 2), (1, 5)]
+    multi = union_batch(form, trajs, setup.graphs, pairs, dt=dt, sizes=sizes, graph_ids=[0, 1], frames=3)
+    assert multi.u.shape[0] == 3 and multi.ball.shape[0] == 3
+    key = jax.random.PRNGKey(0)
+    total, aux = loss_fn(params, setup.spec, setup.stats, multi, key)
+    n_steps = trajs[0].n_frames - 1
+    singles = []
+    for k in range(3):  # the k-th frame of each pair, as a one-frame batch
+        frame_pairs = [(i, sample_frames(t, n_steps, 3)[k]) for i, t in pairs]
+        singles.append(loss_fn(params, setup.spec, setup.stats,
+                               union_batch(form, trajs, setup.graphs, frame_pairs, dt=dt, sizes=sizes,
+                                           graph_ids=[0, 1]), key)[0])
+    assert float(total) == pytest.approx(float(np.mean(singles)), rel=1e-5)
+    # one frame through the per-design loss == the whole network per frame (predict)
+    from pcmgn_jax.train import step as step_lib
+    one = union_batch(form, trajs, setup.graphs, pairs, dt=dt, sizes=sizes, graph_ids=[0, 1])
+    graph = one.graph
+    out, _ = rl.predict(setup.spec.sim, params, setup.stats, graph.topology, graph.index, graph.points, one.u,
+                        one.v, graph.layout)
+    data, _ = step_lib._frame_losses(setup.spec, setup.stats, one, dict(points=graph.points, u=one.u, v=one.v,
+                                                                         target=one.target, ball=one.ball), out)
+    assert float(loss_fn(params, setup.spec, setup.stats, one, key)[1]["loss_data"]) == \
+        pytest.approx(float(jnp.mean(data[:2])), rel=1e-5)
+
+
+def test_frames_per_sample_needs_a_per_design_processor():
+    from conftest import tiny_config
+    with pytest.raises(ValueError, match="frames_per_sample"):
+        tiny_config(frames_per_sample=4)
+    assert tiny_config(processor="per_design", frames_per_sample=4).frames_per_sample == 4

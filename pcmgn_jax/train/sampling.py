@@ -109,8 +109,15 @@ def _pad_rows(rows, width: int, fill=0, dtype=np.int32):
     return out, mask
 
 
+def sample_frames(t: int, n_steps: int, frames: int) -> list[int]:
+    """The ``frames`` steps a sample of step ``t`` decodes (``frames_per_sample``): t and frames-1 more,
+    evenly spread over the trajectory's ``n_steps`` steps (wrapping round), a pure function of t."""
+    stride = max(n_steps // frames, 1)
+    return [(t + k * stride) % n_steps for k in range(frames)]
+
+
 def union_batch(form: Formulation, trajs, graphs, pairs, *, dt: float, sizes, graph_ids,
-                previous: bool = False) -> TrainBatch:
+                previous: bool = False, frames: int = 1) -> TrainBatch:
     """One training union: the graphs of the (trajectory, frame) ``pairs`` as a padded disjoint union of
     the static ``sizes`` (:class:`pcmgn_jax.train.setup.UnionSizes`), with everything the loss reads.
 
@@ -120,7 +127,9 @@ def union_batch(form: Formulation, trajs, graphs, pairs, *, dt: float, sizes, gr
     per-graph-slot arrays [G] (G = slots + 1; padding slots zero / False): ball (G, 2) rigid-ball target,
     w_ball, graph_id (the graph's noise id: its column in the global batch), graph_mask; penetration
     boundary nodes pen_ball (G, Mb), pen_panel (G, Mp) as union node numbers, with masks; with
-    ``previous`` also u_prev_in, v_prev_in [N, 2] and has_prev [G] (pushforward).
+    ``previous`` also u_prev_in, v_prev_in [N, 2] and has_prev [G] (pushforward). ``frames`` > 1 (a
+    per-design processor): u, v, target and ball carry a leading frame axis (F, ...), the frames of
+    :func:`sample_frames` of each pair's trajectory (one graph per design, F readouts of it).
     """
     parts = [graphs[i] for i, _ in pairs]
     gb = batch_graphs([p.topology for p in parts], [p.index for p in parts], [trajs[i].points for i, _ in pairs],
@@ -131,8 +140,14 @@ def union_batch(form: Formulation, trajs, graphs, pairs, *, dt: float, sizes, gr
     if got != (sizes.nodes, sizes.edges, design_slots(sizes.slots), sizes.capacity):
         raise ValueError(f"union of trajectories {[int(i) for i, _ in pairs]} does not fit the dataset's size "
                          f"bucket {sizes} (got nodes, edges, slots, capacity {got})")
-    smp = [sample(form, trajs[i], int(t), dt) for i, t in pairs]
     G = gb.layout.n_node.shape[0]
+    node = lambda vals: to_union(gb, vals)  # noqa: E731
+    if frames > 1:
+        per_frame = [[sample(form, trajs[i], f, dt) for f in sample_frames(int(t), trajs[i].n_frames - 1, frames)]
+                     for i, t in pairs]
+        smp = [s[0] for s in per_frame]
+    else:
+        smp = [sample(form, trajs[i], int(t), dt) for i, t in pairs]
     n_real = len(pairs)
     per_graph = lambda vals, dtype=np.float32: np.concatenate(  # noqa: E731
         [np.asarray(vals, dtype), np.zeros((G - n_real,) + np.shape(vals)[1:], dtype)])
@@ -141,7 +156,6 @@ def union_batch(form: Formulation, trajs, graphs, pairs, *, dt: float, sizes, gr
                                         sizes.pen_ball)
     pen_panel, pen_panel_mask = _pad_rows([p.pen_panel + o for p, o in zip(parts, offsets)] + [[]] * (G - n_real),
                                           sizes.pen_panel)
-    node = lambda vals: to_union(gb, vals)  # noqa: E731
     out = dict(graph=gb, u=node([s["u"] for s in smp]), v=node([s["v"] for s in smp]),
                target=node([s["target"] for s in smp]), ball=per_graph([s["ball"] for s in smp]),
                sigma=node([p.sigma for p in parts]), w_motion=node([p.motion for p in parts]),
@@ -151,6 +165,10 @@ def union_batch(form: Formulation, trajs, graphs, pairs, *, dt: float, sizes, gr
                                         (1 << 30) + np.arange(G - n_real, dtype=np.int32)]),
                graph_mask=per_graph([True] * n_real, bool),
                pen_ball=pen_ball, pen_ball_mask=pen_ball_mask, pen_panel=pen_panel, pen_panel_mask=pen_panel_mask)
+    if frames > 1:
+        for k in ("u", "v", "target"):
+            out[k] = np.stack([node([s[f][k] for s in per_frame]) for f in range(frames)])
+        out["ball"] = np.stack([per_graph([s[f]["ball"] for s in per_frame]) for f in range(frames)])
     if previous:
         prev = [sample(form, trajs[i], int(t) - 1, dt) if t > 0 else s for (i, t), s in zip(pairs, smp)]
         out.update(u_prev_in=node([p["u"] for p in prev]), v_prev_in=node([p["v"] for p in prev]),
@@ -159,7 +177,7 @@ def union_batch(form: Formulation, trajs, graphs, pairs, *, dt: float, sizes, gr
 
 
 def gather_unions(form: Formulation, trajs, graphs, table, ids: np.ndarray, *, dt: float, sizes,
-                  shards: int = 1, local_shards=None, previous: bool = False):
+                  shards: int = 1, local_shards=None, previous: bool = False, frames: int = 1):
     """Host batch of K steps: ``ids`` (K, B) global batch columns -> a pytree of (K, S_local, ...) arrays,
     one padded union (:func:`union_batch`) per step and shard; shard s holds columns
     [s B/S, (s+1) B/S) of the global batch (``local_shards``: the shards this process feeds, default all).
@@ -169,7 +187,8 @@ def gather_unions(form: Formulation, trajs, graphs, table, ids: np.ndarray, *, d
     per = B // shards
     local = range(shards) if local_shards is None else local_shards
     unions = [[union_batch(form, trajs, graphs, [table[ids[k, c]] for c in range(s * per, (s + 1) * per)],
-                           dt=dt, sizes=sizes, graph_ids=np.arange(s * per, (s + 1) * per), previous=previous)
+                           dt=dt, sizes=sizes, graph_ids=np.arange(s * per, (s + 1) * per), previous=previous,
+                           frames=frames)
                for s in local] for k in range(K)]
     return jax.tree.map(lambda *xs: np.stack(xs).reshape((K, len(local)) + np.shape(xs[0])),
                         *[u for row in unions for u in row])

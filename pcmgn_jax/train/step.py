@@ -28,7 +28,7 @@ import optax
 
 from pcmgn_jax.mgn.formulation import axial
 from pcmgn_jax.mgn.normalization import Stats, normalize_target
-from pcmgn_jax.mgn.rollout import ball_mask, ball_output, integrate_output, predict
+from pcmgn_jax.mgn.rollout import ball_mask, ball_output, integrate_output, network, predict
 from pcmgn_jax.train.noise import perturb
 from pcmgn_jax.train.penetration import penetration_depth, penetration_loss
 from pcmgn_jax.train.setup import TrainSpec
@@ -108,6 +108,8 @@ def loss_fn(params, spec: TrainSpec, stats: Stats, batch, key, step=None):
     """Loss of one padded union (:func:`pcmgn_jax.train.sampling.union_batch`): (mean over its real
     graphs, aux with the per-graph ``loss_graph`` (G,) and data / penetration parts). ``step``: the
     optimiser step, for the λ schedule (:func:`penalty_weight`); None = the configured λ."""
+    if spec.sim.formulation.processor == "per_design":
+        return _loss_per_design(params, spec, stats, batch, key, step)
     sim = spec.sim
     form = sim.formulation
     g = batch.graph
@@ -129,6 +131,17 @@ def loss_fn(params, spec: TrainSpec, stats: Stats, batch, key, step=None):
         dev = jax.lax.stop_gradient(u_hat - batch.u) * on[:, None]
     sample = perturb(sim, topology, sample, batch.sigma, key, dev, layout=layout, graph_ids=batch.graph_id)
     out, edges = predict(sim, params, stats, topology, index, points, sample["u"], sample["v"], layout)
+    loss_data, loss_pen = _frame_losses(spec, stats, batch, sample, out)
+    return _total(spec, batch, loss_data, loss_pen, edges, step)
+
+
+def _frame_losses(spec: TrainSpec, stats: Stats, batch, sample: dict, out):
+    """(G,) data and penetration losses of one frame's normalised output ``out`` against ``sample``'s
+    targets (the module docstring's loss_data_g and L_pen,g)."""
+    sim, form = spec.sim, spec.sim.formulation
+    g = batch.graph
+    topology, layout, points = g.topology, g.layout, g.points
+    node_graph, n_graph = layout.segments
     err = (out[:, :3] - normalize_target(stats, topology.node_type, sample["target"])) ** 2
     per_node = batch.w_motion * (err[:, 0] + err[:, 1]) + batch.w_stress * err[:, 2]
     loss_data = jax.ops.segment_sum(per_node, node_graph, num_segments=n_graph)
@@ -143,12 +156,39 @@ def loss_fn(params, spec: TrainSpec, stats: Stats, batch, key, step=None):
         loss_pen = _penetration(spec, batch, points, u_next)
     else:
         loss_pen = jnp.zeros(n_graph, jnp.float32)
+    return loss_data, loss_pen
+
+
+def _total(spec: TrainSpec, batch, loss_data, loss_pen, edges, step):
+    """The union's mean loss over its real graphs and the aux dict, from per-graph (G,) parts."""
     lam = spec.cfg.lambda_pen if step is None else penalty_weight(spec, step)
     loss = loss_data + lam * loss_pen
     real = batch.graph_mask
     mean = lambda a: jnp.sum(jnp.where(real, a, 0.0)) / jnp.maximum(jnp.sum(real), 1)  # noqa: E731
     return mean(loss), dict(loss_data=mean(loss_data), loss_pen=mean(loss_pen), loss_graph=loss,
                             overflow=jnp.any(edges.overflow), contact_count=jnp.max(edges.count))
+
+
+def _loss_per_design(params, spec: TrainSpec, stats: Stats, batch, key, step=None):
+    """:func:`loss_fn` of a per-design processor: the processor runs once on each design's graph and its
+    decoder reads out every frame of the batch (u, v, target, ball with a leading frame axis F when
+    ``frames_per_sample`` > 1); the loss is the mean over the F frames of each frame's loss."""
+    sim = spec.sim
+    g = batch.graph
+    multi = batch.u.ndim == 3
+    frames = [a if multi else a[None] for a in (batch.u, batch.v, batch.target, batch.ball)]
+    net = network(sim, params, stats, g.topology, g.index, g.points, frames[0][0], frames[1][0], g.layout)
+
+    def one(f, u, v, target, ball):
+        sample = dict(points=g.points, u=u, v=v, target=target, ball=ball)
+        sample = perturb(sim, g.topology, sample, batch.sigma, jax.random.fold_in(key, f), None, layout=g.layout,
+                         graph_ids=batch.graph_id)
+        out, _ = net(sample["u"], sample["v"])
+        return _frame_losses(spec, stats, batch, sample, out)
+
+    loss_data, loss_pen = jax.vmap(one)(jnp.arange(frames[0].shape[0]), *frames)
+    _, edges = net(frames[0][0], frames[1][0])
+    return _total(spec, batch, jnp.mean(loss_data, axis=0), jnp.mean(loss_pen, axis=0), edges, step)
 
 
 def batch_loss(params, spec, stats, batch, key, step=None):
