@@ -3,12 +3,17 @@
   python -m experiments.generate --preset cpu --out data/cpu          # the designs experiments.train uses
   python -m experiments.generate --n_train 100 --n_val 5 --n_test 50 --out data/paper --preset paper --seed 0
   python -m experiments.generate --out data/paper --preset paper --designs "40,40;40,160;160,40;160,160" --split extrap
+  python -m experiments.generate --preset paper --out data/paper --shard 3/8     # one task of an array job
+  python -m experiments.generate --preset paper --out data/paper --merge         # after all shards: the manifest
 
 ``--n_train`` counts training trajectories, validation excluded, as in ``experiments.train``: the train
 split gets n_train + n_val designs (``experiments.train --dataset_dir OUT`` then trains on n_train and
 validates on n_val of them without size flags).
 Designs are OCA thicknesses in µm on the command line, metres in files. Rerunning skips finished,
 valid trajectories. See pcmgn_jax/data/dataset.py for the directory layout and manifest.
+``--shard K/N`` (K from 0, as SLURM_ARRAY_TASK_ID with --array=0-(N-1)) solves every N-th solver batch of
+the same design list and writes a manifest part; ``--merge`` with the shards' other flags verifies every
+trajectory and writes the manifest (pcmgn_jax/data/shards.py).
 """
 from __future__ import annotations
 
@@ -19,6 +24,7 @@ from typing import Literal
 from pcmgn_jax import cli
 from pcmgn_jax.config import PRESETS as TRAIN_PRESETS
 from pcmgn_jax.data.dataset import DESIGN_HIGH, DESIGN_LOW, PRESETS, DatasetError, ensure_dataset, parse_designs
+from pcmgn_jax.data.shards import parse_shard
 from pcmgn_jax.scene import Scene, default_scene
 
 
@@ -37,6 +43,8 @@ class GenerateArgs:
     scene: str | None = None                   # scene file (.toml/.json); default: the paper's scene
     batch: int = 8                             # designs per solver call
     progress: bool = True                      # progress bar (--no_progress: off)
+    shard: str | None = None                   # K/N: only shard K (0-based, 0..N-1) of N; writes a manifest part, not the manifest
+    merge: bool = False                        # solve nothing: verify every trajectory of the shards, write the manifest
 
 
 def preset_sizes(preset: str) -> tuple[int, int, int]:
@@ -55,14 +63,18 @@ def main(argv: list[str] | None = None) -> int:
         n_train, n_val, n_test = preset_sizes(args.preset)
         n_train = n_train if args.n_train is None else args.n_train
         n_val = n_val if args.n_val is None else args.n_val
+        shard = parse_shard(args.shard) if args.shard is not None else None
         out = ensure_dataset(args.out, preset=args.preset, n_train=n_train + n_val,
                              n_test=n_test if args.n_test is None else args.n_test,
                              seed=args.seed, designs=designs, split=args.split, scene=scene,
                              batch=args.batch, progress=args.progress,
-                             low=args.low_um * 1e-6, high=args.high_um * 1e-6)
+                             low=args.low_um * 1e-6, high=args.high_um * 1e-6, shard=shard, merge=args.merge)
     except (DatasetError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
+    if shard is not None:
+        print(f"shard {shard[0]}/{shard[1]} done: {out} (merge with --merge once every shard is done)")
+        return 0
     print(f"dataset ready: {out}")
     return 0
 

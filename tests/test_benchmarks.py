@@ -173,3 +173,61 @@ def test_speed_vs_error_solver_points():
     assert same["same_mesh_as_reference"] and same["position_mae_um"] < 1e-3
     coarse = solver_point("tiny@2", trajs)
     assert not coarse["same_mesh_as_reference"] and coarse["finite"]
+
+
+def test_surrogate_speed_trained_point_scores_the_rollout_it_times(tiny_run, tiny_trajs):
+    """The benchmark's MGN point: warm per-design time and the errors of the same rollouts (the
+    evaluation's metrics), from a trained tiny run."""
+    from benchmarks.speed_vs_error import errors
+    from benchmarks.surrogate_speed import trained_point
+    from pcmgn_jax.eval.surrogates import MGNSurrogate
+    _, workdir, _ = tiny_run
+    test = tiny_trajs[3:]
+    p = trained_point(workdir, test, batch=2, repeats=1, which="best")
+    assert p["mgn_s_per_design"] > 0 and p["mgn_compile_s"] >= 0
+    ref = errors(*MGNSurrogate(workdir, test[0], batch=2).rollout_trajectories(test), test)
+    assert p["position_mae_um"] == pytest.approx(ref["position_mae_um"], rel=1e-6)
+    assert p["stress_mae_mpa"] == pytest.approx(ref["stress_mae_mpa"], rel=1e-6)
+    assert p["objective_error_pct"] is None  # the synthetic scene has no OLED layer
+
+
+@pytest.mark.slow  # ~60 s: the benchmark's command line, untrained (random parameters) on the tiny preset
+def test_surrogate_speed_untrained_tiny(tmp_path):
+    from benchmarks import surrogate_speed
+    out = tmp_path / "ss.json"
+    r = surrogate_speed.main(["--preset", "tiny", "--workdir", str(tmp_path / "none"), "--n-test", "1",
+                              "--repeats", "1", "--json", str(out), "--md", str(tmp_path / "ss.md")])
+    j = _load(out)
+    for k in ("mgn_s_per_design", "solver_s_per_design", "ratio", "mgn_per_frame_s_per_design"):
+        assert j[k] > 0, k
+    assert j["position_mae_um"] is None and not r["trained"]
+
+
+def test_gpu_check_smoke(tmp_path):
+    """`python -m benchmarks.gpu_check --smoke`: the GPU check's code at tiny sizes on the CPU, in a process of
+    its own (so its quick XLA compile flags apply); every figure it reports is there, finite and positive
+    (no timing assertions)."""
+    import math
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    out = tmp_path / "g.json"
+    run = subprocess.run([sys.executable, "-m", "benchmarks.gpu_check", "--smoke", "--json", str(out)], check=False,
+                         cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stdout + run.stderr
+    r = _load(out)
+    assert "--xla_backend_optimization_level=0" in r["machine"]["xla_flags"]
+    assert r["config"]["smoke"] and r["config"]["preset"] == "tiny" and r["device"]["backend"]
+    figures = {"matmul": ("gflops",),
+               "mgn": ("forward_ms", "train_step_ms", "train_step_scan_ms", "train_steps_per_s",
+                       "train_steps_per_s_scan", "forward_fraction_of_matmul", "train_step_fraction_of_matmul",
+                       "train_step_scan_fraction_of_matmul", "compile_s"),
+               "rollout": ("s", "ms_per_frame", "compile_s"),
+               "solver": ("wall_s", "compile_s", "substeps_per_s", "wall_s_per_design")}
+    for group, keys in figures.items():
+        for k in keys:
+            v = r[group][k]
+            assert isinstance(v, (int, float)) and math.isfinite(v) and v > 0, (group, k, v)
+    assert r["rollout"]["frames"] == 3 and r["mgn"]["n_nodes"] > 0 and r["total_s"] > 0
+    assert "| MGN rollout |" in out.with_suffix(".md").read_text()

@@ -28,6 +28,7 @@ class FakeSolver(types.ModuleType):
 
     def solve_designs(self, scene, designs, *, preset):
         self.calls.append((preset, np.array(designs)))
+        batch_um = np.round(np.asarray(designs) * 1e6, 6).tolist()   # its batch, as the solver records it
         out = []
         for d in designs:
             if self.fail_above is not None and d[0] > self.fail_above:
@@ -35,7 +36,7 @@ class FakeSolver(types.ModuleType):
             seed = int(round(d[0] * 1e9))
             out.append(synthetic_trajectory(seed=seed, meta={
                 "design": dict(zip(scene.design_layers, map(float, d))), "wall_time_s": 0.5,
-                "solver": {"preset": preset}, "energy": {"max_rel_drift": 1e-4}}))
+                "solver": {"preset": preset, "batch_um": batch_um}, "energy": {"max_rel_drift": 1e-4}}))
         return out
 
 

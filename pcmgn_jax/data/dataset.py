@@ -21,6 +21,10 @@ Resuming: a trajectory is skipped when its files read back with a matching conte
 (re)generated. A manifest written for other settings (preset, scene, designs of a split) is an error,
 never silently mixed. The solver never writes into a directory of trajectory files without a manifest
 (an imported dataset).
+
+Sharding (``shard=(K, N)``, ``merge=True``; the rule and the per-shard parts: :mod:`pcmgn_jax.data.shards`):
+a shard solves its share of the batches and writes its own manifest part, never ``manifest.json``; the
+merge verifies every trajectory and writes the manifest.
 """
 from __future__ import annotations
 
@@ -36,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from pcmgn_jax.data import shards
 from pcmgn_jax.data.layout import (
     DATASET_FORMAT,
     GENERATE,
@@ -43,6 +48,7 @@ from pcmgn_jax.data.layout import (
     MANIFEST,
     DatasetError,
     dataset_source,
+    has_shard_parts,
     has_trajectory_files,
     load_manifest,
     split_stems,
@@ -214,7 +220,8 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
                    n_test: int = 50, seed: int = 0, designs: np.ndarray | None = None,
                    split: str | None = None, scene: Scene | None = None, batch: int = 8,
                    progress: bool = True, low: float = DESIGN_LOW, high: float = DESIGN_HIGH,
-                   solve_fn: Callable[..., list[Trajectory]] | None = None) -> Path:
+                   solve_fn: Callable[..., list[Trajectory]] | None = None, shard: tuple[int, int] | None = None,
+                   merge: bool = False) -> Path:
     """Generate the missing trajectories of a dataset with the solver; return ``Path(out_dir)``.
 
     designs=None: splits ``train``/``test`` from one seeded LHS of n_train + n_test designs [m].
@@ -224,10 +231,20 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     ``batch`` (default ``pcmgn_jax.sim.solver.solve_designs``). Designs that raise ``SolverError`` are
     retried one by one, recorded in the manifest with their error, and reported in a DatasetError
     raised after everything else has been written.
+
+    ``shard=(K, N)`` (0-based): solve only the batches ``j % N == K`` of the design list cut into batches
+    of ``batch`` (:func:`pcmgn_jax.data.shards.owner`) and write the part ``OUT/.shards/...-shard-K-of-N.json``
+    instead of the manifest, so N shards can run at once into one directory. ``merge=True``: solve nothing;
+    verify every trajectory, write the manifest and delete the parts, or raise a DatasetError naming each
+    missing design and its shard (nothing written). An unsharded run also deletes the parts once complete.
     """
     root = Path(out_dir)
     scene = scene if scene is not None else default_scene()
-    if root.is_dir() and load_manifest(root) is None and has_trajectory_files(root):
+    if shard is not None and merge:
+        raise DatasetError("--shard and --merge exclude each other: run the shards, then --merge once")
+    if shard is not None and not (isinstance(shard, tuple) and len(shard) == 2 and 0 <= shard[0] < shard[1]):
+        raise DatasetError(f"shard must be (K, N) with 0 <= K < N, got {shard!r}")
+    if root.is_dir() and load_manifest(root) is None and not has_shard_parts(root) and has_trajectory_files(root):
         raise DatasetError(f"{root}: holds trajectory files in train/ or test/ but no {MANIFEST} (an imported "
                            "dataset?); the solver does not write into it: use another --out")
     if preset not in PRESETS:
@@ -299,28 +316,53 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
                 e["sha256"], e["wall_time_s"] = o.get("sha256"), o.get("wall_time_s")
         man["splits"][name] = {"origin": origin, "trajectories": entries}
 
+    digest = shards.plan_digest(man, tuple(plan))
+    parts = shards.check_parts(root, digest=digest, splits=tuple(plan), batch=batch, shard=shard)
+    planned = [(name, e) for name in plan for e in man["splits"][name]["trajectories"]]
+    shards.adopt([e for _, e in planned], parts)
     layers = scene.design_layers
     todo: list[tuple[str, dict[str, Any]]] = []
+    chunks: dict[int, list[tuple[str, dict[str, Any]]]] = {}      # a shard's batches, by batch index
+    own: list[dict[str, Any]] = []
+    missing: list[tuple[int, dict[str, Any]]] = []
+    for pos, (name, e) in enumerate(planned):
+        if shard is not None and shards.owner(pos, batch=batch, n=shard[1]) != shard[0]:
+            continue
+        own.append(e)
+        if not _is_done(root, e, layers):
+            e["sha256"], e["wall_time_s"] = None, None
+            todo.append((name, e))
+            chunks.setdefault(pos // batch, []).append((name, e))
+            missing.append((pos, e))
+    if merge and missing:
+        raise DatasetError(shards.missing_report(root, missing, len(planned), parts, batch=batch))
     for name in plan:
         (root / name).mkdir(parents=True, exist_ok=True)
-        for e in man["splits"][name]["trajectories"]:
-            if not _is_done(root, e, layers):
-                e["sha256"], e["wall_time_s"] = None, None
-                todo.append((name, e))
-    root.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(manifest_path, man)
+
+    def save(complete: bool = False) -> None:
+        if shard is None:
+            atomic_write_json(manifest_path, man)
+        else:
+            shards.write_part(root, man, tuple(plan), own, digest=digest, shard=shard, batch=batch,
+                              complete=complete)
+
+    save(complete=not todo)
     if not todo:
+        if shard is None:
+            shards.remove_parts(parts)
         return root
 
     solve, solver_errors = _solver(solve_fn)
     from tqdm.auto import tqdm
 
     failures: list[str] = []
-    bar = tqdm(total=len(todo), unit="design", desc=f"generate {root.name}", disable=not progress,
+    tag = "" if shard is None else f" shard {shard[0]}/{shard[1]}"
+    bar = tqdm(total=len(todo), unit="design", desc=f"generate {root.name}{tag}", disable=not progress,
                dynamic_ncols=True)
+    batches = ([todo[i:i + batch] for i in range(0, len(todo), batch)] if shard is None
+               else list(chunks.values()))                    # a shard keeps the unsharded run's batches
     try:
-        for start in range(0, len(todo), batch):
-            chunk = todo[start:start + batch]
+        for chunk in batches:
             groups = [chunk]
             t0 = time.perf_counter()
             try:
@@ -344,13 +386,18 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
                     wall = traj.meta.get("wall_time_s")
                     e["wall_time_s"] = float(wall) if wall is not None else elapsed / len(chunk)
                     e.pop("error", None)
-            atomic_write_json(manifest_path, man)
+            save()
             bar.update(len(chunk))
     finally:
         bar.close()
     if failures:
-        raise DatasetError(f"{manifest_path}: {len(failures)} design(s) failed in the solver "
+        where = manifest_path if shard is None else f"{root}{tag}"
+        raise DatasetError(f"{where}: {len(failures)} design(s) failed in the solver "
                            "(rerun to retry):\n  " + "\n  ".join(failures))
+    if shard is None:
+        shards.remove_parts(parts)
+    else:
+        save(complete=True)
     return root
 
 

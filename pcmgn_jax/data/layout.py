@@ -7,6 +7,7 @@ Layout of a dataset directory ``OUT``::
     OUT/test/test_0000.{xdmf,h5,json}
     OUT/extrap/extrap_0000....           # any extra named split (explicit designs)
     OUT/.cache/SPLIT/                    # packed training cache (cache.py)
+    OUT/.shards/PLAN-shard-K-of-N.json   # a --shard K/N run's part, until --merge writes the manifest (shards.py)
 
 manifest.json (written by :func:`pcmgn_jax.data.dataset.ensure_dataset`)::
 
@@ -31,10 +32,12 @@ import os
 from pathlib import Path
 from typing import Any
 
-__all__ = ["DATASET_FORMAT", "GENERATE", "IMPORTED", "MANIFEST", "SPLITS", "DatasetError", "dataset_source",
-           "has_trajectory_files", "load_manifest", "split_stems"]
+__all__ = ["DATASET_FORMAT", "GENERATE", "IMPORTED", "MANIFEST", "SHARD_PARTS", "SPLITS", "DatasetError",
+           "dataset_source", "has_shard_parts", "has_trajectory_files", "load_manifest", "read_format_json",
+           "split_stems"]
 
 MANIFEST = "manifest.json"
+SHARD_PARTS = ".shards"                # folder of the per-shard manifest parts (pcmgn_jax.data.shards)
 GENERATE = "generate"                  # dataset_source: absent directory or generator manifest -> the solver
 IMPORTED = "imported"                  # dataset_source: trajectory files without a manifest -> read as they are
 SPLITS = ("train", "test")             # the splits a directory without a manifest is recognised by
@@ -50,18 +53,29 @@ def load_manifest(dataset_dir: str | os.PathLike) -> dict[str, Any] | None:
     path = Path(dataset_dir) / MANIFEST
     if not path.exists():
         return None
+    return read_format_json(path, DATASET_FORMAT, "manifest")
+
+
+def read_format_json(path: Path, fmt: str, what: str) -> dict[str, Any]:
+    """The JSON object in ``path`` whose field 'format' is ``fmt``; DatasetError naming the file (and ``what``
+    it should be) otherwise."""
     try:
         data = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as err:
-        raise DatasetError(f"{path}: cannot parse manifest: {err}") from None
-    if not isinstance(data, dict) or data.get("format") != DATASET_FORMAT:
-        raise DatasetError(f"{path}: field 'format' is not {DATASET_FORMAT!r}")
+        raise DatasetError(f"{path}: cannot parse {what}: {err}") from None
+    if not isinstance(data, dict) or data.get("format") != fmt:
+        raise DatasetError(f"{path}: field 'format' is not {fmt!r}")
     return data
 
 
 def has_trajectory_files(root: Path) -> bool:
     """True when ``root/train`` or ``root/test`` holds a trajectory sidecar (``NAME.json``)."""
     return any((root / s).is_dir() and any((root / s).glob("*.json")) for s in SPLITS)
+
+
+def has_shard_parts(root: Path) -> bool:
+    """True when ``root/.shards`` holds a shard part (``experiments.generate --shard K/N``, not merged yet)."""
+    return (root / SHARD_PARTS).is_dir() and any((root / SHARD_PARTS).glob("*-shard-*-of-*.json"))
 
 
 def dataset_source(dataset_dir: str | os.PathLike) -> str:
@@ -73,14 +87,19 @@ def dataset_source(dataset_dir: str | os.PathLike) -> str:
     :data:`IMPORTED` -- no manifest, but ``DIR/train/`` or ``DIR/test/`` holds trajectory files
         (``NAME.json`` + ``.h5`` + ``.xdmf``, as ``experiments.import_ansys --exports EXPORTS --out DIR``
         writes them): read as they are, never regenerated or added to.
-    Anything else (a directory that exists with neither, e.g. empty, or a folder of ANSYS run folders):
-    a one-line DatasetError naming the directory and what is expected. Reads only; writes nothing.
+    Anything else (a directory that exists with neither, e.g. empty, or a folder of ANSYS run folders),
+    or shard parts without a manifest (a sharded generation not merged yet): a one-line DatasetError
+    naming the directory and what is expected. Reads only; writes nothing.
     """
     root = Path(dataset_dir)
     if not root.exists() or load_manifest(root) is not None:
         return GENERATE
     if not root.is_dir():
         raise DatasetError(f"{root}: not a directory; expected a dataset directory")
+    if has_shard_parts(root):
+        raise DatasetError(f"{root}: holds shard parts ({SHARD_PARTS}/) but no {MANIFEST}: a sharded generation "
+                           f"that is not merged yet; run python -m experiments.generate --merge --out {root} with "
+                           "the shards' other flags")
     if has_trajectory_files(root):
         return IMPORTED
     raise DatasetError(f"{root}: no {MANIFEST} and no trajectory files in {root / 'train'} or {root / 'test'}; "

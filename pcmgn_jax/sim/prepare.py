@@ -82,7 +82,10 @@ def _largest_omega2(k, minv_sqrt, free_dofs) -> float:
     """Largest eigenvalue [1/s^2] of M^-1/2 K M^-1/2 on the free dofs (scipy Lanczos, float64)."""
     kff = k[free_dofs][:, free_dofs]
     op = spla.LinearOperator(kff.shape, matvec=lambda x: minv_sqrt * (kff @ (minv_sqrt * x)), dtype=float)
-    return float(spla.eigsh(op, k=1, which="LA", return_eigenvectors=False, tol=1e-4)[0])
+    # a fixed start vector: ARPACK's default is random per call, so the estimate's last digits would
+    # depend on how many calls the process made before (sharded and unsharded datasets must agree)
+    v0 = np.random.default_rng(0).standard_normal(kff.shape[0])
+    return float(spla.eigsh(op, k=1, which="LA", return_eigenvectors=False, tol=1e-4, v0=v0)[0])
 
 
 def _contact_stiffness(slaves, masters, seg, t, k_slave, n_nodes):
