@@ -1,0 +1,53 @@
+"""Explore a trained run in the browser: a slider per design variable, the OLED objective of every predictor.
+
+  python -m experiments.explore --workdir runs/cpu                 # then open http://127.0.0.1:8050/
+  python -m experiments.explore --workdir runs/family --port 8060  # a scene family: a slider per scene parameter
+  python -m experiments.explore --workdir RUN --no_mgn             # baselines only (no model load, quick start)
+
+Needs the explore extra: pip install -e ".[explore]". Any run directory with a config.json and its
+training data works: with a checkpoint the run's MGN is the default predictor, without one (a
+regression-only run) kriging is. The page shows the training box (out-of-box designs are flagged), the
+objective of the MGN and of every baseline (kriging with its GP std), the von Mises field on the deformed
+section at a chosen frame (log colour scale, axes in mm), the OLED layer on its own scale, the OLED reading
+and the ball over time, and a "check with the solver" button (the built-in solver at the design, its truth
+and the error overlaid). The library is pcmgn_jax.explore; this module parses flags and serves.
+"""
+import sys
+from dataclasses import dataclass
+from typing import Literal
+
+from pcmgn_jax import cli
+
+
+@dataclass(frozen=True)
+class ExploreArgs:
+    workdir: str                                   # run directory (config.json; checkpoints for the MGN)
+    host: str = "127.0.0.1"                        # address to bind (127.0.0.1: this machine only)
+    port: int = 8050                               # port of the page
+    which: Literal["best", "periodic"] = "best"    # MGN checkpoint
+    mgn: bool = True                               # load the run's MGN (--no_mgn: baselines only)
+    objective: Literal["area_mean", "node_mean", "disc_mean", "peak"] = "area_mean"  # reading (docs/design.md §8)
+
+
+def main(argv=None) -> int:
+    args = cli.parse(ExploreArgs, argv, description=__doc__, prog="python -m experiments.explore")
+    try:
+        import dash  # noqa: F401
+    except ImportError:
+        raise ValueError('the explorer needs Dash: pip install -e ".[explore]"') from None
+    import socket
+    with socket.socket() as probe:   # say a taken port before the run is loaded, not after
+        try:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)   # as the server will
+            probe.bind((args.host, args.port))
+        except OSError as err:
+            raise ValueError(f"cannot serve on {args.host}:{args.port}: {err} (choose another --port)") from None
+    from pcmgn_jax.explore import Explorer
+    from pcmgn_jax.explore.app import serve
+    serve(Explorer(args.workdir, which=args.which, mgn=args.mgn, reading=args.objective), host=args.host,
+          port=args.port)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(cli.run(main))
