@@ -12,8 +12,8 @@ area mean) relative error [%] (:func:`pcmgn_jax.eval.baselines.objective_scores`
 (shapes, not values, set the cost) and the errors are null.
 
 Timings are warm: every path runs once untimed (compilation; its time is reported apart), then the
-median of ``--repeats`` runs. Per design, MGN = rollout wall time / designs + building a design's ROI mesh
-(host); solver = the batched ``solver.simulate`` of the same designs (host prepare + scan) / designs.
+median of ``--repeats`` runs. Per design, MGN = rollout wall time / designs + placing the design's nodes
+(host: the OCA box's affine design map, as the optimiser does; a family scene builds its ROI mesh); solver = the batched ``solver.simulate`` of the same designs (host prepare + scan) / designs.
 ``ratio`` = solver / MGN. The same network with the ball state as a node input (processor every frame,
 the formulation before ``processor='per_design'``) is timed beside it when the run is per-design:
 ``mgn_per_frame_s_per_design`` (same sizes; timing only, its outputs are not the trained model's).
@@ -37,6 +37,7 @@ def _args(argv):
     p.add_argument("--batch", type=int, default=8, help="designs per MGN call (disjoint union)")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--which", default="best")
+    p.add_argument("--no-per-frame", action="store_true", help="skip timing the per-frame processor beside it")
     p.add_argument("--json", default=None)
     p.add_argument("--md", default=None)
     return p.parse_args(argv)
@@ -55,7 +56,7 @@ def _median_time(fn, repeats: int) -> tuple[float, float]:
     return first, statistics.median(times)
 
 
-def trained_point(workdir: Path, test, *, batch: int, repeats: int, which: str) -> dict:
+def trained_point(workdir: Path, test, *, batch: int, repeats: int, which: str, per_frame: bool = True) -> dict:
     """The trained MGN on the test designs: per-design time (warm), compile time, errors."""
     import dataclasses
 
@@ -70,7 +71,7 @@ def trained_point(workdir: Path, test, *, batch: int, repeats: int, which: str) 
     pu, pvm = mgn.rollout_trajectories(test)  # a new size bucket: compiled and run once untimed, then timed
     first = time.perf_counter() - t0
     rollout_s = _warm_rollouts(mgn, test, repeats)
-    mesh_s = _mesh_build_s(test[0])
+    mesh_s = _design_points_s(test) if mgn.sim.config.data_preset in ("cpu", "paper", "tiny") else _mesh_build_s(test[0])
     names = Scene.from_dict(test[0].meta["scene"]).part_names
     obj = {}
     if "OLED" in names:  # a scene without one (a synthetic test scene) has no objective to score
@@ -85,9 +86,25 @@ def trained_point(workdir: Path, test, *, batch: int, repeats: int, which: str) 
                latent=mgn.sim.config.latent_size, message_passing_steps=mgn.sim.config.message_passing_steps,
                objective_error_pct=obj.get("oled_objective_area_rel_error_pct_mean"),
                objective_error_pct_max=obj.get("oled_objective_area_rel_error_pct_max"), **errors(pu, pvm, test))
-    if form.processor == "per_design":
+    if form.processor == "per_design" and per_frame:
         res["mgn_per_frame_s_per_design"] = _per_frame_time(mgn, test, batch=batch, repeats=repeats) + mesh_s
     return res
+
+
+def _design_points_s(test) -> float:
+    """Host time [s] per design to place a new design's nodes: the affine design map of the OCA box
+    (:class:`pcmgn_jax.sim.design_map.DesignMap`, built once per scene, as the optimiser and the explorer
+    use it; rebuilding the whole mesh per design costs ~0.7 s here and is not needed in this box)."""
+    from pcmgn_jax.eval.surrogates import design_of
+    from pcmgn_jax.scene import Scene
+    from pcmgn_jax.sim.design_map import DesignMap
+    scene = Scene.from_dict(test[0].meta["scene"])
+    dmap = DesignMap.build(scene, test[0].meta["solver"]["preset"])
+    designs = np.stack([design_of(t) for t in test])
+    t0 = time.perf_counter()
+    for d in designs:
+        dmap.points(d)
+    return (time.perf_counter() - t0) / len(designs)
 
 
 def _warm_rollouts(mgn, test, repeats: int) -> float:
@@ -114,7 +131,7 @@ def _per_frame_time(mgn, test, *, batch: int, repeats: int) -> float:
     return per_frame / len(test)
 
 
-def untrained_point(preset: str, n: int, *, repeats: int) -> dict:
+def untrained_point(preset: str, n: int, *, repeats: int, per_frame: bool = True) -> dict:
     """The preset's model size, default formulation with the per-design processor, random parameters."""
     import jax
 
@@ -126,7 +143,7 @@ def untrained_point(preset: str, n: int, *, repeats: int) -> dict:
     cfg = TrainConfig.from_preset(preset)
     form = FORMULATIONS["default"].replace(processor="per_design")
     out = {}
-    for name, f in (("mgn", form), ("mgn_per_frame", form.replace(processor="per_frame"))):
+    for name, f in (("mgn", form), ("mgn_per_frame", form.replace(processor="per_frame")))[:2 if per_frame else 1]:
         s = rollout_setup(preset, latent=cfg.latent_size, layers=cfg.message_passing_steps, n_designs=n,
                           formulation=f)
         batch, *init = union_setup(s, n)
@@ -162,10 +179,11 @@ def main(argv=None) -> dict:
         test = load_split(cfg.resolved_dataset_dir, "test")[:a.n_test or cfg.n_test]
         if not test:
             raise SystemExit(f"{cfg.resolved_dataset_dir}/test holds no trajectories")
-        point = trained_point(workdir, test, batch=a.batch, repeats=a.repeats, which=a.which)
+        point = trained_point(workdir, test, batch=a.batch, repeats=a.repeats, which=a.which,
+                              per_frame=not a.no_per_frame)
         scenes, n_frames = [Scene.from_dict(t.meta["scene"]) for t in test], test[0].n_frames - 1
     else:
-        point, designs = untrained_point(a.preset, a.n_test or 8, repeats=a.repeats)
+        point, designs = untrained_point(a.preset, a.n_test or 8, repeats=a.repeats, per_frame=not a.no_per_frame)
         scenes, n_frames = [default_scene().with_design(*d) for d in designs], 100
     point.update(solver_time(a.preset, scenes, n_frames, a.repeats))
     point["ratio"] = point["solver_s_per_design"] / point["mgn_s_per_design"]

@@ -6,7 +6,7 @@ run from its last checkpoint and refuses flags that change its saved config.json
 batch over several devices; ``--coordinator_address``, ``--num_processes``, ``--process_id``: several hosts
 (README, "Several machines").
 On a fresh machine the preset's dataset is generated first (data/<data_preset>, cached).
-``--formulation=paper|default|dynamic`` selects the formulation; its fields are flags of their own
+``--formulation=paper|default|dynamic|realtime`` selects the formulation; its fields are flags of their own
 (``--ball_target``, ``--panel_target``, ``--rigid_ball``, ``--contact_projection``, ``--scene_features``...).
 ``--n_train`` counts training trajectories, validation excluded (the train split holds n_train + n_val).
 With ``--lambda_pen`` > 0 the best checkpoint is chosen among validations after the term switched on

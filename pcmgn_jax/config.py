@@ -44,7 +44,7 @@ class TrainConfig:
     mlp_layers: int = 2              # hidden layers per MLP
     message_passing_steps: int = 8   # processor blocks
     # ---- formulation: what the model predicts (pcmgn_jax/mgn/formulation.py; docs/design.md §5) -----
-    formulation: Formulation = FORMULATIONS["default"]  # the formulation's fields are flags of their own (--ball_target, --panel_target, --rigid_ball, --normalization, --features, --loss_weighting, --scene_features, --panel_model, --contact_projection); --formulation=paper|default|dynamic selects the base
+    formulation: Formulation = FORMULATIONS["default"]  # the formulation's fields are flags of their own (--ball_target, --panel_target, --rigid_ball, --normalization, --features, --loss_weighting, --scene_features, --panel_model, --contact_projection, --processor); --formulation=paper|default|dynamic|realtime selects the base
     formulation_name: str = "default"  # the FORMULATIONS entry the formulation started from (paper | default | dynamic); a record: `formulation` is the truth
     # ---- loss -------------------------------------------------------------------------------
     lambda_pen: float = 0.0          # weight of the penetration term (0 = vanilla MGN; paper: 10)
@@ -57,7 +57,7 @@ class TrainConfig:
     noise_rel: float = 0.0           # used when noise_std = 0: sigma per part = noise_rel x its RMS motion per frame
     noise_parts: str = "none"        # none | ball | panel | all
     pushforward: bool = False        # inputs of the noise_parts = the model's own one-step prediction (no gradient through it)
-    frames_per_sample: int = 1       # processor='per_design' only: frames of each sample's trajectory decoded from its one processor pass per step (the sample's and F-1 more, evenly spread)
+    frames_per_sample: int = 0       # frames of each sample's trajectory decoded from its one processor pass per step (the sample's and F-1 more, evenly spread); > 1 needs processor='per_design'; 0 = auto: 8 with processor='per_design', else 1
     # ---- optimisation -----------------------------------------------------------------------
     seed: int = 0                    # model init, data order and noise
     learning_rate: float = 1e-3      # Adam initial learning rate (paper)
@@ -102,8 +102,8 @@ class TrainConfig:
             bad("contact_radius/noise_std/noise_rel/lambda_pen", "must be >= 0")
         if not 0 < self.learning_rate < 1:
             bad("learning_rate", "must be in (0, 1)")
-        if self.frames_per_sample < 1:
-            bad("frames_per_sample", "must be >= 1")
+        if self.frames_per_sample < 0:
+            bad("frames_per_sample", "must be >= 0 (0 = auto)")
         if self.frames_per_sample > 1 and (self.formulation.processor != "per_design" or self.pushforward):
             bad("frames_per_sample", "> 1 needs formulation processor='per_design' (one processor pass shared by the "
                 "frames of a design) and no pushforward")
@@ -145,6 +145,14 @@ class TrainConfig:
 
     def replace(self, **kw) -> "TrainConfig":
         return dataclasses.replace(self, **kw)
+
+    @property
+    def frames(self) -> int:
+        """Frames per training sample: ``frames_per_sample``, or with 0 (auto) 8 for a per-design
+        processor (its decoder is ~1/25 of a processor pass: 8 readouts cost ~1.3 passes) and 1 otherwise."""
+        if self.frames_per_sample:
+            return self.frames_per_sample
+        return 8 if self.formulation.processor == "per_design" and not self.pushforward else 1
 
     @property
     def resolved_dataset_dir(self) -> str:
@@ -240,6 +248,7 @@ def _from_flat(data: dict) -> dict:
     scene = data.pop("scene_features", "")
     if scene:
         kw["scene_features"] = scene_feature_names(scene)
+    kw.setdefault("processor", "per_frame")  # flat configs predate the per-design processor
     return {**data, "formulation": data.get("formulation") or "default", **kw}
 
 

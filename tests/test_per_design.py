@@ -141,3 +141,13 @@ def test_frames_per_sample_needs_a_per_design_processor():
     with pytest.raises(ValueError, match="frames_per_sample"):
         tiny_config(frames_per_sample=4)
     assert tiny_config(processor="per_design", frames_per_sample=4).frames_per_sample == 4
+
+
+def test_frames_auto_and_the_realtime_formulation():
+    from pcmgn_jax.config import TrainConfig
+    assert TrainConfig.from_preset("cpu").frames == 1  # the main job: per-frame processor
+    rt = TrainConfig.from_preset("cpu", formulation="realtime")
+    assert rt.formulation.processor == "per_design" and rt.frames == 8
+    assert TrainConfig.from_preset("cpu", formulation="realtime", frames_per_sample=1).frames == 1
+    with pytest.raises(ValueError, match="per_design"):  # the per-design processor needs the quasi-static panel
+        TrainConfig.from_preset("cpu", formulation="realtime", panel_model="dynamic")

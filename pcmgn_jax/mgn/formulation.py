@@ -209,6 +209,9 @@ FORMULATIONS = {
     # the previous default: the layers as a second dynamical system (velocity target, own state as input)
     "dynamic": Formulation(),
 }
+# the default with the per-design processor (the cpu main job's): the message passing once per design, the
+# ball state read out by the decoder, so a rollout costs one network pass + a decoder per frame
+FORMULATIONS["realtime"] = FORMULATIONS["default"].replace(processor="per_design")
 
 
 def _xp(a):

@@ -168,7 +168,7 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
             ids = sample_ids(cfg.seed, step, K, B, setup.n_pairs)
             batch = gather_unions(form, train_trajs, setup.graphs, table, ids, dt=setup.spec.sim.dt,
                                   sizes=setup.sizes, shards=shards, local_shards=rows, previous=cfg.pushforward,
-                                  frames=cfg.frames_per_sample)
+                                  frames=cfg.frames)
             if dp is not None:
                 batch = dp.put_batch(batch, shards)
             new_state, m = train_chunk(setup.spec, state, setup.stats, batch, seed_key)
