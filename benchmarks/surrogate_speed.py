@@ -71,7 +71,8 @@ def trained_point(workdir: Path, test, *, batch: int, repeats: int, which: str, 
     pu, pvm = mgn.rollout_trajectories(test)  # a new size bucket: compiled and run once untimed, then timed
     first = time.perf_counter() - t0
     rollout_s = _warm_rollouts(mgn, test, repeats)
-    mesh_s = _design_points_s(test) if mgn.sim.config.data_preset in ("cpu", "paper", "tiny") else _mesh_build_s(test[0])
+    box = "solver" in test[0].meta and mgn.sim.config.data_preset in ("cpu", "paper", "tiny")  # the OCA box
+    mesh_s = _design_points_s(test) if box else _mesh_build_s(test[0])
     names = Scene.from_dict(test[0].meta["scene"]).part_names
     obj = {}
     if "OLED" in names:  # a scene without one (a synthetic test scene) has no objective to score

@@ -69,6 +69,7 @@ def test_padding_and_other_graphs_change_no_loss_or_gradient(mixed):
     assert float(aux["loss_graph"][2]) == 0.0  # the padding graph
 
 
+@pytest.mark.slow  # ~20 s (the default suite's 10-minute budget)
 def test_union_chunk_compiles_once_across_meshes(mixed):
     trajs, setup, _ = mixed
     from pcmgn_jax.train.step import init_state

@@ -83,6 +83,7 @@ def test_per_design_needs_a_quasi_static_panel():
     assert FORMULATIONS["default"].replace(processor="per_design").decoder_condition == 2
 
 
+@pytest.mark.slow  # ~31 s (the default suite's 10-minute budget)
 def test_per_design_gradient_through_the_rollout_is_finite(tiny_run, tiny_trajs):
     spec, params, stats, topo, idx, t = _per_design_sim(tiny_run, tiny_trajs)
 
@@ -95,6 +96,7 @@ def test_per_design_gradient_through_the_rollout_is_finite(tiny_run, tiny_trajs)
     assert np.all(np.isfinite(np.asarray(g))) and float(jnp.abs(g).max()) > 0
 
 
+@pytest.mark.slow  # ~51 s: eager losses (the default suite's 10-minute budget)
 def test_multi_frame_loss_is_the_mean_of_its_frames_losses(tiny_trajs):
     """frames_per_sample = F: one processor pass, F readouts; the loss is the mean of the F single-frame
     losses (each the per-frame network's loss of that frame: same network, one pass each)."""

@@ -55,6 +55,7 @@ def test_checkpoint_restore_identical_predictions(tiny_run, tiny_trajs):
     np.testing.assert_array_equal(np.asarray(a.von_mises), np.asarray(b.von_mises))
 
 
+@pytest.mark.slow  # ~33 s (the default suite's 10-minute budget; checkpoint restore stays)
 def test_resume_reaches_same_parameters(tiny_run, tiny_trajs, tmp_path):
     cfg, _, summary = tiny_run
     training.train(cfg, tmp_path, train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:], stop_after=80)
@@ -100,6 +101,7 @@ def test_pushforward_training_runs_and_lowers_the_loss(tiny_trajs, tmp_path):
     assert res["step"] == 80 and np.all(np.isfinite(losses)) and losses[-1] < losses[0]
 
 
+@pytest.mark.slow  # ~28 s (the default suite's 10-minute budget)
 def test_ema_parameters_are_the_average_and_what_the_best_checkpoint_keeps(tiny_trajs, tmp_path):
     """ema_decay > 0: after each step ema <- d ema + (1 - d) params (checked against the optimiser's own
     parameter sequence, one step per dispatch); the best checkpoint holds the average, the periodic one
@@ -131,6 +133,7 @@ def test_ema_parameters_are_the_average_and_what_the_best_checkpoint_keeps(tiny_
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+@pytest.mark.slow  # ~55 s on 2026-12-03 (the default suite's 10-minute budget)
 def test_lambda_pen_keeps_a_best_checkpoint_trained_with_the_term(tiny_trajs, tmp_path):
     """--lambda_pen=10 with the term from half-way: validations before it do not compete for best."""
     cfg = tiny_config(num_steps=80, lambda_pen=10.0, lambda_start=0.5, val_every=20, poly_ball=2, poly_panel=3)
