@@ -156,8 +156,13 @@ def union_batch(form: Formulation, trajs, graphs, pairs, *, dt: float, sizes, gr
                                         sizes.pen_ball)
     pen_panel, pen_panel_mask = _pad_rows([p.pen_panel + o for p, o in zip(parts, offsets)] + [[]] * (G - n_real),
                                           sizes.pen_panel)
-    out = dict(graph=gb, u=node([s["u"] for s in smp]), v=node([s["v"] for s in smp]),
-               target=node([s["target"] for s in smp]), ball=per_graph([s["ball"] for s in smp]),
+    if frames > 1:  # (F, ...) per frame of the pairs' trajectories
+        state = {k: np.stack([node([s[f][k] for s in per_frame]) for f in range(frames)]) for k in ("u", "v", "target")}
+        state["ball"] = np.stack([per_graph([s[f]["ball"] for s in per_frame]) for f in range(frames)])
+    else:
+        state = dict(u=node([s["u"] for s in smp]), v=node([s["v"] for s in smp]),
+                     target=node([s["target"] for s in smp]), ball=per_graph([s["ball"] for s in smp]))
+    out = dict(graph=gb, **state,
                sigma=node([p.sigma for p in parts]), w_motion=node([p.motion for p in parts]),
                w_stress=node([p.stress for p in parts]), perturbed=node([p.perturbed for p in parts]),
                w_ball=per_graph([p.ball for p in parts]),
@@ -165,10 +170,6 @@ def union_batch(form: Formulation, trajs, graphs, pairs, *, dt: float, sizes, gr
                                         (1 << 30) + np.arange(G - n_real, dtype=np.int32)]),
                graph_mask=per_graph([True] * n_real, bool),
                pen_ball=pen_ball, pen_ball_mask=pen_ball_mask, pen_panel=pen_panel, pen_panel_mask=pen_panel_mask)
-    if frames > 1:
-        for k in ("u", "v", "target"):
-            out[k] = np.stack([node([s[f][k] for s in per_frame]) for f in range(frames)])
-        out["ball"] = np.stack([per_graph([s[f]["ball"] for s in per_frame]) for f in range(frames)])
     if previous:
         prev = [sample(form, trajs[i], int(t) - 1, dt) if t > 0 else s for (i, t), s in zip(pairs, smp)]
         out.update(u_prev_in=node([p["u"] for p in prev]), v_prev_in=node([p["v"] for p in prev]),

@@ -183,11 +183,11 @@ def _loss_per_design(params, spec: TrainSpec, stats: Stats, batch, key, step=Non
         sample = dict(points=g.points, u=u, v=v, target=target, ball=ball)
         sample = perturb(sim, g.topology, sample, batch.sigma, jax.random.fold_in(key, f), None, layout=g.layout,
                          graph_ids=batch.graph_id)
-        out, _ = net(sample["u"], sample["v"])
-        return _frame_losses(spec, stats, batch, sample, out)
+        out, edges = net(sample["u"], sample["v"])
+        return _frame_losses(spec, stats, batch, sample, out) + (edges,)
 
-    loss_data, loss_pen = jax.vmap(one)(jnp.arange(frames[0].shape[0]), *frames)
-    _, edges = net(frames[0][0], frames[1][0])
+    # edges (F, ...): the design's one contact set F times (_total reduces over every axis)
+    loss_data, loss_pen, edges = jax.vmap(one)(jnp.arange(frames[0].shape[0]), *frames)
     return _total(spec, batch, jnp.mean(loss_data, axis=0), jnp.mean(loss_pen, axis=0), edges, step)
 
 
