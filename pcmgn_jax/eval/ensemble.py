@@ -1,0 +1,162 @@
+"""Trust figures: does a surrogate's spread rank its real error? (issue 26)
+
+    rep = ensemble_report(["runs/a", "runs/b", ...], {"test": test, "extrap": extrap}, train)
+    rep["sets"]["test"]["objective"]["spearman"]     # ρ(per-design spread, per-design |objective error|)
+
+For every set of trajectories with known truth, three spreads are set beside the errors they should rank:
+
+- ``ensemble``     K >= 2 trained MGNs (seeds, formulations): per design the members' objective std (ddof 1)
+                   against the absolute error of the members' mean; per node the std of the displacement
+                   over members (the norm of the per-component stds, mean over frames) [µm] against the
+                   mean's displacement error there [µm], pooled over the set's designs
+- ``kriging``      the GP response surface of the objective over the training designs: its posterior std
+                   against its own error, and against the ensemble mean's
+- ``residual_gp``  a GP fitted to the ensemble mean's objective residuals on the training designs (the
+                   alternative when members collapse): its std against the ensemble mean's error
+
+Spearman's ρ (:func:`spearman`) is None, with the reason, for fewer than 3 samples or a constant side.
+``spread_over_error``: mean spread / mean absolute error, the collapse figure (well below 1: the members
+agree with each other far more than with the truth). Objectives in MPa, errors in % of the truth.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from pcmgn_jax.eval import metrics
+
+
+def spearman(spread, error) -> dict:
+    """{'rho', 'p', 'n'} Spearman's rank correlation of spread and error (1-D, same length); 'rho' None
+    with 'why' when it is undefined (n < 3, or a side constant)."""
+    from scipy.stats import spearmanr
+    s, e = np.asarray(spread, float).reshape(-1), np.asarray(error, float).reshape(-1)
+    if s.shape != e.shape:
+        raise ValueError(f"spearman: spread {s.shape} and error {e.shape} differ in shape")
+    n = int(len(s))
+    if not (np.all(np.isfinite(s)) and np.all(np.isfinite(e))):
+        raise ValueError("spearman: non-finite spread or error")
+    if n < 3:
+        return {"rho": None, "p": None, "n": n, "why": f"{n} samples (needs >= 3)"}
+    if np.ptp(s) == 0 or np.ptp(e) == 0:
+        return {"rho": None, "p": None, "n": n, "why": "the spread or the error is constant"}
+    r = spearmanr(s, e)
+    return {"rho": float(r.statistic), "p": float(r.pvalue), "n": n}
+
+
+def _objective(trajs, vms, part) -> np.ndarray:
+    return np.array([float(metrics.oled_objective_of(t, vm, part=part)) for t, vm in zip(trajs, vms)])
+
+
+def member_predictions(workdirs: Sequence, sets: Mapping[str, Sequence], ref) -> list[dict]:
+    """Per member {set: (u list (T, N, 2) [m], objective (B,) [MPa])}, each member's rollouts of every set."""
+    from pcmgn_jax.eval.surrogates import MGNSurrogate
+    part = list(ref.meta["part_names"]).index("OLED")
+    out = []
+    for w in workdirs:
+        m = MGNSurrogate(Path(w), ref)
+        got = {}
+        for name, trajs in sets.items():
+            u, vm = m.rollout_trajectories(trajs)
+            got[name] = ([np.asarray(a) for a in u], _objective(trajs, vm, part))
+        out.append(got)
+    return out
+
+
+def _node_figures(us: list[list[np.ndarray]], trajs) -> tuple[np.ndarray, np.ndarray]:
+    """(spread, error) per node [µm], pooled over designs: members' displacement std and the mean's error."""
+    spread, err = [], []
+    for b, t in enumerate(trajs):
+        stack = np.stack([u[b] for u in us])                       # (K, T, N, 2) [m]
+        sd = np.sqrt((stack.std(0, ddof=1) ** 2).sum(-1)).mean(0)  # (N,)
+        e = np.linalg.norm(stack.mean(0) - np.asarray(t.displacement), axis=-1).mean(0)
+        spread.append(sd * 1e6)
+        err.append(e * 1e6)
+    return np.concatenate(spread), np.concatenate(err)
+
+
+def _collapse(spread, err) -> float | None:
+    m = float(np.mean(err))
+    return None if m <= 0 else float(np.mean(spread)) / m
+
+
+def ensemble_report(workdirs: Sequence, sets: Mapping[str, Sequence], train: Sequence, *,
+                    reading: str = metrics.DEFAULT_OBJECTIVE) -> dict:
+    """The module's figures for every set (``sets``: name -> trajectories with truth), the members being
+    the runs ``workdirs`` (one is allowed: no ensemble figures then), ``train`` the runs' training
+    trajectories (kriging and the residual GP are fitted on them)."""
+    from pcmgn_jax.eval.response_surfaces import Kriging, ObjectiveSurface
+    from pcmgn_jax.eval.scene_inputs import TrainingScenes
+
+    if reading != metrics.DEFAULT_OBJECTIVE:
+        raise ValueError(f"ensemble report: only the {metrics.DEFAULT_OBJECTIVE} reading, got {reading!r}")
+    ref = train[0]
+    part = list(ref.meta["part_names"]).index("OLED")
+    K = len(workdirs)
+    preds = member_predictions(workdirs, {**sets, "_train": train}, ref)
+    krig = ObjectiveSurface("kriging", train, readings=(reading,), part=part)
+    scenes = TrainingScenes(train)
+    y_train = np.array([float(metrics.oled_objective_of(t, part=part)) for t in train])
+    f_train = np.mean([p["_train"][1] for p in preds], axis=0)
+    resid = Kriging(scenes.x, {"r": y_train - f_train}, names=scenes.names)
+    out = {"members": [str(w) for w in workdirs], "n_members": K, "reading": reading,
+           "n_train": len(train), "sets": {}}
+    for name, trajs in sets.items():
+        truth = np.array([float(metrics.oled_objective_of(t, part=part)) for t in trajs])
+        f = np.stack([p[name][1] for p in preds])              # (K, B) [MPa]
+        mean = f.mean(0)
+        err = np.asarray(metrics.relative_error_pct(mean, truth), float)
+        member_err = [float(np.mean(metrics.relative_error_pct(fk, truth))) for fk in f]
+        rec = {"n": len(trajs), "names": [str(t.meta.get("name", i)) for i, t in enumerate(trajs)],
+               "truth_mpa": truth.tolist(), "mean_mpa": mean.tolist(), "error_pct": err.tolist(),
+               "member_error_pct": member_err, "mean_error_pct": float(err.mean())}
+        if K >= 2:
+            sd = f.std(0, ddof=1)
+            sd_pct = 100 * sd / truth
+            ns, ne = _node_figures([p[name][0] for p in preds], trajs)
+            rec["ensemble"] = {"spread_mpa": sd.tolist(), "spread_pct": sd_pct.tolist(),
+                               "spearman": spearman(sd, err), "spread_over_error": _collapse(sd_pct, err),
+                               "node_position": {"spearman": spearman(ns, ne), "spread_over_error": _collapse(ns, ne),
+                                                 "mean_spread_um": float(ns.mean()), "mean_error_um": float(ne.mean())}}
+        km, ks = krig.predict_trajectories(trajs, return_std=True)
+        kerr = np.asarray(metrics.relative_error_pct(km[reading], truth), float)
+        rec["kriging"] = {"mean_mpa": km[reading].tolist(), "std_mpa": ks[reading].tolist(),
+                          "error_pct": kerr.tolist(), "mean_error_pct": float(kerr.mean()),
+                          "spearman_own_error": spearman(ks[reading], kerr),
+                          "spearman_mgn_error": spearman(ks[reading], err)}
+        rm, rs = resid.predict(scenes.inputs(trajs, resid.box.note), return_std=True)
+        corrected = np.asarray(metrics.relative_error_pct(mean + rm["r"], truth), float)
+        rec["residual_gp"] = {"std_mpa": rs["r"].tolist(), "spearman_mgn_error": spearman(rs["r"], err),
+                              "corrected_error_pct": corrected.tolist(),
+                              "corrected_mean_error_pct": float(corrected.mean()),
+                              "spearman_corrected_error": spearman(rs["r"], corrected)}
+        out["sets"][name] = rec
+    out["warnings"] = list(krig.warnings) + list(resid.warnings)
+    return out
+
+
+def report_markdown(rep: dict, command: str = "") -> str:
+    """One table per report: per set, Spearman ρ of each spread against the error it should rank."""
+    def rho(d):
+        return "–" if d is None else ("n/a" if d["rho"] is None else f"{d['rho']:+.2f}")
+    lines = ([f"`{command}`", ""] if command else []) + [
+        f"Members: {', '.join(rep['members'])} (K = {rep['n_members']}); kriging and the residual GP fitted on "
+        f"{rep['n_train']} training designs. ρ: Spearman between the spread and the absolute objective error "
+        "per design (node: per-node displacement spread vs error, pooled).", "",
+        "| set | designs | MGN mean error [%] | members' errors [%] | ρ ensemble | spread / error | ρ node position "
+        "| ρ kriging std vs own error (error %) | ρ kriging std vs MGN error | ρ residual GP std vs MGN error "
+        "| MGN + residual GP error [%] |",
+        "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for name, s in rep["sets"].items():
+        e = s.get("ensemble")
+        ratio = "–" if not e or e["spread_over_error"] is None else f"{e['spread_over_error']:.2f}"
+        lines.append(
+            f"| {name} | {s['n']} | {s['mean_error_pct']:.2f} | {', '.join(f'{v:.2f}' for v in s['member_error_pct'])} "
+            f"| {rho(e and e['spearman'])} | {ratio} "
+            f"| {rho(e and e['node_position']['spearman'])} "
+            f"| {rho(s['kriging']['spearman_own_error'])} ({s['kriging']['mean_error_pct']:.2f}) "
+            f"| {rho(s['kriging']['spearman_mgn_error'])} | {rho(s['residual_gp']['spearman_mgn_error'])} "
+            f"| {s['residual_gp']['corrected_mean_error_pct']:.2f} |")
+    return "\n".join(lines) + "\n"
