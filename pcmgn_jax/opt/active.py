@@ -291,16 +291,17 @@ def run_loop(problem: Problem, cfg: LoopConfig, log_path: str | Path, *, base: C
                 holdout = {"mae_pct": float(err.mean()), "max_pct": float(err.max()), "n": len(ht)}
         picks = np.asarray(_um(picks), float).reshape(-1, len(problem.names)) * 1e-6   # as the log holds them:
         new_vals = []                                                   # a resumed run sees the same numbers
-        for d in picks:
+        many = getattr(problem.oracle, "many", None)
+        for group in ([picks] if many is not None else [p[None] for p in picks]):
             try:
-                v = np.asarray(problem.oracle(d), float).reshape(C)
-            except Exception as e:   # noqa: BLE001 - any solver failure is named with its round and design
+                got = many(group) if many is not None else [problem.oracle(group[0])]
+            except Exception as e:   # noqa: BLE001 - any solver failure is named with its round and designs
                 raise ActiveLearningError(
-                    f"round {k}: the solver failed at design {np.round(d * 1e6, 3).tolist()} µm ({type(e).__name__}: "
+                    f"round {k}: the solver failed at design {'; '.join(map(str, _um(group)))} µm ({type(e).__name__}: "
                     f"{e}); the {k} finished rounds are kept in {path}") from e
-            new_vals.append(v)
+            new_vals += [np.asarray(v, float).reshape(C) for v in got]
             if bar is not None:
-                bar.update(C)
+                bar.update(C * len(group))
         designs += list(picks)
         values += new_vals
         n_runs += len(picks) * C
@@ -351,13 +352,17 @@ class SolverOracle:
         self.seconds = 0.0
 
     def __call__(self, design) -> np.ndarray:
-        from pcmgn_jax.opt.check import solver_objectives
-        out = []
+        return self.many(np.asarray(design, float)[None])[0]
+
+    def many(self, designs) -> np.ndarray:
+        """(B, C) [MPa] of designs (B, D) [SI]: per case one batched solver call for the uncached designs."""
+        from pcmgn_jax.opt.check import solver_objectives_many
+        cols = []
         for scene, label in self.scenes:
-            got = solver_objectives(scene, design, self.preset, self.cache_dir, label=label)
-            self.seconds += 0.0 if got["cached"] else got["solver_seconds"]
-            out.append(got[self.reading])
-        return np.asarray(out)
+            got = solver_objectives_many(scene, designs, self.preset, self.cache_dir, label=label)
+            self.seconds += sum(0.0 if g["cached"] else g["solver_seconds"] for g in got)
+            cols.append([g[self.reading] for g in got])
+        return np.asarray(cols).T
 
 
 def _case_label(preset: str, case: Mapping) -> str:

@@ -12,27 +12,44 @@ from pcmgn_jax.eval import metrics
 from pcmgn_jax.scene import Scene
 
 
+def _cache_path(cache_dir, d, label) -> Path:
+    return Path(cache_dir) / ("_".join(f"{v * 1e6:.2f}" for v in d) + f"_{label}.json")
+
+
 def solver_objectives(scene: Scene, design, preset, cache_dir: str | Path | None = None, *,
                       label: str | None = None) -> dict:
     """{reading: objective [MPa] for every reading in metrics.OBJECTIVES, 'design_um', 'solver_seconds',
     'preset', 'n_nodes', 'cached'} of ``design`` (D,) [m] simulated by the built-in solver at ``preset`` (a
     preset name or a MeshSpec; ``label`` names a MeshSpec in the cache file name)."""
+    return solver_objectives_many(scene, np.asarray(design, float).reshape(1, -1), preset, cache_dir, label=label)[0]
+
+
+def solver_objectives_many(scene: Scene, designs, preset, cache_dir: str | Path | None = None, *,
+                           label: str | None = None) -> list[dict]:
+    """:func:`solver_objectives` of designs (B, D) [m]: the designs not in the cache run as one batched
+    solver call (cheaper per design than one call each); each result is cached on its own.
+    'solver_seconds' of a batched run is its share of the batch's wall time."""
     import json
 
     from pcmgn_jax.sim.solver import solve_designs
 
-    d = np.asarray(design, float).reshape(-1)
-    path = None
-    if cache_dir is not None:
-        path = Path(cache_dir) / ("_".join(f"{v * 1e6:.2f}" for v in d) + f"_{label or preset}.json")
-        if path.exists():
-            return {**json.loads(path.read_text()), "cached": True}
-    t0 = time.perf_counter()
-    (traj,) = solve_designs(scene, d[None], preset=preset)
-    out = {r: float(metrics.oled_objective_of(traj, reading=r)) for r in metrics.OBJECTIVES}
-    out.update(design_um=(d * 1e6).tolist(), solver_seconds=time.perf_counter() - t0, preset=label or preset,
-               n_nodes=traj.n_nodes)
-    if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(path, out)
-    return {**out, "cached": False}
+    d = np.atleast_2d(np.asarray(designs, float))
+    label = label or preset
+    out: list[dict | None] = [None] * len(d)
+    for i, x in enumerate(d):
+        if cache_dir is not None and (path := _cache_path(cache_dir, x, label)).exists():
+            out[i] = {**json.loads(path.read_text()), "cached": True}
+    todo = [i for i, o in enumerate(out) if o is None]
+    if todo:
+        t0 = time.perf_counter()
+        trajs = solve_designs(scene, d[todo], preset=preset)
+        share = (time.perf_counter() - t0) / len(todo)
+        for i, traj in zip(todo, trajs):
+            rec = {r: float(metrics.oled_objective_of(traj, reading=r)) for r in metrics.OBJECTIVES}
+            rec.update(design_um=(d[i] * 1e6).tolist(), solver_seconds=share, preset=label, n_nodes=traj.n_nodes)
+            if cache_dir is not None:
+                path = _cache_path(cache_dir, d[i], label)
+                path.parent.mkdir(parents=True, exist_ok=True)
+                atomic_write_json(path, rec)
+            out[i] = {**rec, "cached": False}
+    return out
