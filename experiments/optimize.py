@@ -41,6 +41,7 @@ class OptimizeArgs:
     grid: int = -1                                          # objective map: n x n surrogate grid; -1: 21 (mgn: 7); 0: none
     which: Literal["best", "periodic"] = "best"             # mgn checkpoint
     check: bool = True                                      # re-run the solver at the optimum (--no_check: off)
+    ensemble: str = ""                                      # mgn: other runs (comma-separated) whose models give the optimum's spread
     progress: bool = True                                   # progress bars (--no_progress: off)
 
 
@@ -55,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m experiments.optimize " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
     out = run(**asdict(args), command=command)
     line = (f"{args.surrogate} {args.method}: optimum {np.round(np.asarray(out['optimum_um']), 1).tolist()} µm, "
-            f"predicted {out['predicted_mpa']:.4f} MPa in {out['search_seconds']:.1f} s ({out['n_evals']} evaluations)")
+            f"predicted {out['predicted_mpa']:.4f} ± {out['predicted_std_mpa']:.4f} MPa ({out['spread']['source']}) in {out['search_seconds']:.1f} s ({out['n_evals']} evaluations)")
     if args.check:
         best = out["dataset_best"]
         line += (f"; solver {out['solver_mpa']:.4f} MPa (error {out['rel_error_pct']:.2f} %); best dataset "

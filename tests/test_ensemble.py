@@ -35,3 +35,44 @@ def test_node_figures_and_the_collapse_ratio():
     np.testing.assert_allclose(err, m * 1e6, rtol=1e-12)
     assert _collapse(spread, err) == pytest.approx(np.sqrt(2) / (7 / 3))
     assert _collapse(spread, np.zeros(3)) is None
+
+
+def test_ensemble_report_of_identical_members_reports_the_collapse(tiny_run, tiny_trajs):
+    """Two copies of one model: zero spread, so ρ is undefined and says why; kriging and the residual GP
+    still report their figures on the same designs."""
+    from pcmgn_jax.eval.ensemble import ensemble_report
+    _, workdir, _ = tiny_run
+    rep = ensemble_report([workdir, workdir], {"test": tiny_trajs[3:]}, tiny_trajs[:3], part=1)  # part 1: CG
+    s = rep["sets"]["test"]
+    assert s["ensemble"]["spread_mpa"] == [0.0] * len(tiny_trajs[3:])
+    assert s["ensemble"]["spread_over_error"] == 0.0
+    assert s["member_error_pct"][0] == s["member_error_pct"][1] and np.isfinite(s["mean_error_pct"])
+    assert all(v >= 0 for v in s["kriging"]["std_mpa"]) and len(s["residual_gp"]["corrected_error_pct"]) == s["n"]
+
+
+def test_an_optimum_carries_its_spread(tiny_trajs):
+    """The residual-GP spread of a model optimum (a stand-in model off the truth by a known function) and
+    the kriging posterior std; every spread is finite and >= 0, and a perfect model has a ~0 residual."""
+    from pcmgn_jax.eval.metrics import oled_objective_of
+    from pcmgn_jax.eval.response_surfaces import ObjectiveSurface
+    from pcmgn_jax.eval.surrogates import design_of
+    from pcmgn_jax.opt.spread import optimum_spread
+    train = tiny_trajs[:3]
+    truth = {float(design_of(t)[0]): float(oled_objective_of(t, part=1)) for t in train}
+
+    class Model:  # obj(designs) -> (B,) [MPa]
+        def __init__(self, off):
+            self.off = off
+
+        def __call__(self, d):
+            return np.array([truth.get(float(x[0]), 0.0) + self.off * x[0] / 1e-4 for x in np.atleast_2d(d)])
+    x = np.array([design_of(tiny_trajs[3])[0]])
+    exact = optimum_spread("mgn", Model(0.0), x, train, part=1, reading="area_mean")
+    assert exact["source"].startswith("GP of the model's residuals") and exact["train_residual_rms_mpa"] < 1e-12
+    off = optimum_spread("mgn", Model(0.05), x, train, part=1, reading="area_mean")
+    assert off["train_residual_rms_mpa"] > 0.01 and np.isfinite(off["std_mpa"]) and off["std_mpa"] >= 0
+
+    class Obj:
+        surrogate = ObjectiveSurface("kriging", train, readings=("area_mean",), part=1)
+    k = optimum_spread("kriging", Obj(), x, train, part=1, reading="area_mean")
+    assert k["source"] == "kriging posterior std" and k["std_mpa"] > 0   # x is not a training design

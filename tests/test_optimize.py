@@ -292,6 +292,7 @@ def test_optimize_cli_end_to_end_on_the_tiny_preset(tmp_path):
         out = json.loads((run / "optimize" / f"poly2_{method}.json").read_text())
         assert DesignBox().violation(np.array(out["optimum_um"]) * 1e-6)[0] <= 1e-12
         assert out["solver_mpa"] > 0 and np.isfinite(out["rel_error_pct"])
+        assert out["predicted_std_mpa"] > 0 and out["spread"]["source"].startswith("proxy")   # never without ±
         assert (run / "optimize" / f"poly2_{method}.png").stat().st_size > 1000
         assert not (run / "optimize" / f"poly2_{method}.resume.json").exists()   # removed with the result
     # a kriging response surface of the objective itself (what a DOE tool optimises)
@@ -299,6 +300,7 @@ def test_optimize_cli_end_to_end_on_the_tiny_preset(tmp_path):
                           "--no_progress"]) == 0
     out = json.loads((run / "optimize" / "kriging_gradient.json").read_text())
     assert DesignBox().violation(np.array(out["optimum_um"]) * 1e-6)[0] <= 1e-12 and np.isfinite(out["rel_error_pct"])
+    assert out["spread"]["source"] == "kriging posterior std" and out["predicted_std_mpa"] >= 0
     # the second re-check of the same optimum comes from the cache
     assert len(list((run / "optimize" / "solver").glob("*.json"))) <= 3
 

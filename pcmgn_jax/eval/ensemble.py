@@ -50,10 +50,18 @@ def _objective(trajs, vms, part) -> np.ndarray:
     return np.array([float(metrics.oled_objective_of(t, vm, part=part)) for t, vm in zip(trajs, vms)])
 
 
-def member_predictions(workdirs: Sequence, sets: Mapping[str, Sequence], ref) -> list[dict]:
-    """Per member {set: (u list (T, N, 2) [m], objective (B,) [MPa])}, each member's rollouts of every set."""
+def _oled(traj) -> int:
+    names = list(traj.meta.get("part_names") or [])
+    if "OLED" not in names:
+        raise ValueError(f"trajectory {traj.meta.get('name', '?')}: no part named 'OLED' in {names} (pass part=)")
+    return names.index("OLED")
+
+
+def member_predictions(workdirs: Sequence, sets: Mapping[str, Sequence], ref, part: int | None = None) -> list[dict]:
+    """Per member {set: (u list (T, N, 2) [m], objective (B,) [MPa])}, each member's rollouts of every set;
+    ``part``: the objective's part id (default the OLED, by name)."""
     from pcmgn_jax.eval.surrogates import MGNSurrogate
-    part = list(ref.meta["part_names"]).index("OLED")
+    part = _oled(ref) if part is None else part
     out = []
     for w in workdirs:
         m = MGNSurrogate(Path(w), ref)
@@ -83,19 +91,20 @@ def _collapse(spread, err) -> float | None:
 
 
 def ensemble_report(workdirs: Sequence, sets: Mapping[str, Sequence], train: Sequence, *,
-                    reading: str = metrics.DEFAULT_OBJECTIVE) -> dict:
+                    reading: str = metrics.DEFAULT_OBJECTIVE, part: int | None = None) -> dict:
     """The module's figures for every set (``sets``: name -> trajectories with truth), the members being
     the runs ``workdirs`` (one is allowed: no ensemble figures then), ``train`` the runs' training
-    trajectories (kriging and the residual GP are fitted on them)."""
+    trajectories (kriging and the residual GP are fitted on them); ``part``: the objective's part id
+    (default the OLED, found by name)."""
     from pcmgn_jax.eval.response_surfaces import Kriging, ObjectiveSurface
     from pcmgn_jax.eval.scene_inputs import TrainingScenes
 
     if reading != metrics.DEFAULT_OBJECTIVE:
         raise ValueError(f"ensemble report: only the {metrics.DEFAULT_OBJECTIVE} reading, got {reading!r}")
     ref = train[0]
-    part = list(ref.meta["part_names"]).index("OLED")
+    part = _oled(ref) if part is None else part
     K = len(workdirs)
-    preds = member_predictions(workdirs, {**sets, "_train": train}, ref)
+    preds = member_predictions(workdirs, {**sets, "_train": train}, ref, part)
     krig = ObjectiveSurface("kriging", train, readings=(reading,), part=part)
     scenes = TrainingScenes(train)
     y_train = np.array([float(metrics.oled_objective_of(t, part=part)) for t in train])

@@ -22,7 +22,7 @@ def result_tag(surrogate: str, method: str, objective: str) -> str:
 def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", objective: str = "area_mean",
         pop: int = 100, gens: int = 50, starts: int = 4, iters: int = 20, screen: int = 0, seed: int = 0,
         grid: int = -1, which: str = "best", check: bool = True, progress: bool = True,
-        command: str = "") -> dict:
+        ensemble: str = "", command: str = "") -> dict:
     """Optimise the OCA thicknesses of the run in ``workdir`` on ``surrogate`` (mgn | nearest | poly2 | rbf | kriging | mop)
     with ``method`` (ga | gradient | slsqp) for the OLED objective ``objective`` (area_mean | node_mean |
     disc_mean | peak, docs/design.md §8) and return the result dict written to RUN/optimize/<tag>.json.
@@ -30,7 +30,9 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", obje
     ``pop`` / ``gens``: GA budget; ``starts`` / ``iters``: gradient and SLSQP starts and evaluations
     (iterations) per start; ``screen``: SLSQP only, seeded designs screened for the start; ``seed``: GA /
     starts seed; ``grid``: n x n objective map (-1: 21, mgn 7; 0 or 1: none); ``which``: mgn checkpoint;
-    ``check``: re-run the solver at the optimum; ``command``: recorded in the result. Designs in the result
+    ``check``: re-run the solver at the optimum; ``ensemble``: comma-separated runs whose MGNs join the
+    run's for the spread of an mgn optimum (:mod:`pcmgn_jax.opt.spread`; without: a residual GP's);
+    ``command``: recorded in the result. Designs in the result
     in µm, objectives in MPa. Raises ``ValueError`` for ``screen`` without slsqp or data without a solver
     preset, ``FileNotFoundError`` when ``workdir`` holds no config.json."""
     import numpy as np
@@ -49,7 +51,7 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", obje
 
     record = {"workdir": str(workdir), "surrogate": surrogate, "method": method, "objective": objective,
               "pop": pop, "gens": gens, "starts": starts, "iters": iters, "screen": screen, "seed": seed,
-              "grid": grid, "which": which, "check": check, "progress": progress}
+              "grid": grid, "which": which, "check": check, "progress": progress, "ensemble": ensemble}
     if screen and method != "slsqp":
         raise ValueError(f"--screen {screen}: only for --method slsqp (got --method {method})")
     run_dir = Path(workdir)
@@ -109,6 +111,13 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", obje
            "n_evals": res["n_evals"], "preset": preset, "units": {"objective": "MPa", "design": "µm"},
            "dataset_best": None if best_d is None else {"design_um": (best_d * 1e6).tolist(), "mpa": best_f},
            "command": command, "args": record, **({"resumed": {"evals_loaded": loaded}} if loaded else {})}
+    from pcmgn_jax.opt.spread import optimum_spread
+    spread = optimum_spread(surrogate, obj, x, train, part=part, reading=objective,
+                            members=[m for m in ensemble.split(",") if m])
+    out.update(predicted_std_mpa=spread["std_mpa"], spread=spread)
+    if not check:
+        out.update(solver_mpa=None, unchecked="the solver was not run at the optimum (--no_check): a prediction, "
+                                              "not a solver-checked design")
     if check:
         chk = solver_objectives(scene, x, preset, cache_dir=run_dir / "optimize" / "solver")
         out.update(solver_mpa=chk[objective], solver_all_readings_mpa={k: chk[k] for k in metrics.OBJECTIVES},

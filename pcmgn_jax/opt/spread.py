@@ -1,0 +1,63 @@
+"""The predicted ± spread of a surrogate optimum (issue 26): no optimum is reported without one.
+
+    s = optimum_spread("mgn", obj, x, train, part=part, reading="area_mean", members=("runs/b",))
+    s["std_mpa"], s["source"]
+
+Sources, by surrogate:
+
+- ``kriging``                   its own posterior std at the optimum
+- ``mgn`` with ``members``      the std (ddof 1) of the run's model and the members' objectives at the
+                                optimum: an ensemble (``experiments.ensemble`` measures whether it ranks errors)
+- ``mgn`` alone                 the std of a GP fitted to the model's objective residuals on the training
+                                designs (the model's own predictions there cost one rollout per design)
+- ``mop``, ``poly2``, ``rbf``, ``nearest``   the kriging std of the same training data: these have no
+                                spread of their own, so the figure is a proxy and says so
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+
+def _kriging(train, reading, part):
+    from pcmgn_jax.eval.response_surfaces import ObjectiveSurface
+    return ObjectiveSurface("kriging", train, readings=(reading,), part=part)
+
+
+def optimum_spread(surrogate: str, obj, x, train: Sequence, *, part: int, reading: str,
+                   members: Sequence[str | Path] = ()) -> dict:
+    """{'std_mpa', 'source', ...} at the optimum x (D,) [m] of objective ``obj`` (the module docstring)."""
+    import warnings
+
+    from pcmgn_jax.eval.response_surfaces import ExtrapolationWarning, Kriging
+    from pcmgn_jax.eval.surrogates import design_of
+
+    x = np.asarray(x, float).reshape(1, -1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ExtrapolationWarning)
+        if surrogate == "kriging":
+            _, sd = obj.surrogate.predict(x, return_std=True)
+            return {"std_mpa": float(sd[reading][0]), "source": "kriging posterior std"}
+        if surrogate != "mgn":
+            _, sd = _kriging(train, reading, part).predict(x, return_std=True)
+            return {"std_mpa": float(sd[reading][0]),
+                    "source": f"proxy: the kriging std of the same training data ({surrogate} has no spread of its own)"}
+        if members:
+            from pcmgn_jax.eval.surrogates import MGNSurrogate
+            from pcmgn_jax.opt.objectives import MGNObjective
+            vals = [float(obj(x)[0])]
+            for m in members:
+                other = MGNObjective(MGNSurrogate(Path(m), train[0]), obj.map, part=part, reading=reading)
+                vals.append(float(other(x)[0]))
+            return {"std_mpa": float(np.std(vals, ddof=1)), "source": f"ensemble of {len(vals)} MGNs",
+                    "members_mpa": vals, "members": [str(m) for m in members]}
+        from pcmgn_jax.eval.metrics import oled_objective_of
+        d = np.stack([design_of(t) for t in train])
+        truth = np.array([float(oled_objective_of(t, part=part, reading=reading)) for t in train])
+        resid = truth - np.asarray(obj(d), float)
+        gp = Kriging(d, {"r": resid}, names=[f"design[{i}]" for i in range(d.shape[1])])
+        m, sd = gp.predict(x, return_std=True)
+    return {"std_mpa": float(sd["r"][0]), "source": "GP of the model's residuals on the training designs",
+            "residual_mean_mpa": float(m["r"][0]), "train_residual_rms_mpa": float(np.sqrt(np.mean(resid ** 2)))}
