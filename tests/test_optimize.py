@@ -303,6 +303,12 @@ def test_optimize_cli_end_to_end_on_the_tiny_preset(tmp_path):
     assert out["spread"]["source"] == "kriging posterior std" and out["predicted_std_mpa"] >= 0
     # the second re-check of the same optimum comes from the cache
     assert len(list((run / "optimize" / "solver").glob("*.json"))) <= 3
+    # auto: MOP's choice, with every candidate's CoP in the result
+    assert optimize.main(["--workdir", str(run), "--surrogate", "auto", "--method", "gradient", "--grid", "0",
+                          "--no_progress"]) == 0
+    out = json.loads((run / "optimize" / "auto_gradient.json").read_text())
+    cop = out["cop"][out["objective"]]
+    assert cop["chosen"] in cop["cop"] and out["spread"]["source"].startswith("proxy")
 
 
 def test_optimize_table_orders_by_the_solver_and_names_bad_files(tmp_path):

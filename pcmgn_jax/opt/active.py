@@ -244,6 +244,7 @@ def run_loop(problem: Problem, cfg: LoopConfig, log_path: str | Path, *, base: C
                           "reference": problem.reference},
               "meta": dict(meta or {})}
     rounds = _load(path, header)
+    path.parent.mkdir(parents=True, exist_ok=True)
     cands = problem.candidates()
     X0, y0 = (np.zeros((0, len(problem.row_names))), np.zeros(0)) if problem.prior is None else \
         (np.asarray(problem.prior[0], float), np.asarray(problem.prior[1], float))

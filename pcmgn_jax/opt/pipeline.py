@@ -23,7 +23,8 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", obje
         pop: int = 100, gens: int = 50, starts: int = 4, iters: int = 20, screen: int = 0, seed: int = 0,
         grid: int = -1, which: str = "best", check: bool = True, progress: bool = True,
         ensemble: str = "", command: str = "") -> dict:
-    """Optimise the OCA thicknesses of the run in ``workdir`` on ``surrogate`` (mgn | nearest | poly2 | rbf | kriging | mop)
+    """Optimise the OCA thicknesses of the run in ``workdir`` on ``surrogate`` (mgn | nearest | poly2 | rbf | kriging |
+    mop | auto, auto = mop with its CoP table in the result)
     with ``method`` (ga | gradient | slsqp) for the OLED objective ``objective`` (area_mean | node_mean |
     disc_mean | peak, docs/design.md §8) and return the result dict written to RUN/optimize/<tag>.json.
 
@@ -70,9 +71,10 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", obje
     kw = {"part": part, "reading": objective}
     if surrogate == "mgn":
         obj = MGNObjective(MGNSurrogate(run_dir, ref, which=which), dmap, **kw)
-    elif surrogate in ("kriging", "mop"):
+    elif surrogate in ("kriging", "mop", "auto"):   # auto: MOP's choice by leave-one-out CoP (issue 26)
         from pcmgn_jax.eval.response_surfaces import ObjectiveSurface
-        obj = SurfaceObjective(ObjectiveSurface(surrogate, train, readings=(objective,), part=part), dmap, **kw)
+        obj = SurfaceObjective(ObjectiveSurface("kriging" if surrogate == "kriging" else "mop", train,
+                                                readings=(objective,), part=part), dmap, **kw)
     else:
         obj = FieldObjective(FieldRegression(surrogate, train), dmap, **kw)
 
@@ -115,6 +117,8 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", obje
     spread = optimum_spread(surrogate, obj, x, train, part=part, reading=objective,
                             members=[m for m in ensemble.split(",") if m])
     out.update(predicted_std_mpa=spread["std_mpa"], spread=spread)
+    if surrogate in ("mop", "auto"):   # why MOP chose its model: every candidate's CoP
+        out["cop"] = obj.surrogate.model.report()
     if not check:
         out.update(solver_mpa=None, unchecked="the solver was not run at the optimum (--no_check): a prediction, "
                                               "not a solver-checked design")
