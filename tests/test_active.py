@@ -135,3 +135,16 @@ def test_the_robust_problem_averages_the_cases_and_keeps_the_band_on_two_variabl
     assert rows.shape == (6, 4) and rows[:3, 3].tolist() == [1.0, 2.0, 3.0]
     with pytest.raises(ValueError, match="budget 4 is below"):
         LoopConfig(budget=4, n_init=2).check(3)
+
+
+def test_the_comparison_table_names_every_strategy_and_budget():
+    from pcmgn_jax.opt.active_tasks import table_markdown
+    rows = [{"strategy": s, "budget": b, "seed": 0, "gap_pct": g, "holdout_mae_pct": 0.1}
+            for s, g0 in (("gp-ei", 0.0), ("mgn-ei", 1.3)) for b, g in ((8, g0), (16, g0 / 2))]
+    md = table_markdown({"reference": {"mpa": 0.98, "design_um": [150, 100]}, "budgets": [8, 16], "seeds": [0],
+                         "context": {"preset": "cpu", "reading": "area_mean"}, "strategies": ["gp-ei", "mgn-ei"],
+                         "rows": rows, "hit_pct": 0.3,
+                         "runs_to_hit": [{"strategy": "gp-ei", "seed": 0, "runs": 5},
+                                         {"strategy": "mgn-ei", "seed": 0, "runs": None}]}, "cmd")
+    assert "| gp-ei | +0.00 (+0.00) | +0.00 (+0.00) | 5 | 0.100 |" in md
+    assert "| mgn-ei | +1.30 (+1.30) | +0.65 (+0.65) | not reached | 0.100 |" in md and md.startswith("`cmd`")
