@@ -74,6 +74,7 @@ class ParameterBox:
         if not self.varied.any():
             raise ValueError(f"{model}: every parameter {list(self.names)} is constant over the training samples")
         self.warnings: list[str] = []                        # queries outside the box (for metrics.json)
+        self.checking = True    # record queries outside the box (off where leaving it is the point: opt/active.py)
 
 
     def scale(self, x, labels: Sequence[str] | None = None) -> np.ndarray:
@@ -84,7 +85,8 @@ class ParameterBox:
             raise ValueError(f"{self.model}: queries must have {len(self.names)} parameters {self.names}, "
                              f"got shape {x.shape}")
         self._finite(x, "query")
-        self._check(x, labels)
+        if self.checking:
+            self._check(x, labels)
         v = self.varied
         return 2 * (x[:, v] - self.lo[v]) / (self.hi[v] - self.lo[v]) - 1
 

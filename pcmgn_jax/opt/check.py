@@ -42,7 +42,12 @@ def solver_objectives_many(scene: Scene, designs, preset, cache_dir: str | Path 
     todo = [i for i, o in enumerate(out) if o is None]
     if todo:
         t0 = time.perf_counter()
-        trajs = solve_designs(scene, d[todo], preset=preset)
+        try:
+            trajs = solve_designs(scene, d[todo], preset=preset)
+        except ValueError as e:   # meshes of other topologies (e.g. a layer with more elements): one call each
+            if "topology" not in str(e) or len(todo) == 1:
+                raise
+            trajs = [solve_designs(scene, d[i:i + 1], preset=preset)[0] for i in todo]
         share = (time.perf_counter() - t0) / len(todo)
         for i, traj in zip(todo, trajs):
             rec = {r: float(metrics.oled_objective_of(traj, reading=r)) for r in metrics.OBJECTIVES}
