@@ -107,6 +107,7 @@ def test_union_equals_each_design_alone(designs, formulation):
             np.testing.assert_array_equal(got.overflow, one.overflow)
 
 
+@pytest.mark.slow  # ~32 s (the default suite's 10-minute budget, 2026-12-03)
 def test_union_grows_contact_buffer_per_graph(designs):
     spec, params, stats = simulator("default", designs[0])
     tight = [dict(d, index=d["index"].replace(capacity=2)) for d in designs]
