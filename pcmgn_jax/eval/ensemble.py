@@ -58,8 +58,8 @@ def _oled(traj) -> int:
 
 
 def member_predictions(workdirs: Sequence, sets: Mapping[str, Sequence], ref, part: int | None = None) -> list[dict]:
-    """Per member {set: (u list (T, N, 2) [m], objective (B,) [MPa])}, each member's rollouts of every set;
-    ``part``: the objective's part id (default the OLED, by name)."""
+    """Per member {set: (u list (T, N, 2) [m], objective (B,) [MPa], vm list (T, N) [Pa])}, each member's
+    rollouts of every set; ``part``: the objective's part id (default the OLED, by name)."""
     from pcmgn_jax.eval.surrogates import MGNSurrogate
     part = _oled(ref) if part is None else part
     out = []
@@ -68,7 +68,7 @@ def member_predictions(workdirs: Sequence, sets: Mapping[str, Sequence], ref, pa
         got = {}
         for name, trajs in sets.items():
             u, vm = m.rollout_trajectories(trajs)
-            got[name] = ([np.asarray(a) for a in u], _objective(trajs, vm, part))
+            got[name] = ([np.asarray(a) for a in u], _objective(trajs, vm, part), [np.asarray(a) for a in vm])
         out.append(got)
     return out
 
@@ -121,7 +121,16 @@ def ensemble_report(workdirs: Sequence, sets: Mapping[str, Sequence], train: Seq
         rec = {"n": len(trajs), "names": [str(t.meta.get("name", i)) for i, t in enumerate(trajs)],
                "truth_mpa": truth.tolist(), "mean_mpa": mean.tolist(), "error_pct": err.tolist(),
                "member_error_pct": member_err, "mean_error_pct": float(err.mean())}
-        if K >= 2:
+        true_u = [np.asarray(t.displacement) for t in trajs]
+        true_vm = [np.asarray(t.von_mises) for t in trajs]
+        fields = [metrics.field_metrics(p[name][0], p[name][2], true_u, true_vm) for p in preds]
+        rec["member_fields"] = [{k: m[k] for k in ("position_mae_um", "stress_mae_mpa")} for m in fields]
+        if K >= 2:   # the members' mean as a predictor of its own (K rollouts a design)
+            mu = [np.mean([p[name][0][b] for p in preds], 0) for b in range(len(trajs))]
+            mv = [np.mean([p[name][2][b] for p in preds], 0) for b in range(len(trajs))]
+            m = metrics.field_metrics(mu, mv, true_u, true_vm)
+            # (the objective is linear in the stress: the mean fields' objective is the members' mean objective)
+            rec["mean_fields"] = {"position_mae_um": m["position_mae_um"], "stress_mae_mpa": m["stress_mae_mpa"]}
             sd = f.std(0, ddof=1)
             sd_pct = 100 * sd / truth
             ns, ne = _node_figures([p[name][0] for p in preds], trajs)
@@ -168,4 +177,13 @@ def report_markdown(rep: dict, command: str = "") -> str:
             f"| {rho(s['kriging']['spearman_own_error'])} ({s['kriging']['mean_error_pct']:.2f}) "
             f"| {rho(s['kriging']['spearman_mgn_error'])} | {rho(s['residual_gp']['spearman_mgn_error'])} "
             f"| {s['residual_gp']['corrected_mean_error_pct']:.2f} |")
+    lines += ["", "Fields of the members and of their mean (a predictor of its own, K rollouts a design):", "",
+              "| set | members' position MAE [µm] | members' stress MAE [MPa] | mean's position MAE [µm] "
+              "| mean's stress MAE [MPa] | mean's objective error [%] |", "|---|---|---|---|---|---|"]
+    for name, s in rep["sets"].items():
+        mf = s.get("mean_fields")
+        pos = ", ".join(format(m["position_mae_um"], ".3f") for m in s["member_fields"])
+        st = ", ".join(format(m["stress_mae_mpa"], ".2f") for m in s["member_fields"])
+        lines.append(f"| {name} | {pos} | {st} | {'–' if not mf else format(mf['position_mae_um'], '.3f')} "
+                     f"| {'–' if not mf else format(mf['stress_mae_mpa'], '.2f')} | {s['mean_error_pct']:.2f} |")
     return "\n".join(lines) + "\n"
