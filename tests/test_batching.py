@@ -117,6 +117,7 @@ def test_union_grows_contact_buffer_per_graph(designs):
     assert not any(np.any(r.overflow) for r in out.rollouts)
 
 
+@pytest.mark.slow  # ~23 s (the 10-minute budget, 2026-12-03); test_rollout.py::test_rollout_no_recompilation stays
 def test_same_bucket_other_mesh_does_not_recompile(designs):
     """A second union of other meshes in the same size bucket reuses the compiled rollout."""
     spec, params, stats = simulator("default", designs[0])

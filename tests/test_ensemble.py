@@ -37,6 +37,7 @@ def test_node_figures_and_the_collapse_ratio():
     assert _collapse(spread, np.zeros(3)) is None
 
 
+@pytest.mark.slow  # ~13 s (the 10-minute budget); the figures' rules are tested on constructed cases above
 def test_ensemble_report_of_identical_members_reports_the_collapse(tiny_run, tiny_trajs):
     """Two copies of one model: zero spread, so ρ is undefined and says why; kriging and the residual GP
     still report their figures on the same designs."""
