@@ -235,6 +235,63 @@ def _key(d) -> tuple:
     return tuple(np.round(np.asarray(d, float) * 1e9).astype(np.int64).tolist())   # nm
 
 
+def _header(problem: Problem, cfg: LoopConfig, meta) -> dict:
+    return {"format": FORMAT, "format_version": 1, "config": dataclasses.asdict(cfg),
+            "problem": {"names": list(problem.names), "low": problem.low.tolist(), "high": problem.high.tolist(),
+                        "cases": list(problem.cases), "row_names": list(problem.row_names),
+                        "n_prior": 0 if problem.prior is None else len(problem.prior[1]),
+                        "reference": problem.reference},
+            "meta": dict(meta or {})}
+
+
+def _propose(problem: Problem, cfg: LoopConfig, cands, designs, values, n_runs: int, base):
+    """(picks (n, D) [SI], proposal record, holdout error record) of a round after round 0."""
+    X0, y0 = (np.zeros((0, len(problem.row_names))), np.zeros(0)) if problem.prior is None else \
+        (np.asarray(problem.prior[0], float), np.asarray(problem.prior[1], float))
+    X = np.concatenate([X0, problem.rows(np.stack(designs))])
+    y = np.concatenate([y0, np.concatenate(values)])
+    predict, info = fit_surrogate(cfg.surrogate, X, y, problem.row_names, base)
+    mean, std = _case_mean(problem, predict, cands)
+    best = min(float(v.mean()) for v in values)
+    done = {_key(d) for d in designs}
+    exclude = np.array([_key(d) in done for d in cands])
+    idx = []
+    for _ in range(min(cfg.batch, (cfg.budget - n_runs) // len(problem.cases))):
+        i = acq.propose(mean, std, best, cfg.acquisition, exclude=exclude, kappa=cfg.kappa)
+        idx.append(i)
+        exclude = exclude | _near(cands, cands[i], problem)
+    sc = acq.scores(mean, std, best, cfg.acquisition, kappa=cfg.kappa)
+    i0 = int(np.argmin(mean))
+    proposal = {"kind": cfg.acquisition, "surrogate": cfg.surrogate, "fit": info,
+                "predicted_mpa": mean[idx].tolist(), "predicted_std_mpa": std[idx].tolist(), "score": sc[idx].tolist(),
+                "surrogate_optimum": {"design_um": _um(cands[i0]), "mpa": float(mean[i0]), "std_mpa": float(std[i0])}}
+    holdout = None
+    if problem.holdout is not None:
+        hm, _ = predict(np.asarray(problem.holdout[0], float))
+        ht = np.asarray(problem.holdout[1], float)
+        err = 100 * np.abs(hm - ht) / np.maximum(np.abs(ht), 1e-12)
+        holdout = {"mae_pct": float(err.mean()), "max_pct": float(err.max()), "n": len(ht)}
+    return cands[idx], proposal, holdout
+
+
+def _solve(problem: Problem, picks, k: int, path: Path, bar) -> list[np.ndarray]:
+    """(C,) solver values [MPa] per pick; a failure is an ActiveLearningError naming round k and the designs."""
+    C = len(problem.cases)
+    out = []
+    many = getattr(problem.oracle, "many", None)
+    for group in ([picks] if many is not None else [p[None] for p in picks]):
+        try:
+            got = many(group) if many is not None else [problem.oracle(group[0])]
+        except Exception as e:   # noqa: BLE001 - any solver failure is named with its round and designs
+            raise ActiveLearningError(
+                f"round {k}: the solver failed at design {'; '.join(map(str, _um(group)))} µm ({type(e).__name__}: "
+                f"{e}); the {k} finished rounds are kept in {path}") from e
+        out += [np.asarray(v, float).reshape(C) for v in got]
+        if bar is not None:
+            bar.update(C * len(group))
+    return out
+
+
 def run_loop(problem: Problem, cfg: LoopConfig, log_path: str | Path, *, base: Callable | None = None,
              meta: Mapping | None = None, progress: bool = True) -> dict:
     """Run (or resume) the loop of ``cfg`` on ``problem`` up to its budget, logging to ``log_path`` (JSON,
@@ -242,17 +299,10 @@ def run_loop(problem: Problem, cfg: LoopConfig, log_path: str | Path, *, base: C
     C = len(problem.cases)
     cfg.check(C)
     path = Path(log_path)
-    header = {"format": FORMAT, "format_version": 1, "config": dataclasses.asdict(cfg),
-              "problem": {"names": list(problem.names), "low": problem.low.tolist(), "high": problem.high.tolist(),
-                          "cases": list(problem.cases), "row_names": list(problem.row_names),
-                          "n_prior": 0 if problem.prior is None else len(problem.prior[1]),
-                          "reference": problem.reference},
-              "meta": dict(meta or {})}
+    header = _header(problem, cfg, meta)
     rounds = _load(path, header)
     path.parent.mkdir(parents=True, exist_ok=True)
     cands = problem.candidates()
-    X0, y0 = (np.zeros((0, len(problem.row_names))), np.zeros(0)) if problem.prior is None else \
-        (np.asarray(problem.prior[0], float), np.asarray(problem.prior[1], float))
     designs = [np.asarray(d, float) * 1e-6 for r in rounds for d in r["designs_um"]]
     values = [np.asarray(v, float) for r in rounds for v in r["case_values_mpa"]]
     n_runs = len(designs) * C
@@ -265,49 +315,13 @@ def run_loop(problem: Problem, cfg: LoopConfig, log_path: str | Path, *, base: C
     while n_runs + C <= cfg.budget:
         t0 = time.perf_counter()
         k = len(rounds)
-        proposal, holdout = {}, None
         if k == 0:
-            picks = problem.lhs(cfg.n_init, cfg.seed)
-            proposal = {"kind": "lhs", "seed": cfg.seed}
+            picks, proposal, holdout = problem.lhs(cfg.n_init, cfg.seed), {"kind": "lhs", "seed": cfg.seed}, None
         else:
-            X = np.concatenate([X0, problem.rows(np.stack(designs))])
-            y = np.concatenate([y0, np.concatenate(values)])
-            predict, info = fit_surrogate(cfg.surrogate, X, y, problem.row_names, base)
-            mean, std = _case_mean(problem, predict, cands)
-            best = min(float(v.mean()) for v in values)
-            done = {_key(d) for d in designs}
-            exclude = np.array([_key(d) in done for d in cands])
-            n = min(cfg.batch, (cfg.budget - n_runs) // C)
-            idx = []
-            for _ in range(n):
-                i = acq.propose(mean, std, best, cfg.acquisition, exclude=exclude, kappa=cfg.kappa)
-                idx.append(i)
-                exclude = exclude | _near(cands, cands[i], problem)
-            picks = cands[idx]
-            sc = acq.scores(mean, std, best, cfg.acquisition, kappa=cfg.kappa)
-            proposal = {"kind": cfg.acquisition, "surrogate": cfg.surrogate, "fit": info,
-                        "predicted_mpa": mean[idx].tolist(), "predicted_std_mpa": std[idx].tolist(),
-                        "score": sc[idx].tolist(),
-                        "surrogate_optimum": {"design_um": _um(cands[int(np.argmin(mean))]),
-                                              "mpa": float(mean.min()), "std_mpa": float(std[np.argmin(mean)])}}
-            if problem.holdout is not None:
-                hm, _ = predict(np.asarray(problem.holdout[0], float))
-                ht = np.asarray(problem.holdout[1], float)
-                err = 100 * np.abs(hm - ht) / np.maximum(np.abs(ht), 1e-12)
-                holdout = {"mae_pct": float(err.mean()), "max_pct": float(err.max()), "n": len(ht)}
-        picks = np.asarray(_um(picks), float).reshape(-1, len(problem.names)) * 1e-6   # as the log holds them:
-        new_vals = []                                                   # a resumed run sees the same numbers
-        many = getattr(problem.oracle, "many", None)
-        for group in ([picks] if many is not None else [p[None] for p in picks]):
-            try:
-                got = many(group) if many is not None else [problem.oracle(group[0])]
-            except Exception as e:   # noqa: BLE001 - any solver failure is named with its round and designs
-                raise ActiveLearningError(
-                    f"round {k}: the solver failed at design {'; '.join(map(str, _um(group)))} µm ({type(e).__name__}: "
-                    f"{e}); the {k} finished rounds are kept in {path}") from e
-            new_vals += [np.asarray(v, float).reshape(C) for v in got]
-            if bar is not None:
-                bar.update(C * len(group))
+            picks, proposal, holdout = _propose(problem, cfg, cands, designs, values, n_runs, base)
+        # the designs as the log holds them (0.1 nm): a resumed run sees the same numbers
+        picks = np.asarray(_um(picks), float).reshape(-1, len(problem.names)) * 1e-6
+        new_vals = _solve(problem, picks, k, path, bar)
         designs += list(picks)
         values += new_vals
         n_runs += len(picks) * C
@@ -316,8 +330,7 @@ def run_loop(problem: Problem, cfg: LoopConfig, log_path: str | Path, *, base: C
         rec = {"round": k, "designs_um": _um(picks),
                "case_values_mpa": [v.tolist() for v in new_vals], "objective_mpa": [float(v.mean()) for v in new_vals],
                "proposal": proposal, "holdout_error": holdout, "solver_runs": n_runs,
-               "best": {"design_um": _um(designs[j]), "mpa": objs[j],
-                        "case_values_mpa": values[j].tolist()},
+               "best": {"design_um": _um(designs[j]), "mpa": objs[j], "case_values_mpa": values[j].tolist()},
                "seconds": time.perf_counter() - t0}
         if problem.reference is not None:
             rec["best"]["gap_pct"] = 100 * (objs[j] - problem.reference["mpa"]) / problem.reference["mpa"]
