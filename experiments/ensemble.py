@@ -60,7 +60,8 @@ def main(argv: list[str] | None = None) -> int:
     args = cli.parse(EnsembleArgs, argv, description=__doc__, prog="python -m experiments.ensemble")
     from pcmgn_jax.atomic import atomic_write_text
     from pcmgn_jax.config import TrainConfig
-    from pcmgn_jax.data.dataset import load_directory, load_splits
+    from pcmgn_jax.data.dataset import load_directory
+    from pcmgn_jax.eval.pipeline import run_splits
     from pcmgn_jax.data.trajectory_io import atomic_write_json
     from pcmgn_jax.eval.ensemble import ensemble_report, report_markdown
 
@@ -71,8 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     data = {str(Path(c.resolved_dataset_dir).resolve()) for c in cfgs}
     if len(data) > 1:
         raise ValueError(f"ensemble members must share one dataset, got {sorted(data)}")
-    c = cfgs[0]
-    train, _, test = load_splits(c.resolved_dataset_dir, n_train=c.n_train, n_val=c.n_val, n_test=c.n_test)
+    _, train, _, test = run_splits(members[0])
     sets = {"test": test}
     if args.extrap:
         sets["extrap"] = load_directory(args.extrap)

@@ -50,18 +50,10 @@ def _objective(trajs, vms, part) -> np.ndarray:
     return np.array([float(metrics.oled_objective_of(t, vm, part=part)) for t, vm in zip(trajs, vms)])
 
 
-def _oled(traj) -> int:
-    names = list(traj.meta.get("part_names") or [])
-    if "OLED" not in names:
-        raise ValueError(f"trajectory {traj.meta.get('name', '?')}: no part named 'OLED' in {names} (pass part=)")
-    return names.index("OLED")
-
-
 def member_predictions(workdirs: Sequence, sets: Mapping[str, Sequence], ref, part: int | None = None) -> list[dict]:
     """Per member {set: (u list (T, N, 2) [m], objective (B,) [MPa], vm list (T, N) [Pa])}, each member's
     rollouts of every set; ``part``: the objective's part id (default the OLED, by name)."""
     from pcmgn_jax.eval.surrogates import MGNSurrogate
-    part = _oled(ref) if part is None else part
     out = []
     for w in workdirs:
         m = MGNSurrogate(Path(w), ref)
@@ -96,24 +88,22 @@ def ensemble_report(workdirs: Sequence, sets: Mapping[str, Sequence], train: Seq
     the runs ``workdirs`` (one is allowed: no ensemble figures then), ``train`` the runs' training
     trajectories (kriging and the residual GP are fitted on them); ``part``: the objective's part id
     (default the OLED, found by name)."""
-    from pcmgn_jax.eval.response_surfaces import Kriging, ObjectiveSurface
+    from pcmgn_jax.eval.response_surfaces import Kriging, ObjectiveSurface, objective_table
     from pcmgn_jax.eval.scene_inputs import TrainingScenes
 
     if reading != metrics.DEFAULT_OBJECTIVE:
         raise ValueError(f"ensemble report: only the {metrics.DEFAULT_OBJECTIVE} reading, got {reading!r}")
-    ref = train[0]
-    part = _oled(ref) if part is None else part
     K = len(workdirs)
-    preds = member_predictions(workdirs, {**sets, "_train": train}, ref, part)
+    preds = member_predictions(workdirs, {**sets, "_train": train}, train[0], part)
     krig = ObjectiveSurface("kriging", train, readings=(reading,), part=part)
     scenes = TrainingScenes(train)
-    y_train = np.array([float(metrics.oled_objective_of(t, part=part)) for t in train])
+    y_train = objective_table(train, (reading,), part=part)[reading]
     f_train = np.mean([p["_train"][1] for p in preds], axis=0)
     resid = Kriging(scenes.x, {"r": y_train - f_train}, names=scenes.names)
     out = {"members": [str(w) for w in workdirs], "n_members": K, "reading": reading,
            "n_train": len(train), "sets": {}}
     for name, trajs in sets.items():
-        truth = np.array([float(metrics.oled_objective_of(t, part=part)) for t in trajs])
+        truth = objective_table(trajs, (reading,), part=part)[reading]
         f = np.stack([p[name][1] for p in preds])              # (K, B) [MPa]
         mean = f.mean(0)
         err = np.asarray(metrics.relative_error_pct(mean, truth), float)

@@ -20,12 +20,14 @@ stopped at 12 runs is the first 12 runs of the loop to 24.
 """
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
 from pcmgn_jax.opt.active import LoopConfig, Problem, SolverOracle, best_at, run_loop
+from pcmgn_jax.opt.check import solver_preset
 
 # the best solver-checked design known in the paper's box on the cpu mesh (issue 26), re-solved by box_problem
 REFERENCE_UM = (150.0, 100.0)
@@ -42,39 +44,35 @@ ROBUST_CASES = ({"ball.radius": 4.5e-3, "ball.velocity": 0.70}, {"ball.radius": 
                 {"ball.radius": 5.5e-3, "ball.velocity": 0.55})
 
 
+@functools.lru_cache(maxsize=2)
+def _read_run(workdir: str):
+    from pcmgn_jax.eval.pipeline import run_splits
+    return run_splits(workdir)
+
+
 def _splits(workdir):
-    from pcmgn_jax.config import TrainConfig
-    from pcmgn_jax.data.dataset import load_splits
-    run = Path(workdir)
-    if not (run / "config.json").exists():
-        raise FileNotFoundError(f"{run}/config.json: not a training run directory")
-    cfg = TrainConfig.load(run / "config.json")
-    return cfg, load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train, n_val=cfg.n_val, n_test=cfg.n_test)
-
-
-def _preset(traj, where) -> str:
-    preset = traj.meta.get("solver", {}).get("preset")
-    if preset is None:
-        raise ValueError(f"{where}: the solver in the loop needs solver-generated data (meta.solver.preset)")
-    return preset
+    """(cfg, (train, val, test)) of a run (:func:`pcmgn_jax.eval.pipeline.run_splits`), read once per run
+    directory: a task's problem and its MGN base prediction share them (read-only)."""
+    cfg, *splits = _read_run(str(Path(workdir).resolve()))
+    return cfg, splits
 
 
 def box_problem(workdir, *, reading: str = "area_mean", cache_dir=None) -> tuple[Problem, dict]:
     """The paper's design box (50-150 µm per OCA, 150-250 µm sum) on the run's scene and mesh preset; the
     holdout is the run's test split, the reference the solver at :data:`REFERENCE_UM`. ``cache_dir``:
     solver runs (default RUN/active/solver)."""
-    from pcmgn_jax.eval.metrics import oled_objective_of
+    from pcmgn_jax.eval.response_surfaces import objective_table
     from pcmgn_jax.eval.surrogates import design_of
     from pcmgn_jax.opt.problem import DesignBox
     from pcmgn_jax.scene import Scene
 
     cfg, (train, val, test) = _splits(workdir)
     scene = Scene.from_dict(train[0].meta["scene"])
-    preset = _preset(train[0], cfg.resolved_dataset_dir)
+    preset = solver_preset(train[0], cfg.resolved_dataset_dir)
     box = DesignBox(dim=len(scene.design_layers))
     oracle = SolverOracle(scene, preset, reading=reading, cache_dir=cache_dir or Path(workdir) / "active" / "solver")
     ref = np.asarray(REFERENCE_UM) * 1e-6
-    holdout = (np.stack([design_of(t) for t in test]), np.array([float(oled_objective_of(t, reading=reading)) for t in test]))
+    holdout = (np.stack([design_of(t) for t in test]), objective_table(test, (reading,))[reading])
     problem = Problem(names=tuple(scene.design_layers), low=(box.low,) * box.dim, high=(box.high,) * box.dim,
                       oracle=oracle, band=box, holdout=holdout,
                       reference={"design_um": list(REFERENCE_UM), "mpa": float(oracle(ref)[0])})
@@ -95,7 +93,7 @@ def robust_problem(workdir, cases: Sequence[dict] = ROBUST_CASES, *, reading: st
     cfg, (train, val, test) = _splits(workdir)
     if "scene_params" not in train[0].meta:
         raise ValueError(f"{cfg.resolved_dataset_dir}: the robust design needs scene-family data (meta.scene_params)")
-    preset = _preset(train[0], cfg.resolved_dataset_dir)
+    preset = solver_preset(train[0], cfg.resolved_dataset_dir)
     scenes = TrainingScenes(train)
     names = ("OCA1", "OCA2", "POL")
     bounds = {p: (lo, hi) for p, lo, hi in FAMILIES["family"].parameters}
@@ -132,7 +130,7 @@ def mgn_base(workdir, problem: Problem, cache_path, *, reading: str = "area_mean
     _, (train, _, _) = _splits(workdir)
     scene = Scene.from_dict(train[0].meta["scene"])
     part = scene.part_names.index("OLED")
-    obj = MGNObjective(MGNSurrogate(Path(workdir), train[0]), DesignMap.build(scene, _preset(train[0], workdir)),
+    obj = MGNObjective(MGNSurrogate(Path(workdir), train[0]), DesignMap.build(scene, solver_preset(train[0], workdir)),
                        part=part, reading=reading)
     path = Path(cache_path)
     memo = json.loads(path.read_text()) if path.exists() else {}

@@ -12,6 +12,15 @@ from pcmgn_jax.eval import metrics
 from pcmgn_jax.scene import Scene
 
 
+def solver_preset(traj, where) -> str:
+    """The mesh preset the built-in solver made ``traj`` with (meta.solver.preset); ValueError naming
+    ``where`` (the dataset) when the data are not solver-generated: a re-check needs the same mesh."""
+    preset = traj.meta.get("solver", {}).get("preset")
+    if preset is None:
+        raise ValueError(f"{where}: the optimiser needs solver-generated data (meta.solver.preset)")
+    return preset
+
+
 def _cache_path(cache_dir, d, label) -> Path:
     return Path(cache_dir) / ("_".join(f"{v * 1e6:.2f}" for v in d) + f"_{label}.json")
 

@@ -38,13 +38,12 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", obje
     preset, ``FileNotFoundError`` when ``workdir`` holds no config.json."""
     import numpy as np
 
-    from pcmgn_jax.config import TrainConfig
-    from pcmgn_jax.data.dataset import load_splits
+    from pcmgn_jax.eval.pipeline import run_splits
     from pcmgn_jax.data.trajectory_io import atomic_write_json
     from pcmgn_jax.eval import metrics, plots
     from pcmgn_jax.eval.surrogates import FieldRegression, MGNSurrogate, design_of
     from pcmgn_jax.opt import search
-    from pcmgn_jax.opt.check import solver_objectives
+    from pcmgn_jax.opt.check import solver_objectives, solver_preset
     from pcmgn_jax.opt.objectives import FieldObjective, MGNObjective, SurfaceObjective
     from pcmgn_jax.opt.problem import DesignBox
     from pcmgn_jax.scene import Scene
@@ -56,15 +55,10 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", obje
     if screen and method != "slsqp":
         raise ValueError(f"--screen {screen}: only for --method slsqp (got --method {method})")
     run_dir = Path(workdir)
-    if not (run_dir / "config.json").exists():
-        raise FileNotFoundError(f"{run_dir}/config.json: not a training run directory")
-    cfg = TrainConfig.load(run_dir / "config.json")
-    train, val, test = load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train, n_val=cfg.n_val, n_test=cfg.n_test)
+    cfg, train, val, test = run_splits(run_dir)
     ref = train[0]
     scene = Scene.from_dict(ref.meta["scene"])
-    preset = ref.meta.get("solver", {}).get("preset")
-    if preset is None:
-        raise ValueError(f"{cfg.resolved_dataset_dir}: the optimiser needs solver-generated data (meta.solver.preset)")
+    preset = solver_preset(ref, cfg.resolved_dataset_dir)
     part = scene.part_names.index("OLED")
     box = DesignBox(dim=len(scene.design_layers))
     dmap = DesignMap.build(scene, preset)
@@ -122,7 +116,7 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", obje
     if not check:
         out.update(solver_mpa=None, unchecked="the solver was not run at the optimum (--no_check): a prediction, "
                                               "not a solver-checked design")
-    if check:
+    else:
         chk = solver_objectives(scene, x, preset, cache_dir=run_dir / "optimize" / "solver")
         out.update(solver_mpa=chk[objective], solver_all_readings_mpa={k: chk[k] for k in metrics.OBJECTIVES},
                    solver_seconds=chk["solver_seconds"],

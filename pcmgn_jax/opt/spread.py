@@ -31,7 +31,7 @@ def optimum_spread(surrogate: str, obj, x, train: Sequence, *, part: int, readin
     """{'std_mpa', 'source', ...} at the optimum x (D,) [m] of objective ``obj`` (the module docstring)."""
     import warnings
 
-    from pcmgn_jax.eval.response_surfaces import ExtrapolationWarning, Kriging
+    from pcmgn_jax.eval.response_surfaces import ExtrapolationWarning, Kriging, objective_table
     from pcmgn_jax.eval.surrogates import design_of
 
     x = np.asarray(x, float).reshape(1, -1)
@@ -53,9 +53,8 @@ def optimum_spread(surrogate: str, obj, x, train: Sequence, *, part: int, readin
                 vals.append(float(other(x)[0]))
             return {"std_mpa": float(np.std(vals, ddof=1)), "source": f"ensemble of {len(vals)} MGNs",
                     "members_mpa": vals, "members": [str(m) for m in members]}
-        from pcmgn_jax.eval.metrics import oled_objective_of
         d = np.stack([design_of(t) for t in train])
-        truth = np.array([float(oled_objective_of(t, part=part, reading=reading)) for t in train])
+        truth = objective_table(train, (reading,), part=part)[reading]
         resid = truth - np.asarray(obj(d), float)
         gp = Kriging(d, {"r": resid}, names=[f"design[{i}]" for i in range(d.shape[1])])
         m, sd = gp.predict(x, return_std=True)
