@@ -5,6 +5,7 @@
   python -m experiments.generate --out data/paper --preset paper --designs "40,40;40,160;160,40;160,160" --split extrap
   python -m experiments.generate --preset paper --out data/paper --shard 3/8     # one task of an array job
   python -m experiments.generate --preset paper --out data/paper --merge         # after all shards: the manifest
+  python -m experiments.generate --out data/family48 --pool data/family,data/family_extra   # solve nothing: pool
 
 ``--n_train`` counts training trajectories, validation excluded, as in ``experiments.train``: the train
 split gets n_train + n_val designs (``experiments.train --dataset_dir OUT`` then trains on n_train and
@@ -14,6 +15,10 @@ valid trajectories. See pcmgn_jax/data/dataset.py for the directory layout and m
 ``--shard K/N`` (K from 0, as SLURM_ARRAY_TASK_ID with --array=0-(N-1)) solves every N-th solver batch of
 the same design list and writes a manifest part; ``--merge`` with the shards' other flags verifies every
 trajectory and writes the manifest (pcmgn_jax/data/shards.py).
+``--pool A,B,...`` solves nothing: it writes the train splits of the datasets A, B, ... (renumbered) and
+the test split of A into OUT, a directory without a manifest (read as an imported dataset: validation is
+the last n_val of train), e.g. 48 family training scenes from two LHS seeds with the same test scenes
+(pcmgn_jax.data.splits.pool_datasets).
 """
 from __future__ import annotations
 
@@ -45,6 +50,7 @@ class GenerateArgs:
     progress: bool = True                      # progress bar (--no_progress: off)
     shard: str | None = None                   # K/N: only shard K (0-based, 0..N-1) of N; writes a manifest part, not the manifest
     merge: bool = False                        # solve nothing: verify every trajectory of the shards, write the manifest
+    pool: str | None = None                    # A,B,...: solve nothing; pool A's and B's train splits and A's test split into OUT
 
 
 def preset_sizes(preset: str) -> tuple[int, int, int]:
@@ -56,6 +62,11 @@ def preset_sizes(preset: str) -> tuple[int, int, int]:
 def main(argv: list[str] | None = None) -> int:
     try:
         args = cli.parse(GenerateArgs, argv, description=__doc__, prog="python -m experiments.generate")
+        if args.pool is not None:
+            from pcmgn_jax.data.splits import pool_datasets
+            sources = [s for s in args.pool.split(",") if s]
+            print(f"dataset ready: {pool_datasets(sources, args.out)} (pooled from {', '.join(sources)})")
+            return 0
         scene = Scene.load(args.scene) if args.scene else default_scene()
         designs = parse_designs(args.designs, dim=len(scene.design_layers)) if args.designs else None
         if args.split and designs is None:

@@ -80,6 +80,30 @@ def test_imported_folder_splits_and_is_never_generated_into(tmp_path):
     assert _tree(root) == before
 
 
+def test_pool_two_datasets_renumbers_resumes_and_refuses_mixing(tmp_path, capsys):
+    """generate --pool: A's and B's train splits (in order) and A's test split, renumbered, read back as an
+    imported dataset with the same arrays; a rerun rewrites nothing; stale files or a manifest refuse."""
+    from experiments import generate
+    a, b, out = _imported(tmp_path / "a", n_train=3), _imported(tmp_path / "b", n_train=2, n_test=2), tmp_path / "pool"
+    assert generate.main(["--out", str(out), "--pool", f"{a},{b}"]) == 0
+    train, val, test = ds.load_splits(out, n_train=4, n_val=1, n_test=1)
+    src = ds.load_directory(a / "train") + ds.load_directory(b / "train")
+    assert [t.meta["name"] for t in train + val] == [f"train_{i:04d}" for i in range(5)]
+    for got, want in zip(train + val, src):
+        np.testing.assert_array_equal(got.displacement, want.displacement)
+        np.testing.assert_array_equal(got.points, want.points)
+    assert len(ds.load_directory(out / "test")) == 1    # only the first dataset's test split
+    np.testing.assert_array_equal(test[0].von_mises, ds.load_directory(a / "test")[0].von_mises)
+    before = {p: p.stat().st_mtime_ns for p in out.rglob("*.h5")}
+    assert generate.main(["--out", str(out), "--pool", f"{a},{b}"]) == 0
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*.h5")} == before     # resumed: nothing rewritten
+    capsys.readouterr()
+    assert generate.main(["--out", str(out), "--pool", f"{a}"]) == 2          # would leave B's scenes behind
+    assert "holds trajectories the pool would not write" in capsys.readouterr().err
+    assert generate.main(["--out", str(tmp_path / "p2"), "--pool", f"{a},{tmp_path / 'none'}"]) == 2
+    assert "no trajectory files to pool (split 'train'" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_family_tiny_export_import_train_evaluate(family_tiny, tmp_path, monkeypatch):
     """Solver scenes (each its own mesh) -> ANSYS run folders -> imported folder -> train -> evaluate."""

@@ -14,10 +14,10 @@ from pathlib import Path
 from pcmgn_jax.data.cache import load_split
 from pcmgn_jax.data.dataset import ensure_dataset
 from pcmgn_jax.data.layout import GENERATE, IMPORTED, DatasetError, dataset_source
-from pcmgn_jax.data.trajectory_io import read_trajectory
+from pcmgn_jax.data.trajectory_io import TrajectoryFileError, read_sidecar, read_trajectory, write_trajectory
 from pcmgn_jax.trajectory import Trajectory
 
-__all__ = ["load_directory", "load_splits", "prepare_dataset"]
+__all__ = ["load_directory", "load_splits", "pool_datasets", "prepare_dataset"]
 
 
 def load_directory(path: str | os.PathLike) -> list[Trajectory]:
@@ -79,3 +79,49 @@ def load_splits(dataset_dir: str | os.PathLike, *, n_train: int, n_val: int, n_t
     if imported:
         return train[:n_train], train[len(train) - n_val:], test[:n_test]
     return train[:n_train], train[n_train:need], test[:n_test]
+
+
+def pool_datasets(sources, out_dir: str | os.PathLike, *, progress=None) -> Path:
+    """Pool the ``train`` splits of the dataset directories ``sources`` (in that order, each sorted by
+    name) and the ``test`` split of the first into ``out_dir``, renumbered ``train_0000``... and
+    ``test_0000``...: a directory of trajectory files without a manifest, which
+    :func:`load_splits` reads as an imported dataset (train = the first n_train, validation = the last
+    n_val). For a learning curve that needs more training scenes than one Latin hypercube holds, with
+    the same test scenes (e.g. ``data/family`` + a second LHS of another seed).
+
+    Resumable: a pooled file whose content hash equals its source's is kept; nothing is half-written
+    (:func:`pcmgn_jax.data.trajectory_io.write_trajectory` is atomic). DatasetError naming the source
+    when it has no such split, or when ``out_dir`` holds a manifest (a generated dataset is never mixed
+    into). ``progress``: optional callable(done, total)."""
+    out = Path(out_dir)
+    sources = [Path(s) for s in sources]
+    if not sources:
+        raise DatasetError("pool_datasets: no source datasets given")
+    if (out / "manifest.json").exists():
+        raise DatasetError(f"{out}: holds a manifest (a generated dataset); pool into a new directory")
+    plan = []
+    for split, dirs in (("train", sources), ("test", sources[:1])):
+        stems = []
+        for src in dirs:
+            folder = src / split
+            found = sorted(p.with_suffix("") for p in folder.glob("*.json")) if folder.is_dir() else []
+            if not found:
+                raise DatasetError(f"{folder}: no trajectory files to pool (split {split!r} of {src})")
+            stems += found
+        plan += [(stem, out / split / f"{split}_{i:04d}") for i, stem in enumerate(stems)]
+        extra = sorted({p.stem for p in (out / split).glob("*.json")} - {t.name for _, t in plan if t.parent.name == split})
+        if extra:
+            raise DatasetError(f"{out / split}: holds trajectories the pool would not write ({extra[:3]}...): "
+                               "pool into a new directory")
+    for done, (stem, target) in enumerate(plan):
+        want = read_sidecar(stem)["sha256"]
+        try:
+            have = read_sidecar(target)["sha256"]
+        except TrajectoryFileError:
+            have = None
+        if have != want:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            write_trajectory(read_trajectory(stem), target)
+        if progress is not None:
+            progress(done + 1, len(plan))
+    return out
