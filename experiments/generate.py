@@ -3,6 +3,8 @@
   python -m experiments.generate --preset cpu --out data/cpu          # the designs experiments.train uses
   python -m experiments.generate --n_train 100 --n_val 5 --n_test 50 --out data/paper --preset paper --seed 0
   python -m experiments.generate --out data/paper --preset paper --designs "40,40;40,160;160,40;160,160" --split extrap
+  python -m experiments.generate --out data/family --preset family --split extrap \
+      --scene_params "ball.radius=3.5e-3,ball.velocity=0.8,OCA1=40e-6,OCA2=160e-6,POL=25e-6"   # outside the family's box
   python -m experiments.generate --preset paper --out data/paper --shard 3/8     # one task of an array job
   python -m experiments.generate --preset paper --out data/paper --merge         # after all shards: the manifest
   python -m experiments.generate --out data/family48 --pool data/family,data/family_extra   # solve nothing: pool
@@ -28,7 +30,8 @@ from typing import Literal
 
 from pcmgn_jax import cli
 from pcmgn_jax.config import PRESETS as TRAIN_PRESETS
-from pcmgn_jax.data.dataset import DESIGN_HIGH, DESIGN_LOW, PRESETS, DatasetError, ensure_dataset, parse_designs
+from pcmgn_jax.data.dataset import (DESIGN_HIGH, DESIGN_LOW, FAMILIES, PRESETS, DatasetError, ensure_dataset,
+                                    parse_designs, parse_scene_params)
 from pcmgn_jax.data.shards import parse_shard
 from pcmgn_jax.scene import Scene, default_scene
 
@@ -44,6 +47,7 @@ class GenerateArgs:
     low_um: float = DESIGN_LOW * 1e6           # LHS lower bound [µm]
     high_um: float = DESIGN_HIGH * 1e6         # LHS upper bound [µm]
     designs: str | None = None                 # explicit designs in µm, e.g. "40,40;40,160" (instead of LHS)
+    scene_params: str | None = None            # a scene family's explicit scenes, SI: "ball.radius=3.5e-3,ball.velocity=0.8,OCA1=40e-6,OCA2=160e-6,POL=25e-6;..." (may leave its box)
     split: str | None = None                   # split name for --designs (None: extrap)
     scene: str | None = None                   # scene file (.toml/.json); default: the paper's scene
     batch: int = 8                             # designs per solver call
@@ -68,9 +72,16 @@ def main(argv: list[str] | None = None) -> int:
             print(f"dataset ready: {pool_datasets(sources, args.out)} (pooled from {', '.join(sources)})")
             return 0
         scene = Scene.load(args.scene) if args.scene else default_scene()
+        if args.designs and args.preset in FAMILIES:
+            raise ValueError(f"--designs: preset {args.preset!r} is a scene family; give its scenes with --scene_params "
+                             f"({', '.join(FAMILIES[args.preset].names)}, SI)")
         designs = parse_designs(args.designs, dim=len(scene.design_layers)) if args.designs else None
+        if args.scene_params is not None:
+            if args.preset not in FAMILIES or designs is not None:
+                raise ValueError(f"--scene_params needs a scene-family preset ({', '.join(FAMILIES)}) and no --designs")
+            designs = parse_scene_params(args.scene_params, FAMILIES[args.preset].names)
         if args.split and designs is None:
-            raise ValueError("--split needs --designs")
+            raise ValueError("--split needs --designs or --scene_params")
         n_train, n_val, n_test = preset_sizes(args.preset)
         n_train = n_train if args.n_train is None else args.n_train
         n_val = n_val if args.n_val is None else args.n_val

@@ -6,7 +6,6 @@
 Each ``T=FILES`` after ``--task`` gives evaluate()'s metrics.json files of task T (a | b | c | d, see
 pcmgn_jax.eval.tasks.TASKS), one per MGN seed; a task not given is listed as not measured.
 """
-import json
 import shlex
 import sys
 from dataclasses import dataclass, field
@@ -26,19 +25,8 @@ def main(argv=None) -> int:
     args = cli.parse(TasksArgs, argv, description=__doc__, prog="python -m experiments.tasks_table")
     from pcmgn_jax.atomic import atomic_write_text
     from pcmgn_jax.eval.tasks import task_rows, task_table
-    runs, seeds = {}, {}
-    if len({s.partition("=")[0] for s in args.task}) < len(args.task):
-        raise ValueError(f"--task: a task is given twice in {list(args.task)}")
-    for spec in args.task:
-        task, sep, files = spec.partition("=")
-        if not sep or not files:
-            raise ValueError(f"--task {spec!r}: expected T=metrics.json[,metrics.json...]")
-        paths = [Path(f) for f in files.split(",")]
-        for p in paths:
-            if not p.is_file():
-                raise ValueError(f"--task {task}: {p} does not exist")
-        runs[task] = [json.loads(p.read_text()) for p in paths]
-        seeds[task] = len(paths)
+    runs = cli.keyed_json_files(args.task, "task")
+    seeds = {task: len(files) for task, files in runs.items()}
     command = "python -m experiments.tasks_table " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
     text = "\n".join(["# Four tasks: the MGN beside the response surfaces", "", f"`{command}`", "",
                       *[f"{n}" for n in args.note], "", task_table(task_rows(runs), seeds=seeds)])

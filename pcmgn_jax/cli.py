@@ -104,6 +104,26 @@ def parse(cls: type[T], argv: Sequence[str] | None = None, *, description: str |
                     use_underscores=True, config=(tyro.conf.OmitArgPrefixes,), **kw)
 
 
+def keyed_json_files(specs: Sequence[str], flag: str) -> dict[str, list[dict]]:
+    """``["K=a.json,b.json", ...]`` (a flag's ``KEY=FILE[,FILE...]`` values) -> {KEY: [parsed JSON of each
+    file]}, in order. ValueError naming the flag and the spec for a malformed spec, a repeated key or a
+    missing file."""
+    import json
+    out: dict[str, list[dict]] = {}
+    for spec in specs:
+        key, sep, files = spec.partition("=")
+        if not sep or not key or not files:
+            raise ValueError(f"--{flag} {spec!r}: expected KEY=FILE.json[,FILE.json...]")
+        if key in out:
+            raise ValueError(f"--{flag}: {key!r} is given twice")
+        paths = [Path(f) for f in files.split(",")]
+        for p in paths:
+            if not p.is_file():
+                raise ValueError(f"--{flag} {key}: {p} does not exist")
+        out[key] = [json.loads(p.read_text()) for p in paths]
+    return out
+
+
 def run(main_fn, argv: Sequence[str] | None = None) -> int:
     """Call ``main_fn(argv)``, turning a ``ValueError`` into ``error: ...`` on stderr and status 2."""
     try:

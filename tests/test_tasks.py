@@ -37,3 +37,39 @@ def test_cli_writes_the_table_and_names_a_missing_file(tmp_path):
     assert text.count("Winner per metric") == 2 and "(2 seed(s) of the MGN)" in text
     with pytest.raises(ValueError, match="does not exist"):
         tasks_table.main(["--task", f"b={tmp_path / 'nope.json'}"])
+
+
+def test_rows_carry_the_mgn_seed_range_into_the_table():
+    rows = task_rows({"a": [_m(0.3, 2.0, 0.1, 0.05), _m(0.5, 4.0, 0.1, 0.05)]})
+    assert rows["a"]["MGN"]["position_mae_um_seeds"] == [0.3, 0.5] and "position_mae_um_seeds" not in rows["a"]["rom"]
+    assert "| 0.4 (0.3–0.5) |" in task_table(rows)
+
+
+def test_learning_curve_crossings_table_plot_and_cli(tmp_path):
+    from experiments import learning_curve as cli_curve
+    from pcmgn_jax.eval.learning_curve import crossings, curve_rows, curve_table
+    # the MGN's objective error falls 4.0 -> 1.0 -> 0.2 while kriging's stays 0.5: they cross at n = 48;
+    # its position error never reaches rom's 0.1
+    pts = {24: [_m(0.4, 1.0, 0.1, 0.5), _m(0.6, 1.0, 0.1, 0.5)], 8: [_m(0.9, 4.0, 0.1, 0.5)], 48: [_m(0.2, 0.2, 0.1, 0.5)]}
+    rows = curve_rows(pts)
+    assert list(rows) == [8, 24, 48] and rows[24]["MGN"]["position_mae_um"] == pytest.approx(0.5)
+    cross = crossings(rows)
+    assert cross["oled_objective_area_rel_error_pct_mean"] == {"kriging": 48}
+    assert cross["position_mae_um"] == {"rom": None} and cross["stress_mae_mpa"] == {"rom": 8}
+    text = curve_table(rows)
+    assert "| 24 | 0.5 (0.4–0.6) | – | 0.1 |" in text and "rom: never (n ≤ 48)" in text and "kriging: from n = 48" in text
+    with pytest.raises(ValueError, match="different test sets"):
+        curve_rows({8: [{**_m(1, 1, 1, 1), "n_test": 8}], 16: [{**_m(1, 1, 1, 1), "n_test": 3}]})
+    files = []
+    for i, (n, ms) in enumerate(pts.items()):
+        fs = [tmp_path / f"m{i}_{j}.json" for j in range(len(ms))]
+        for f, m in zip(fs, ms):
+            f.write_text(json.dumps(m))
+        files.append(f"{n}=" + ",".join(map(str, fs)))
+    out = tmp_path / "lc"
+    assert cli_curve.main(["--point", *files, "--out", str(out)]) == 0
+    rec = json.loads((out / "learning_curve.json").read_text())
+    assert rec["crossings"]["oled_objective_area_rel_error_pct_mean"] == {"kriging": 48}
+    assert (out / "learning_curve.png").stat().st_size > 1000 and (out / "learning_curve.md").exists()
+    with pytest.raises(ValueError, match="whole number of solver runs"):
+        cli_curve.main(["--point", f"many={tmp_path / 'm0_0.json'}", "--out", str(out)])

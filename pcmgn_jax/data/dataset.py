@@ -66,7 +66,7 @@ from pcmgn_jax.trajectory import Trajectory
 _SPLITS_NAMES = ("load_directory", "load_splits", "prepare_dataset")   # re-exported from data.splits (__getattr__)
 __all__ = ["FAMILIES", "GENERATE", "IMPORTED", "MANIFEST", "PRESETS", "DatasetError", "SceneFamily", "dataset_source",
            "ensure_dataset", "lhs_designs", "load_directory", "load_manifest", "load_splits",  # noqa: F822 (__getattr__)
-           "parse_designs", "prepare_dataset", "split_stems"]  # noqa: F822 (prepare_dataset: __getattr__)
+           "parse_designs", "parse_scene_params", "prepare_dataset", "split_stems"]  # noqa: F822 (prepare_dataset: __getattr__)
 
 PRESETS = tuple(MESH_PRESETS)          # mesh resolution / frame count (names: sim.mesh.MESH_PRESETS)
 DESIGN_LOW = 50e-6                     # default design range [m] (paper: 50-150 µm)
@@ -132,6 +132,33 @@ def lhs_designs(n: int, *, seed: int, low=DESIGN_LOW, high=DESIGN_HIGH, dim: int
         return np.zeros((0, dim))
     sampler = qmc.LatinHypercube(d=dim, rng=np.random.default_rng(seed))
     return qmc.scale(sampler.random(int(n)), lo, hi).astype(np.float64)
+
+
+def parse_scene_params(text: str, names: Sequence[str]) -> np.ndarray:
+    """Parse ``"ball.radius=3.5e-3,ball.velocity=0.8,OCA1=40e-6,OCA2=160e-6,POL=25e-6;..."`` (SI, scenes
+    separated by ';') into (B, len(names)) rows in ``names``' order. ValueError naming the scene and the
+    parameter for a missing, unknown, repeated or non-positive value."""
+    rows = []
+    for i, chunk in enumerate(t for t in text.strip().strip(";").split(";") if t.strip()):
+        got: dict[str, float] = {}
+        for item in chunk.split(","):
+            key, sep, val = (x.strip() for x in item.partition("="))
+            if not sep or key not in names or key in got:
+                why = "not NAME=VALUE" if not sep else "unknown" if key not in names else "repeated"
+                raise ValueError(f"--scene_params: scene {i + 1}: {item.strip()!r} is {why} "
+                                 f"(parameters: {', '.join(names)}, SI)")
+            try:
+                got[key] = float(val)
+            except ValueError:
+                raise ValueError(f"--scene_params: scene {i + 1}: {key}={val!r} is not a number") from None
+            if not math.isfinite(got[key]) or got[key] <= 0:
+                raise ValueError(f"--scene_params: scene {i + 1}: {key} must be finite and > 0, got {val}")
+        if set(got) != set(names):
+            raise ValueError(f"--scene_params: scene {i + 1} misses {sorted(set(names) - set(got))}")
+        rows.append([got[n] for n in names])
+    if not rows:
+        raise ValueError("--scene_params: empty; expected NAME=VALUE,...;NAME=VALUE,... (SI)")
+    return np.asarray(rows, dtype=np.float64)
 
 
 def parse_designs(text: str, *, dim: int | None = 2) -> np.ndarray:
@@ -225,7 +252,9 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     """Generate the missing trajectories of a dataset with the solver; return ``Path(out_dir)``.
 
     designs=None: splits ``train``/``test`` from one seeded LHS of n_train + n_test designs [m].
-    designs=(B, n_design) [m]: only the split ``split`` (default ``'extrap'``) with these designs.
+    designs=(B, n_design) [m]: only the split ``split`` (default ``'extrap'``) with these designs; for a
+    scene family (B, n_parameters): scene-parameter rows in the family's order (SI), which may lie outside
+    its box (:func:`parse_scene_params`).
     Resumable: valid trajectories (hash-verified, same design) are skipped. The solver is called as
     ``solve_fn(scene, designs (b, n_design) [m], preset=preset) -> list[Trajectory]`` in batches of
     ``batch`` (default ``pcmgn_jax.sim.solver.solve_designs``). Designs that raise ``SolverError`` are
@@ -254,10 +283,9 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     family = FAMILIES.get(preset)
     if family is not None:
         scene = family.base(scene)
-        if designs is not None:
-            raise DatasetError(f"preset {preset!r} is a scene family: its scenes come from its Latin hypercube "
-                               f"over {list(family.names)}; explicit --designs are not supported for it")
-    n_design = len(scene.design_layers)
+    # explicit rows: design-layer thicknesses [m], or for a family its scene parameters (family order, SI:
+    # e.g. scenes outside the family's box, experiments.generate --scene_params)
+    n_design = len(scene.design_layers) if family is None else len(family.names)
     plan: dict[str, tuple[np.ndarray, dict[str, Any]]] = {}
     if designs is None:
         if split is not None:
@@ -277,11 +305,13 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     else:
         designs = np.asarray(designs, dtype=np.float64)
         split = split or "extrap"
+        what = list(scene.design_layers) if family is None else list(family.names)
         if designs.ndim != 2 or designs.shape[1] != n_design or len(designs) == 0:
-            raise DatasetError(f"designs must have shape (B>0, {n_design}) for {scene.design_layers}, "
-                               f"got {designs.shape}")
+            raise DatasetError(f"designs must have shape (B>0, {n_design}) for {what}, got {designs.shape}"
+                               + ("" if family is None else f" (preset {preset!r} is a scene family: give its "
+                                                            "scene parameters, --scene_params)"))
         if not np.all(np.isfinite(designs)) or np.any(designs <= 0):
-            raise DatasetError("designs must be finite thicknesses > 0 [m]")
+            raise DatasetError(f"designs must be finite values > 0 (SI) for {what}")
         plan[split] = (designs, {"kind": "explicit"})
     for name in plan:
         if not _SPLIT_RE.match(name):

@@ -7,8 +7,8 @@ Tasks (:data:`TASKS`): (a) the paper's box (``cpu`` test split), (b) the scene f
 (c) extrapolation (designs / scenes outside the training box), (d) zero-shot (scenes varying a parameter
 training held fixed); ``T.VARIANT`` keys (``d.cg_thin``) give a task one table per variant. A task
 with no metrics is listed as not measured. Per predictor and metric: the
-mean over the given seeds' files (the baselines are deterministic, so their seeds agree), and the
-worst design's error where metrics.json has it (``*_max``). Lower is better for every metric.
+mean over the given seeds' files (the baselines are deterministic, so their seeds agree), with the
+MGN's range over the seeds in brackets, and the worst design's error where metrics.json has it (``*_max``). Lower is better for every metric.
 """
 from __future__ import annotations
 
@@ -31,19 +31,28 @@ def _predictors(m: dict) -> dict[str, dict]:
     return out
 
 
+def mean_rows(files: Sequence[dict]) -> dict[str, dict[str, float]]:
+    """{predictor: {metric: mean over ``files``}} of evaluate()'s metrics.json dicts (the predictors
+    that answered), plus ``{metric}_seeds`` [min, max] for the MGN when more than one file is given."""
+    acc: dict[str, dict[str, list]] = {}
+    for m in files:
+        for name, v in _predictors(m).items():
+            for key, _ in METRICS:
+                if isinstance(v.get(key), (int, float)):
+                    acc.setdefault(name, {}).setdefault(key, []).append(float(v[key]))
+    out = {name: {k: float(np.mean(x)) for k, x in d.items()} for name, d in acc.items()}
+    if len(files) > 1 and "MGN" in acc:
+        out["MGN"].update({f"{k}_seeds": [float(min(x)), float(max(x))] for k, x in acc["MGN"].items()})
+    return out
+
+
 def task_rows(runs: Mapping[str, Sequence[dict]]) -> dict[str, dict[str, dict[str, float]]]:
-    """{task: {predictor: {metric: mean over the task's metrics files}}} (predictors that answered)."""
+    """{task: :func:`mean_rows` of the task's metrics files}."""
     rows = {}
     for task, files in runs.items():
         if task.split(".", 1)[0] not in TASKS:
             raise ValueError(f"task must be one of {sorted(TASKS)} (or T.VARIANT, e.g. d.cg_thin), got {task!r}")
-        acc: dict[str, dict[str, list]] = {}
-        for m in files:
-            for name, v in _predictors(m).items():
-                for key, _ in METRICS:
-                    if isinstance(v.get(key), (int, float)):
-                        acc.setdefault(name, {}).setdefault(key, []).append(float(v[key]))
-        rows[task] = {name: {k: float(np.mean(x)) for k, x in d.items()} for name, d in acc.items()}
+        rows[task] = mean_rows(files)
     return rows
 
 
@@ -84,7 +93,10 @@ def _table(row: dict[str, dict[str, float]]) -> list[str]:
         cells = []
         for key, _ in METRICS:
             s = f"{v[key]:.3g}" if key in v else "–"
-            cells.append(f"**{s}**" if win.get(key) == name else s)
+            s = f"**{s}**" if win.get(key) == name else s
+            if f"{key}_seeds" in v:      # the MGN's seed range
+                s += " ({:.3g}–{:.3g})".format(*v[f"{key}_seeds"])
+            cells.append(s)
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     named = ", ".join(f"{dict(METRICS)[k]}: **{n}**" for k, n in win.items())
     return lines + ["", f"Winner per metric: {named}.", ""]
