@@ -48,6 +48,7 @@ class TrainConfig:
     formulation_name: str = "default"  # the FORMULATIONS entry the formulation started from (paper | default | dynamic); a record: `formulation` is the truth
     # ---- loss -------------------------------------------------------------------------------
     lambda_pen: float = 0.0          # weight of the penetration term (0 = vanilla MGN; paper: 10)
+    lambda_obj: float = 0.0          # weight of the objective term: per graph, the squared error of the OLED's objective-section mean von Mises (normalised; docs/design.md §7); 0 = off
     lambda_start: float = 0.0        # fraction of training before the penetration term switches on (then a 10 % linear ramp; 0 = from step 0, the paper)
     poly_ball: int = 6               # polynomial degree of the ball boundary fit (penetration term)
     poly_panel: int = 5              # polynomial degree of the cover-glass fit (penetration term)
@@ -98,8 +99,8 @@ class TrainConfig:
             bad("ema_decay", "must be in [0, 1) (0 = no parameter average)")
         if not 0 <= self.lambda_start < 1:
             bad("lambda_start", "must be in [0, 1) (a fraction of the training steps)")
-        if self.contact_radius < 0 or self.noise_std < 0 or self.noise_rel < 0 or self.lambda_pen < 0:
-            bad("contact_radius/noise_std/noise_rel/lambda_pen", "must be >= 0")
+        if self.contact_radius < 0 or self.noise_std < 0 or self.noise_rel < 0 or self.lambda_pen < 0 or self.lambda_obj < 0:
+            bad("contact_radius/noise_std/noise_rel/lambda_pen/lambda_obj", "must be >= 0")
         if not 0 < self.learning_rate < 1:
             bad("learning_rate", "must be in (0, 1)")
         if self.frames_per_sample < 0:

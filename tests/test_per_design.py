@@ -132,7 +132,7 @@ def test_multi_frame_loss_is_the_mean_of_its_frames_losses(tiny_trajs):
     graph = one.graph
     out, _ = rl.predict(setup.spec.sim, params, setup.stats, graph.topology, graph.index, graph.points, one.u,
                         one.v, graph.layout)
-    data, _ = step_lib._frame_losses(setup.spec, setup.stats, one, dict(points=graph.points, u=one.u, v=one.v,
+    data, _, _ = step_lib._frame_losses(setup.spec, setup.stats, one, dict(points=graph.points, u=one.u, v=one.v,
                                                                          target=one.target, ball=one.ball), out)
     assert float(loss_fn(params, setup.spec, setup.stats, one, key)[1]["loss_data"]) == \
         pytest.approx(float(jnp.mean(data[:2])), rel=1e-5)

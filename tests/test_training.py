@@ -2,6 +2,7 @@
 import json
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -148,3 +149,58 @@ def test_lambda_pen_keeps_a_best_checkpoint_trained_with_the_term(tiny_trajs, tm
     res = training.train(late, tmp_path / "b", train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:])
     step, meta = checkpoint.read_meta(tmp_path / "b" / "checkpoints" / "best")
     assert step == 40 and meta["best_predates_penalty"] is True and res["best_predates_penalty"] is True
+
+
+def test_objective_term_is_the_squared_section_mean_error(tiny_trajs):
+    """lambda_obj: per graph (sum_i o_i e_i,vm)^2 of the signed normalised von Mises error. A bias c over
+    the section costs c^2; scatter that averages to zero over the section costs nothing (the node MSE
+    charges both alike). The weights are the evaluation's own objective weights on the OLED."""
+    import dataclasses
+    from conftest import one_union, tiny_config
+    from pcmgn_jax.mgn.normalization import normalize_target
+    from pcmgn_jax.scene import default_scene
+    from pcmgn_jax.sim.mesh import build_mesh
+    from pcmgn_jax.train import step as step_lib
+    from pcmgn_jax.train.setup import objective_loss_weights, prepare
+
+    scene = default_scene()
+    w = objective_loss_weights(build_mesh(scene, "tiny"), scene)
+    mesh = build_mesh(scene, "tiny")
+    oled = np.zeros(mesh.n_nodes, bool)       # the nodes of the OLED's cells (its faces included)
+    oled[mesh.cells[mesh.cell_part == scene.part_names.index("OLED")].ravel()] = True
+    assert w.sum() == pytest.approx(1.0, abs=1e-6) and np.all(w[~oled] == 0) and (w > 0).sum() >= 3
+    with pytest.raises(ValueError, match="needs a part named 'OLED'"):
+        prepare(tiny_config(lambda_obj=1.0), tiny_trajs[:2])      # the synthetic scene has no OLED
+
+    trajs = tiny_trajs[:2]
+    setup = prepare(tiny_config(), trajs)
+    batch = one_union(setup, trajs, [(0, 3), (1, 4)])
+    topo, (node_graph, n_graph) = batch.graph.topology, batch.graph.layout.segments
+    # stand-in section weights: the first 6 nodes of each graph, 1/6 each
+    first = np.zeros(batch.u.shape[0], np.float32)
+    for g, start in enumerate(np.concatenate([[0], np.cumsum(batch.graph.layout.n_node)[:-1]])[:2]):
+        first[start:start + 6] = 1.0 / 6
+    batch = batch._replace(w_obj=jnp.asarray(first))
+    spec = dataclasses.replace(setup.spec, cfg=setup.spec.cfg.replace(lambda_obj=2.0))
+    sample = dict(points=batch.graph.points, u=batch.u, v=batch.v, target=batch.target, ball=batch.ball)
+    exact = normalize_target(setup.stats, topo.node_type, batch.target)
+    out = jnp.concatenate([exact, jnp.zeros((exact.shape[0], 1))], axis=1)   # + the ball's attention channel
+    bias = out.at[:, 2].add(0.3)
+    sign = np.where(np.arange(exact.shape[0]) % 2 == 0, 1.0, -1.0).astype(np.float32)   # +-0.3, mean 0 per 6
+    scatter = out.at[:, 2].add(0.3 * sign)
+    frame = jax.jit(step_lib._frame_losses, static_argnums=0)
+    _, _, obj_exact = frame(spec, setup.stats, batch, sample, out)
+    data_b, _, obj_bias = frame(spec, setup.stats, batch, sample, bias)
+    data_s, _, obj_scatter = frame(spec, setup.stats, batch, sample, scatter)
+    np.testing.assert_allclose(np.asarray(obj_exact)[:2], 0.0, atol=1e-10)
+    np.testing.assert_allclose(np.asarray(obj_bias)[:2], 0.09, rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(obj_scatter)[:2], 0.0, atol=1e-10)
+    np.testing.assert_allclose(np.asarray(data_b)[:2], np.asarray(data_s)[:2], rtol=1e-5)   # the MSE cannot tell
+    # in the total: + lambda_obj x the real graphs' mean objective term (the padding slot excluded)
+    import types
+    edges = types.SimpleNamespace(overflow=jnp.zeros((), bool), count=jnp.zeros((), jnp.int32))
+    zero = jnp.zeros(n_graph)
+    off, _ = step_lib._total(setup.spec, batch, data_b, zero, obj_bias, edges, None)
+    on, aux = step_lib._total(spec, batch, data_b, zero, obj_bias, edges, None)
+    assert float(aux["loss_obj"]) == pytest.approx(0.09, rel=1e-5)
+    assert float(on) == pytest.approx(float(off) + 2.0 * 0.09, rel=1e-5)

@@ -201,6 +201,8 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
                     lam = float(penalty_weight(setup.spec, step))
                     rec["loss_pen"], rec["lambda"] = float(np.mean(m["loss_pen"])), lam
                     rec["pen_ratio"] = float(lam * rec["loss_pen"] / max(rec["loss_data"], 1e-30))
+                if cfg.lambda_obj > 0:
+                    rec["loss_obj"] = float(np.mean(m["loss_obj"]))
             if val_trajs and (step % val_every == 0 or step >= total):
                 val, finite = validation_mae_um(setup, eval_params(cfg, state), val_trajs)
                 rec = rec or dict(step=step)

@@ -97,6 +97,7 @@ class TrainBatch(NamedTuple):
     u_prev_in: Any = None  # (N, 2) float32 the previous frame's displacement input [m] (pushforward only)
     v_prev_in: Any = None  # (N, 2) float32 the previous frame's velocity input [m/s] (pushforward only)
     has_prev: Any = None   # (G,) float32 1 where the frame has a previous one (pushforward only)
+    w_obj: Any = None      # (N,) float32 the objective's section weights (sum 1 per graph; lambda_obj > 0 only)
 
 
 def _pad_rows(rows, width: int, fill=0, dtype=np.int32):
@@ -170,6 +171,8 @@ def union_batch(form: Formulation, trajs, graphs, pairs, *, dt: float, sizes, gr
                                         (1 << 30) + np.arange(G - n_real, dtype=np.int32)]),
                graph_mask=per_graph([True] * n_real, bool),
                pen_ball=pen_ball, pen_ball_mask=pen_ball_mask, pen_panel=pen_panel, pen_panel_mask=pen_panel_mask)
+    if parts[0].objective is not None:
+        out["w_obj"] = node([p.objective for p in parts])
     if previous:
         prev = [sample(form, trajs[i], int(t) - 1, dt) if t > 0 else s for (i, t), s in zip(pairs, smp)]
         out.update(u_prev_in=node([p["u"] for p in prev]), v_prev_in=node([p["v"] for p in prev]),

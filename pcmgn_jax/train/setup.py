@@ -64,6 +64,7 @@ class GraphParts(NamedTuple):
     perturbed: np.ndarray    # [N] float32 1 on the noised parts' free nodes
     pen_ball: np.ndarray     # [Mb] int32 ball-bottom nodes of the penetration fits
     pen_panel: np.ndarray    # [Mp] int32 CG-top nodes
+    objective: np.ndarray | None = None  # [N] float32 the objective's section weights (sum 1, OLED) when lambda_obj > 0
 
 
 class UnionSizes(NamedTuple):
@@ -142,6 +143,18 @@ def loss_weights(form: Formulation, topology: Topology) -> dict:
         motion[ball] = 0.0
     return {"motion": motion.astype(np.float32), "ball": np.float32(w_ball),
             "stress": spread(np.ones(node_type.shape, bool)).astype(np.float32)}
+
+
+def objective_loss_weights(traj, scene: Scene) -> np.ndarray:
+    """(N,) float32 nodal weights (sum 1) of the design objective's reading (the default, area mean over
+    the OLED's section under the ball: :func:`pcmgn_jax.eval.metrics.objective_weights`, the same rule
+    the evaluation scores) on one trajectory's mesh, for the ``lambda_obj`` term. ValueError when the
+    scene has no part named 'OLED'."""
+    from pcmgn_jax.eval.metrics import objective_weights
+    if "OLED" not in scene.part_names:
+        raise ValueError(f"lambda_obj > 0 needs a part named 'OLED' (the objective's layer); the scene has {list(scene.part_names)}")
+    w = objective_weights(traj.points, traj.cells, traj.cell_part, traj.node_part, part=scene.part_names.index("OLED"))
+    return np.asarray(w, np.float32)
 
 
 @functools.partial(jax.jit, static_argnames=("spec",))
@@ -262,11 +275,12 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
             intervals.append(bn.interval)
             pen_ball, pen_panel = np.asarray(bn.ball, np.int32), np.asarray(bn.panel, np.int32)
         w = loss_weights(form, topo)
+        w_obj = objective_loss_weights(g_ref, scene) if cfg.lambda_obj > 0 else None
         sigma = noise_sigma(topo.node_type, g_ref.node_part, topo.fixed, parts=cfg.noise_parts,
                             noise_std=cfg.noise_std, noise_rel=cfg.noise_rel, rms=rms)
         shared[key] = GraphParts(topo, index, sigma, w["motion"], w["stress"], float(w["ball"]),
                                  noise_parts_mask(g_ref.node_part, cfg.noise_parts, fixed=topo.fixed).astype(np.float32),
-                                 pen_ball, pen_panel)
+                                 pen_ball, pen_panel, w_obj)
     # one buffer size per dataset: the largest any mesh needs
     cap = max(p.index.capacity for p in shared.values())
     graphs = []

@@ -4,7 +4,8 @@ A step's batch is a padded disjoint union of graphs (:func:`pcmgn_jax.train.samp
 graphs may have different meshes). Loss of one graph g (normalised units)::
 
     loss_data_g = ( sum_i w_i |e_i,xy|^2  +  w_ball,g |e_ball,g|^2  +  sum_i w'_i e_i,vm^2 ) / 3
-    loss_g      = loss_data_g + lambda(step) * L_pen,g      (lambda(step): :func:`penalty_weight`)
+    loss_g      = loss_data_g + lambda(step) * L_pen,g + lambda_obj * L_obj,g     (lambda(step): :func:`penalty_weight`)
+    L_obj,g     = ( sum_i o_i e_i,vm )^2      (signed e; o: the objective's section weights, sum 1)
 
 summed over g's own nodes i, with e the normalised error of each node's [a_x, a_y, von Mises] (rows of
 its own node type), e_ball,g graph g's rigid ball (its vertical component: the ball moves along the
@@ -12,7 +13,11 @@ symmetry axis, :func:`pcmgn_jax.mgn.formulation.axial`), and the weights of
 :func:`pcmgn_jax.train.setup.loss_weights` (fixed nodes carry no motion weight; padding nodes none at all).
 L_pen,g is the paper's penetration term (section 2.3) of g's predicted next positions, from g's own
 boundary nodes, the depth d in units of ``pen_length_scale`` (µm by default, so λ = 10 means what it
-means in the paper). The step's loss is the mean of loss_g over the real graphs of the batch: padding
+means in the paper). L_obj,g (``lambda_obj`` > 0) is the squared error of the OLED's objective-section
+mean von Mises of this frame, in the OLED's normalised units (one std per node type: the weighted mean of
+the normalised errors is the section mean's error over that std): the node-wise MSE weighs a coherent
+bias over the section no more than scatter, and the objective is exactly such a mean
+(:func:`pcmgn_jax.train.setup.objective_loss_weights`). The step's loss is the mean of loss_g over the real graphs of the batch: padding
 changes neither the loss nor its gradient, and a graph's loss does not depend on the other graphs.
 Noise is drawn per node from the graph's id (:func:`pcmgn_jax.train.noise.sample_noise`), so it does
 not depend on the union either.
@@ -131,18 +136,23 @@ def loss_fn(params, spec: TrainSpec, stats: Stats, batch, key, step=None):
         dev = jax.lax.stop_gradient(u_hat - batch.u) * on[:, None]
     sample = perturb(sim, topology, sample, batch.sigma, key, dev, layout=layout, graph_ids=batch.graph_id)
     out, edges = predict(sim, params, stats, topology, index, points, sample["u"], sample["v"], layout)
-    loss_data, loss_pen = _frame_losses(spec, stats, batch, sample, out)
-    return _total(spec, batch, loss_data, loss_pen, edges, step)
+    loss_data, loss_pen, loss_obj = _frame_losses(spec, stats, batch, sample, out)
+    return _total(spec, batch, loss_data, loss_pen, loss_obj, edges, step)
 
 
 def _frame_losses(spec: TrainSpec, stats: Stats, batch, sample: dict, out):
-    """(G,) data and penetration losses of one frame's normalised output ``out`` against ``sample``'s
-    targets (the module docstring's loss_data_g and L_pen,g)."""
+    """(G,) data, penetration and objective losses of one frame's normalised output ``out`` against
+    ``sample``'s targets (the module docstring's loss_data_g, L_pen,g and L_obj,g)."""
     sim, form = spec.sim, spec.sim.formulation
     g = batch.graph
     topology, layout, points = g.topology, g.layout, g.points
     node_graph, n_graph = layout.segments
-    err = (out[:, :3] - normalize_target(stats, topology.node_type, sample["target"])) ** 2
+    signed = out[:, :3] - normalize_target(stats, topology.node_type, sample["target"])
+    err = signed ** 2
+    if spec.cfg.lambda_obj > 0:
+        loss_obj = jax.ops.segment_sum(batch.w_obj * signed[:, 2], node_graph, num_segments=n_graph) ** 2
+    else:
+        loss_obj = jnp.zeros(n_graph, jnp.float32)
     per_node = batch.w_motion * (err[:, 0] + err[:, 1]) + batch.w_stress * err[:, 2]
     loss_data = jax.ops.segment_sum(per_node, node_graph, num_segments=n_graph)
     if form.rigid_ball:
@@ -156,16 +166,16 @@ def _frame_losses(spec: TrainSpec, stats: Stats, batch, sample: dict, out):
         loss_pen = _penetration(spec, batch, points, u_next)
     else:
         loss_pen = jnp.zeros(n_graph, jnp.float32)
-    return loss_data, loss_pen
+    return loss_data, loss_pen, loss_obj
 
 
-def _total(spec: TrainSpec, batch, loss_data, loss_pen, edges, step):
+def _total(spec: TrainSpec, batch, loss_data, loss_pen, loss_obj, edges, step):
     """The union's mean loss over its real graphs and the aux dict, from per-graph (G,) parts."""
     lam = spec.cfg.lambda_pen if step is None else penalty_weight(spec, step)
-    loss = loss_data + lam * loss_pen
+    loss = loss_data + lam * loss_pen + spec.cfg.lambda_obj * loss_obj
     real = batch.graph_mask
     mean = lambda a: jnp.sum(jnp.where(real, a, 0.0)) / jnp.maximum(jnp.sum(real), 1)  # noqa: E731
-    return mean(loss), dict(loss_data=mean(loss_data), loss_pen=mean(loss_pen), loss_graph=loss,
+    return mean(loss), dict(loss_data=mean(loss_data), loss_pen=mean(loss_pen), loss_obj=mean(loss_obj), loss_graph=loss,
                             overflow=jnp.any(edges.overflow), contact_count=jnp.max(edges.count))
 
 
@@ -187,8 +197,9 @@ def _loss_per_design(params, spec: TrainSpec, stats: Stats, batch, key, step=Non
         return _frame_losses(spec, stats, batch, sample, out) + (edges,)
 
     # edges (F, ...): the design's one contact set F times (_total reduces over every axis)
-    loss_data, loss_pen, edges = jax.vmap(one)(jnp.arange(frames[0].shape[0]), *frames)
-    return _total(spec, batch, jnp.mean(loss_data, axis=0), jnp.mean(loss_pen, axis=0), edges, step)
+    loss_data, loss_pen, loss_obj, edges = jax.vmap(one)(jnp.arange(frames[0].shape[0]), *frames)
+    return _total(spec, batch, jnp.mean(loss_data, axis=0), jnp.mean(loss_pen, axis=0), jnp.mean(loss_obj, axis=0),
+                  edges, step)
 
 
 def batch_loss(params, spec, stats, batch, key, step=None):
@@ -197,6 +208,7 @@ def batch_loss(params, spec, stats, batch, key, step=None):
     fn = lambda b: loss_fn(params, spec, stats, b, key, step)  # noqa: E731
     loss, aux = jax.vmap(fn)(batch)
     return jnp.mean(loss), dict(loss_data=jnp.mean(aux["loss_data"]), loss_pen=jnp.mean(aux["loss_pen"]),
+                                loss_obj=jnp.mean(aux["loss_obj"]),
                                 overflow=jnp.any(aux["overflow"]), contact_count=jnp.max(aux["contact_count"]))
 
 
