@@ -27,6 +27,7 @@ class EvaluateArgs:
     data: str = ""                             # directory of trajectory files ("" = the run's test split)
     name: str = ""                             # output RUN/eval/NAME ("" = the --data folder's name)
     contact_projection: Literal["", "on", "off"] = ""  # override the run's rollout contact projection ("" = the run's)
+    mgn_spread: bool = False                   # also roll out the training split: a GP of the MGN's objective residuals gives each prediction a ± (metrics.json mgn_spread)
 
 
 def main(argv=None) -> int:
@@ -37,8 +38,14 @@ def main(argv=None) -> int:
     from pcmgn_jax.eval.evaluate import summary_table
     from pcmgn_jax.eval.pipeline import output_name
     m = run(args.workdir, which=args.which, data=args.data, name=args.name,
-            contact_projection=args.contact_projection)
+            contact_projection=args.contact_projection, mgn_spread=args.mgn_spread)
     print(summary_table(m))
+    if "mgn_spread" in m:
+        s = m["mgn_spread"]
+        for n, f, sd, e in zip(s["names"], s["objective_mpa"], s["std_mpa"], s["error_pct"]):
+            print(f"  {n}: MGN objective {f:.4g} ± {sd:.2g} MPa ({s['source']}); real error {e:.2f} %")
+        rho = s["spearman_error"]["rho"]
+        print(f"  Spearman ρ(±, error) = {'n/a (' + s['spearman_error']['why'] + ')' if rho is None else f'{rho:.2f}'}")
     print(f"wrote {Path(args.workdir) / 'eval' / (output_name(args.data, args.name) or '')}/metrics.json and PNGs")
     return 0
 

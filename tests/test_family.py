@@ -116,9 +116,11 @@ def test_family_tiny_train_and_evaluate_end_to_end(family_tiny, tmp_path):
     run = tmp_path / "run"
     assert train.main(["--preset", "family_tiny", f"--dataset_dir={family_tiny}", f"--workdir={run}",
                        "--num_steps=20", "--val_every=20", "--progress=False"]) == 0
-    assert evaluate.main(["--workdir", str(run)]) == 0
+    assert evaluate.main(["--workdir", str(run), "--mgn_spread"]) == 0
     m = json.loads((run / "eval" / "metrics.json").read_text())
     assert m["n_test"] == 2 and len(set(m["n_nodes_per_trajectory"])) == 2
+    s = m["mgn_spread"]     # a ± beside each prediction, from the model's residuals on its 4 training scenes
+    assert len(s["std_mpa"]) == 2 and all(np.isfinite(s["std_mpa"])) and "training scenes (4)" in s["source"]
     assert np.isfinite(m["position_mae_um"]) and np.isfinite(m["oled_objective_area_rel_error_pct_mean"])
     b = m["baselines"]
     for kind in ("none", "nearest"):

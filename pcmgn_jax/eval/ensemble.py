@@ -46,6 +46,53 @@ def spearman(spread, error) -> dict:
     return {"rho": float(r.statistic), "p": float(r.pvalue), "n": n}
 
 
+class ResidualSpread:
+    """The MGN's spread without an ensemble: a GP (kriging) fitted to the model's objective residuals
+    (truth - prediction) [MPa] on its training scenes, over the scene parameters; its posterior std at a
+    query scene is the spread, its mean a correction. ``f_train`` (B,): the model's objective on ``train``
+    (one rollout a scene). The one definition: the ensemble report, ``experiments.evaluate --mgn_spread``
+    and the explorer use it."""
+
+    source = "GP of the MGN's objective residuals on its training scenes"
+
+    def __init__(self, train: Sequence, f_train, *, reading: str = metrics.DEFAULT_OBJECTIVE,
+                 part: int | None = None):
+        from pcmgn_jax.eval.response_surfaces import Kriging, objective_table
+        from pcmgn_jax.eval.scene_inputs import TrainingScenes
+        self.scenes = TrainingScenes(train)
+        truth = objective_table(train, (reading,), part=part)[reading]
+        self.residual_mpa = truth - np.asarray(f_train, float)
+        self.gp = Kriging(self.scenes.x, {"r": self.residual_mpa}, names=self.scenes.names)
+
+    @property
+    def warnings(self) -> list:
+        return list(self.gp.warnings)
+
+    def predict(self, trajs) -> tuple[np.ndarray, np.ndarray]:
+        """(residual mean, std) (B,) [MPa] at the scenes of ``trajs`` (out-of-box queries are warned about
+        under :attr:`warnings`)."""
+        m, s = self.gp.predict(self.scenes.inputs(trajs, self.gp.box.note), return_std=True)
+        return np.asarray(m["r"], float), np.asarray(s["r"], float)
+
+
+def residual_spread_record(spread: ResidualSpread, trajs, pred_mpa, *, reading: str = metrics.DEFAULT_OBJECTIVE,
+                           part: int | None = None) -> dict:
+    """The spread beside each prediction of a set with truth: per design the MGN's objective [MPa], the
+    residual GP's std [MPa], the real error [%], Spearman ρ of std against error, and the error after the
+    GP's mean correction."""
+    from pcmgn_jax.eval.response_surfaces import objective_table
+    truth = objective_table(trajs, (reading,), part=part)[reading]
+    pred = np.asarray(pred_mpa, float)
+    rm, rs = spread.predict(trajs)
+    err = np.asarray(metrics.relative_error_pct(pred, truth), float)
+    corrected = np.asarray(metrics.relative_error_pct(pred + rm, truth), float)
+    return {"source": f"{spread.source} ({len(spread.residual_mpa)})", "reading": reading,
+            "names": [str(t.meta.get("name", i)) for i, t in enumerate(trajs)],
+            "objective_mpa": pred.tolist(), "std_mpa": rs.tolist(), "error_pct": err.tolist(),
+            "spearman_error": spearman(rs, err), "corrected_mean_error_pct": float(corrected.mean()),
+            "train_residual_rms_mpa": float(np.sqrt(np.mean(spread.residual_mpa ** 2))), "warnings": spread.warnings}
+
+
 def _objective(trajs, vms, part) -> np.ndarray:
     return np.array([float(metrics.oled_objective_of(t, vm, part=part)) for t, vm in zip(trajs, vms)])
 
@@ -88,18 +135,14 @@ def ensemble_report(workdirs: Sequence, sets: Mapping[str, Sequence], train: Seq
     the runs ``workdirs`` (one is allowed: no ensemble figures then), ``train`` the runs' training
     trajectories (kriging and the residual GP are fitted on them); ``part``: the objective's part id
     (default the OLED, found by name)."""
-    from pcmgn_jax.eval.response_surfaces import Kriging, ObjectiveSurface, objective_table
-    from pcmgn_jax.eval.scene_inputs import TrainingScenes
+    from pcmgn_jax.eval.response_surfaces import ObjectiveSurface, objective_table
 
     if reading != metrics.DEFAULT_OBJECTIVE:
         raise ValueError(f"ensemble report: only the {metrics.DEFAULT_OBJECTIVE} reading, got {reading!r}")
     K = len(workdirs)
     preds = member_predictions(workdirs, {**sets, "_train": train}, train[0], part)
     krig = ObjectiveSurface("kriging", train, readings=(reading,), part=part)
-    scenes = TrainingScenes(train)
-    y_train = objective_table(train, (reading,), part=part)[reading]
-    f_train = np.mean([p["_train"][1] for p in preds], axis=0)
-    resid = Kriging(scenes.x, {"r": y_train - f_train}, names=scenes.names)
+    resid = ResidualSpread(train, np.mean([p["_train"][1] for p in preds], axis=0), reading=reading, part=part)
     out = {"members": [str(w) for w in workdirs], "n_members": K, "reading": reading,
            "n_train": len(train), "sets": {}}
     for name, trajs in sets.items():
@@ -134,12 +177,12 @@ def ensemble_report(workdirs: Sequence, sets: Mapping[str, Sequence], train: Seq
                           "error_pct": kerr.tolist(), "mean_error_pct": float(kerr.mean()),
                           "spearman_own_error": spearman(ks[reading], kerr),
                           "spearman_mgn_error": spearman(ks[reading], err)}
-        rm, rs = resid.predict(scenes.inputs(trajs, resid.box.note), return_std=True)
-        corrected = np.asarray(metrics.relative_error_pct(mean + rm["r"], truth), float)
-        rec["residual_gp"] = {"std_mpa": rs["r"].tolist(), "spearman_mgn_error": spearman(rs["r"], err),
+        rm, rs = resid.predict(trajs)
+        corrected = np.asarray(metrics.relative_error_pct(mean + rm, truth), float)
+        rec["residual_gp"] = {"std_mpa": rs.tolist(), "spearman_mgn_error": spearman(rs, err),
                               "corrected_error_pct": corrected.tolist(),
                               "corrected_mean_error_pct": float(corrected.mean()),
-                              "spearman_corrected_error": spearman(rs["r"], corrected)}
+                              "spearman_corrected_error": spearman(rs, corrected)}
         out["sets"][name] = rec
     out["warnings"] = list(krig.warnings) + list(resid.warnings)
     return out

@@ -110,11 +110,14 @@ def summary_table(m: dict) -> str:
 
 
 def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence = (), which: str = "best",
-             batch: int = 4, plot: bool = True, name: str | None = None, contact_projection: str = "") -> dict:
+             batch: int = 4, plot: bool = True, name: str | None = None, contact_projection: str = "",
+             mgn_spread: bool = False) -> dict:
     """Roll the run's model out on ``test_trajs`` and score it beside the baselines fitted on
     ``train_trajs`` (the run's training split). Writes WORKDIR/eval[/name]/metrics.json and PNGs.
     ``contact_projection``: "on" / "off" overrides the run's formulation in the rollouts (the projection
-    is rollout-only, so the same checkpoint serves both); "" keeps it."""
+    is rollout-only, so the same checkpoint serves both); "" keeps it. ``mgn_spread``: also roll the model
+    out on ``train_trajs`` and put the std of a GP of its objective residuals there beside each test
+    prediction (``mgn_spread`` in metrics.json, :class:`pcmgn_jax.eval.ensemble.ResidualSpread`)."""
     workdir = Path(workdir)
     ref = test_trajs[0]
     T = ref.n_frames
@@ -143,6 +146,14 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
     if train_trajs:
         m["baselines"] = baseline_metrics(train_trajs, test_trajs,
                                            lambda u, vm: _scores(scene, test_trajs, u, vm, bnodes, pnodes))
+    if mgn_spread and train_trajs and "OLED" in scene.part_names:
+        from pcmgn_jax.eval.ensemble import ResidualSpread, residual_spread_record
+        part = scene.part_names.index("OLED")
+        obj = lambda trajs, vms: [float(metrics.oled_objective_of(t, np.asarray(v), part=part))  # noqa: E731
+                                  for t, v in zip(trajs, vms)]
+        _, tv = mgn.rollout_trajectories(train_trajs)
+        spread = ResidualSpread(train_trajs, obj(train_trajs, tv), part=part)
+        m["mgn_spread"] = residual_spread_record(spread, test_trajs, obj(test_trajs, ps), part=part)
     out = plots.ensure_dir(workdir / "eval" / name if name else workdir / "eval")
     atomic_write_json(out / "metrics.json", m)
     if plot:

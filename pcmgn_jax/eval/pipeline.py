@@ -33,7 +33,7 @@ def run_splits(workdir: str | Path):
 
 
 def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str = "",
-        contact_projection: str = "") -> dict:
+        contact_projection: str = "", mgn_spread: bool = False) -> dict:
     """Evaluate the run in ``workdir`` and return the metrics dict written to
     ``WORKDIR/eval[/NAME]/metrics.json`` (:mod:`pcmgn_jax.eval.evaluate`; PNG plots beside it).
 
@@ -50,4 +50,5 @@ def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str =
     if data:
         test = load_directory(data)
     return evaluation.evaluate(workdir, test_trajs=test, train_trajs=train, which=which,
-                               name=output_name(data, name), contact_projection=contact_projection)
+                               name=output_name(data, name), contact_projection=contact_projection,
+                               mgn_spread=mgn_spread)
