@@ -26,6 +26,7 @@ class ExploreArgs:
     port: int = 8050                               # port of the page
     which: Literal["best", "periodic"] = "best"    # MGN checkpoint
     mgn: bool = True                               # load the run's MGN (--no_mgn: baselines only)
+    mgn_spread: bool = False                       # the MGN's ± (a GP of its residuals on the training scenes; one rollout per training scene at load)
     objective: Literal["area_mean", "node_mean", "disc_mean", "peak"] = "area_mean"  # reading (docs/design.md §8)
 
 
@@ -44,7 +45,8 @@ def main(argv=None) -> int:
             raise ValueError(f"cannot serve on {args.host}:{args.port}: {err} (choose another --port)") from None
     from pcmgn_jax.explore import Explorer
     from pcmgn_jax.explore.app import serve
-    serve(Explorer(args.workdir, which=args.which, mgn=args.mgn, reading=args.objective), host=args.host,
+    serve(Explorer(args.workdir, which=args.which, mgn=args.mgn, reading=args.objective,
+                   mgn_spread=args.mgn_spread), host=args.host,
           port=args.port)
     return 0
 

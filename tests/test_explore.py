@@ -84,7 +84,7 @@ def test_regression_only_run_states_and_flags(regression_run):
     assert "no checkpoint" in notes and "eval/metrics.json is missing" in notes
     inside = ex.view(ex.start)
     assert inside.flags == [] and inside.headline.startswith("OLED objective (area mean) by kriging: ")
-    assert "± " in inside.headline and "GP std" in inside.headline
+    assert "± " in inside.headline and "GP posterior std" in inside.headline
     rows = {r["name"]: r for r in inside.rows}
     assert rows["mgn"]["text"].startswith("n/a: no checkpoint")
     assert rows["kriging"]["std"] > 0 and all(rows[k]["mpa"] > 0 for k in ("nearest", "poly2", "rbf", "mop"))
@@ -241,9 +241,10 @@ def test_page_with_mgn_and_solver_check(regression_run, tmp_path):
                                                         val_every=40, progress=False)
     mgn_run = tmp_path / "mgn_run"
     training.train(cfg, mgn_run, train_trajs=reg.train[:5], val_trajs=reg.train[5:])
-    ex = Explorer(mgn_run, log=lambda s: None)
+    ex = Explorer(mgn_run, log=lambda s: None, mgn_spread=True)
     assert ex.default == "mgn" and ex.mgn_seconds is not None
     ex.predict_rest(ex.start)
     rows = {r["name"]: r for r in ex.view(ex.start).rows}
     assert rows["mgn"]["mpa"] is not None and rows["rom"]["mpa"] is not None
+    assert rows["mgn"]["std"] is not None and rows["mgn"]["std"] >= 0 and "training residuals" in ex.headline(ex.start)
     assert _drive(ex, tmp_path, "explorer_mgn", check=True) < 10

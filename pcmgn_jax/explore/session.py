@@ -159,10 +159,12 @@ def _key(x) -> tuple:
 class Explorer:
     """A run opened for exploration (module docstring). ``which``: the checkpoint ('best' | 'periodic');
     ``mgn``: load the run's model (False: baselines only); ``reading``: the objective's reading
-    (:data:`pcmgn_jax.eval.metrics.OBJECTIVES`); ``kinds``: the baselines to fit; ``log``: progress lines."""
+    (:data:`pcmgn_jax.eval.metrics.OBJECTIVES`); ``kinds``: the baselines to fit; ``log``: progress lines;
+    ``mgn_spread``: roll the MGN out on the training scenes once at load, so that each of its predictions
+    carries the std of a GP of its objective residuals there (:class:`pcmgn_jax.eval.ensemble.ResidualSpread`)."""
 
     def __init__(self, workdir, *, which: str = "best", mgn: bool = True, reading: str = metrics.DEFAULT_OBJECTIVE,
-                 kinds: Sequence[str] = KINDS, log: Callable[[str], None] = print):
+                 kinds: Sequence[str] = KINDS, log: Callable[[str], None] = print, mgn_spread: bool = False):
         from pcmgn_jax.config import TrainConfig
         from pcmgn_jax.data.splits import load_splits
         from pcmgn_jax.eval.scene_inputs import TrainingScenes
@@ -214,8 +216,9 @@ class Explorer:
         log(f"fitted {len(self.models)} baselines on {len(self.train)} training trajectories "
             f"in {time.perf_counter() - t0:.1f} s")
         self.mgn_seconds = None
+        self._mgn_spread = None
         if mgn:
-            self._load_mgn()
+            self._load_mgn(spread=mgn_spread)
         else:
             self.skipped["mgn"] = "not loaded (--no_mgn)"
         self.default = "mgn" if "mgn" in self.models else next(
@@ -301,7 +304,7 @@ class Explorer:
                 return NearestScene(self.train, zero=kind == "none")
         raise ValueError(f"{kind}: per-node regression needs one shared mesh; this run's meshes differ")
 
-    def _load_mgn(self) -> None:
+    def _load_mgn(self, spread: bool = False) -> None:
         from pcmgn_jax.eval.surrogates import MGNSurrogate
 
         if not _has_checkpoint(self.run):
@@ -321,6 +324,16 @@ class Explorer:
         self.predict(self.start, ["mgn"])
         self.mgn_seconds = float(model.rollout_seconds)
         self.log(f"MGN ready in {time.perf_counter() - t0:.1f} s; one rollout takes {self.mgn_seconds:.2f} s")
+        if spread:
+            from pcmgn_jax.eval.ensemble import ResidualSpread
+            t0 = time.perf_counter()
+            self.log(f"the MGN on its {len(self.train)} training scenes (its ± comes from its residuals there) ...")
+            _, vms = model.rollout_trajectories(self.train)
+            f = [float(metrics.oled_objective_of(t, np.asarray(v), part=self.part, reading=self.reading))
+                 for t, v in zip(self.train, vms)]
+            self._mgn_spread = ResidualSpread(self.train, f, reading=self.reading, part=self.part)
+            self.log(f"MGN ± ready in {time.perf_counter() - t0:.1f} s (training residual rms "
+                     f"{np.sqrt(np.mean(self._mgn_spread.residual_mpa ** 2)):.3g} MPa)")
 
     # ---- designs -------------------------------------------------------------------------------------
 
@@ -421,6 +434,9 @@ class Explorer:
                 with self._mgn_lock:
                     pu, pv = model.rollout_trajectories([q])
                 u, vm = pu[0], pv[0]
+                if self._mgn_spread is not None:
+                    std = float(self._mgn_spread.predict([q])[1][0])
+                    note = "± GP std of the MGN's training residuals"
             elif kind in ("kriging", "mop"):
                 surface, fields = model
                 if kind == "kriging":
@@ -539,7 +555,7 @@ class Explorer:
             fast = self._pred.get(_key(x), {}).get("kriging")
             meanwhile = f"; kriging meanwhile: {self._text('kriging', fast)}" if fast is not None else ""
             return f"{what}: computing ...{meanwhile}"
-        std = f" ± {p.std_mpa:.2g} (GP std)" if p.std_mpa is not None else ""
+        std = f" ± {p.std_mpa:.2g} ({p.note.removeprefix('± ')})" if p.std_mpa is not None else ""
         if p.objective_mpa is None:
             return f"{what}: n/a ({p.note})"
         return f"{what}: {p.objective_mpa:.4g}{std} MPa"
