@@ -168,3 +168,19 @@ def test_family_scenes_outside_its_box_from_scene_params(tmp_path, fake, capsys)
     assert "scene family; give its scenes with --scene_params" in capsys.readouterr().err
     assert generate.main(["--preset", "tiny", "--out", str(tmp_path / "t"), "--scene_params", text]) == 2
     assert "--scene_params needs a scene-family preset" in capsys.readouterr().err
+
+
+def test_a_smaller_run_reads_the_first_rows_of_a_larger_dataset(tmp_path, fake):
+    """prepare_dataset on a complete LHS dataset of the same preset and seed with more trajectories than
+    asked for: no solver call, no rewrite; load_splits then gives its first rows. Another seed is still
+    the manifest's named conflict."""
+    from pcmgn_jax.data.splits import load_splits, prepare_dataset
+    out = tmp_path / "d"
+    ds.ensure_dataset(out, preset="tiny", n_train=4, n_test=2, seed=0, progress=False)
+    calls, before = len(fake.calls), (out / "manifest.json").stat().st_mtime_ns
+    assert prepare_dataset(out, preset="tiny", n_train=2, n_test=1, seed=0) == (out, ds.GENERATE)
+    assert len(fake.calls) == calls and (out / "manifest.json").stat().st_mtime_ns == before
+    train, val, test = load_splits(out, n_train=1, n_val=1, n_test=1)
+    assert [t.meta["name"] for t in train + val + test] == ["train_0000", "train_0001", "test_0000"]
+    with pytest.raises(ds.DatasetError, match="split 'train' holds 4 other designs"):
+        prepare_dataset(out, preset="tiny", n_train=2, n_test=1, seed=1)

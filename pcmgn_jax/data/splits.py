@@ -41,12 +41,34 @@ def prepare_dataset(dataset_dir: str | os.PathLike, *, preset: str, n_train: int
     (:func:`pcmgn_jax.data.dataset.ensure_dataset` with ``preset``, ``n_train``, ``n_test``, ``seed`` and
     ``generate``); an :data:`IMPORTED` one is left as it is (the preset's designs and the generation sizes
     play no part); anything else is the DatasetError of :func:`dataset_source`, before anything is written.
+    A complete generated dataset of the same preset and LHS seed that holds *more* train / test
+    trajectories than asked for is read as it is, its first rows (a random subset of its hypercube,
+    :func:`load_splits`): a smaller run, e.g. a learning-curve point, needs no second dataset.
     """
     root = Path(dataset_dir)
     source = dataset_source(root)
-    if source == GENERATE:
+    if source == GENERATE and not _covers(root, preset=preset, n_train=n_train, n_test=n_test, seed=seed):
         ensure_dataset(root, preset=preset, n_train=n_train, n_test=n_test, seed=seed, **generate)
     return root, source
+
+
+def _covers(root: Path, *, preset: str, n_train: int, n_test: int, seed: int) -> bool:
+    """True when ``root``'s manifest is a finished LHS dataset of ``preset`` and ``seed`` with at least
+    ``n_train`` train and ``n_test`` test trajectories (every one written: a sha256 recorded)."""
+    from pcmgn_jax.data.layout import load_manifest
+    man = load_manifest(root) if (root / "manifest.json").exists() else None
+    if not man or man.get("preset") != preset:
+        return False
+    for split, need in (("train", n_train), ("test", n_test)):
+        sp = man["splits"].get(split)
+        if need == 0:
+            continue
+        if sp is None or sp["origin"].get("kind") != "lhs" or sp["origin"].get("seed") != seed:
+            return False
+        done = [e for e in sp["trajectories"] if e.get("sha256")]
+        if len(done) < need or len(done) < len(sp["trajectories"]):
+            return False
+    return True
 
 
 def load_splits(dataset_dir: str | os.PathLike, *, n_train: int, n_val: int, n_test: int):
