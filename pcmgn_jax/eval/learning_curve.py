@@ -78,8 +78,11 @@ def curve_plot(rows: Mapping[int, dict], path) -> None:
     """Error against solver runs (log-log), one panel per winner metric, one line per predictor
     (the MGN's seed range as an error bar)."""
     import matplotlib.pyplot as plt
+    from matplotlib import ticker
     label = dict(METRICS)
-    fig, axes = plt.subplots(1, len(WINNER_METRICS), figsize=(4.2 * len(WINNER_METRICS), 3.6))
+    colours = dict(zip(CURVE_PREDICTORS, ("tab:blue", "tab:green", "tab:olive", "tab:orange", "tab:gray")))
+    fig, axes = plt.subplots(1, len(WINNER_METRICS), figsize=(4.2 * len(WINNER_METRICS), 3.8))
+    handles = {}
     for ax, key in zip(axes, WINNER_METRICS):
         for p in CURVE_PREDICTORS:
             ns = [n for n, r in rows.items() if key in r.get(p, {})]
@@ -88,13 +91,17 @@ def curve_plot(rows: Mapping[int, dict], path) -> None:
             y = np.array([rows[n][p][key] for n in ns])
             lo = np.array([rows[n][p].get(f"{key}_seeds", [v, v])[0] for n, v in zip(ns, y)])
             hi = np.array([rows[n][p].get(f"{key}_seeds", [v, v])[1] for n, v in zip(ns, y)])
-            ax.errorbar(ns, y, yerr=[y - lo, hi - y], marker="o", ms=4, capsize=3, lw=2 if p == "MGN" else 1,
-                        label=p)
+            handles[p] = ax.errorbar(ns, y, yerr=[y - lo, hi - y], marker="o", ms=4, capsize=3, color=colours[p],
+                                     lw=2 if p == "MGN" else 1, ls="-" if p != "mop" else ":", label=p)
         ax.set(xscale="log", yscale="log", xlabel="solver runs (training scenes)", ylabel=label[key])
-        ax.set_xticks(list(rows), [str(n) for n in rows])
-        ax.minorticks_off()
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
-    fig.tight_layout()
+        ax.xaxis.set_major_locator(ticker.FixedLocator(list(rows)))
+        ax.xaxis.set_major_formatter(ticker.FormatStrFormatter("%d"))
+        ax.xaxis.set_minor_locator(ticker.NullLocator())
+        ax.yaxis.set_major_formatter(ticker.FormatStrFormatter("%g"))
+        ax.yaxis.set_minor_formatter(ticker.FormatStrFormatter("%g"))
+        ax.tick_params(axis="y", which="minor", labelsize=7)
+        ax.grid(alpha=0.3, which="both")
+    fig.legend(list(handles.values()), list(handles), loc="upper center", ncol=len(handles), fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0, 1, 0.92))
     fig.savefig(path, dpi=110)
     plt.close(fig)
