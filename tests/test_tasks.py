@@ -54,10 +54,11 @@ def test_learning_curve_crossings_table_plot_and_cli(tmp_path):
     rows = curve_rows(pts)
     assert list(rows) == [8, 24, 48] and rows[24]["MGN"]["position_mae_um"] == pytest.approx(0.5)
     cross = crossings(rows)
-    assert cross["oled_objective_area_rel_error_pct_mean"] == {"kriging": 48}
-    assert cross["position_mae_um"] == {"rom": None} and cross["stress_mae_mpa"] == {"rom": 8}
+    assert cross["oled_objective_area_rel_error_pct_mean"] == {"kriging": [48]}
+    assert cross["position_mae_um"] == {"rom": []} and cross["stress_mae_mpa"] == {"rom": [8, 24, 48]}
     text = curve_table(rows)
-    assert "| 24 | 0.5 (0.4–0.6) | – | 0.1 |" in text and "rom: never (n ≤ 48)" in text and "kriging: from n = 48" in text
+    assert "| 24 | 0.5 (0.4–0.6) | – | 0.1 |" in text and "rom: never (n ≤ 48)" in text and "kriging: at n = 48" in text
+    assert "rom: at n = 8, 24, 48 (every size)" in text
     with pytest.raises(ValueError, match="different test sets"):
         curve_rows({8: [{**_m(1, 1, 1, 1), "n_test": 8}], 16: [{**_m(1, 1, 1, 1), "n_test": 3}]})
     files = []
@@ -69,7 +70,7 @@ def test_learning_curve_crossings_table_plot_and_cli(tmp_path):
     out = tmp_path / "lc"
     assert cli_curve.main(["--point", *files, "--out", str(out)]) == 0
     rec = json.loads((out / "learning_curve.json").read_text())
-    assert rec["crossings"]["oled_objective_area_rel_error_pct_mean"] == {"kriging": 48}
+    assert rec["crossings"]["oled_objective_area_rel_error_pct_mean"] == {"kriging": [48]}
     assert (out / "learning_curve.png").stat().st_size > 1000 and (out / "learning_curve.md").exists()
     with pytest.raises(ValueError, match="whole number of solver runs"):
         cli_curve.main(["--point", f"many={tmp_path / 'm0_0.json'}", "--out", str(out)])

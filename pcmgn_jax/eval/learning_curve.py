@@ -7,7 +7,7 @@ A point is a training-set size n (solver runs: the MGN's n_train + n_val; the ba
 are fitted on the run's n_train, so they see two runs fewer than the MGN's budget) and the metrics files
 of the MGN seeds trained on it, all evaluated on the same test scenes. Per predictor and metric the
 mean over the seeds (:func:`pcmgn_jax.eval.tasks.mean_rows`). :func:`crossings` names, per metric and
-baseline, the smallest n at which the MGN is at least as accurate, or says it never is in the range.
+baseline, the sizes n at which the MGN is at least as accurate, or says it never is in the range.
 """
 from __future__ import annotations
 
@@ -35,17 +35,17 @@ def curve_rows(points: Mapping[int, Sequence[dict]]) -> dict[int, dict[str, dict
     return rows
 
 
-def crossings(rows: Mapping[int, dict], mgn: str = "MGN") -> dict[str, dict[str, int | None]]:
-    """{metric: {baseline: the smallest n where the MGN's error <= the baseline's, or None}} over the
-    sizes where both report the metric."""
-    out: dict[str, dict[str, int | None]] = {}
+def crossings(rows: Mapping[int, dict], mgn: str = "MGN") -> dict[str, dict[str, list[int]]]:
+    """{metric: {baseline: the sizes n (ascending) where the MGN's error <= the baseline's; [] if none}}
+    over the sizes where both report the metric."""
+    out: dict[str, dict[str, list[int]]] = {}
     for key in WINNER_METRICS:
         for name in CURVE_PREDICTORS:
             if name == mgn:
                 continue
             both = [n for n, r in rows.items() if key in r.get(mgn, {}) and key in r.get(name, {})]
             if both:
-                out.setdefault(key, {})[name] = next((n for n in both if rows[n][mgn][key] <= rows[n][name][key]), None)
+                out.setdefault(key, {})[name] = [n for n in both if rows[n][mgn][key] <= rows[n][name][key]]
     return out
 
 
@@ -69,7 +69,8 @@ def curve_table(rows: Mapping[int, dict]) -> str:
         lines.append("")
     cross = crossings(rows)
     for key, per in cross.items():
-        said = [f"{b}: from n = {n}" if n is not None else f"{b}: never (n ≤ {max(rows)})" for b, n in per.items()]
+        said = [f"{b}: at n = {', '.join(map(str, ns))}" + (" (every size)" if len(ns) == len(rows) else "")
+                if ns else f"{b}: never (n ≤ {max(rows)})" for b, ns in per.items()]
         lines.append(f"- MGN at least as accurate on {label[key]}: " + "; ".join(said) + ".")
     return "\n".join(lines)
 
