@@ -332,6 +332,7 @@ class Explorer:
             f = [float(metrics.oled_objective_of(t, np.asarray(v), part=self.part, reading=self.reading))
                  for t, v in zip(self.train, vms)]
             self._mgn_spread = ResidualSpread(self.train, f, reading=self.reading, part=self.part)
+            self._pred = _Cache(CACHE_DESIGNS)   # the warm-up's prediction was made without the ±
             self.log(f"MGN ± ready in {time.perf_counter() - t0:.1f} s (training residual rms "
                      f"{np.sqrt(np.mean(self._mgn_spread.residual_mpa ** 2)):.3g} MPa)")
 
