@@ -128,7 +128,6 @@ def test_pareto_and_verdicts():
     assert v["bad"]["dominated_by"] == ["coarse"]
 
 
-@pytest.mark.slow  # ~62 s (its tiny_run setup): the default suite measured 613 s on a clean clone, over the 10-minute budget
 def test_speed_vs_error_surrogate_and_report(tiny_run, tiny_trajs, tmp_path):
     """Surrogate point from a trained tiny run (synthetic data) + stub solver points -> JSON/MD/PNG."""
     from benchmarks.speed_vs_error import report, surrogate_point
