@@ -13,7 +13,7 @@ from pathlib import Path
 
 from pcmgn_jax.data.cache import load_split
 from pcmgn_jax.data.dataset import ensure_dataset
-from pcmgn_jax.data.layout import GENERATE, IMPORTED, DatasetError, dataset_source
+from pcmgn_jax.data.layout import GENERATE, IMPORTED, DatasetError, dataset_source, load_manifest
 from pcmgn_jax.data.trajectory_io import TrajectoryFileError, read_sidecar, read_trajectory, write_trajectory
 from pcmgn_jax.trajectory import Trajectory
 
@@ -55,8 +55,7 @@ def prepare_dataset(dataset_dir: str | os.PathLike, *, preset: str, n_train: int
 def _covers(root: Path, *, preset: str, n_train: int, n_test: int, seed: int) -> bool:
     """True when ``root``'s manifest is a finished LHS dataset of ``preset`` and ``seed`` with at least
     ``n_train`` train and ``n_test`` test trajectories (every one written: a sha256 recorded)."""
-    from pcmgn_jax.data.layout import load_manifest
-    man = load_manifest(root) if (root / "manifest.json").exists() else None
+    man = load_manifest(root)
     if not man or man.get("preset") != preset:
         return False
     for split, need in (("train", n_train), ("test", n_test)):

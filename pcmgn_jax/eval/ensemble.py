@@ -93,8 +93,10 @@ def residual_spread_record(spread: ResidualSpread, trajs, pred_mpa, *, reading: 
             "train_residual_rms_mpa": float(np.sqrt(np.mean(spread.residual_mpa ** 2))), "warnings": spread.warnings}
 
 
-def _objective(trajs, vms, part) -> np.ndarray:
-    return np.array([float(metrics.oled_objective_of(t, vm, part=part)) for t, vm in zip(trajs, vms)])
+def rollout_objectives(trajs, vms, part, reading: str = metrics.DEFAULT_OBJECTIVE) -> np.ndarray:
+    """(B,) the objective [MPa] of predicted von Mises ``vms`` (one (T, N) [Pa] per trajectory, on its mesh)."""
+    return np.array([float(metrics.oled_objective_of(t, np.asarray(vm), part=part, reading=reading))
+                     for t, vm in zip(trajs, vms)])
 
 
 def member_predictions(workdirs: Sequence, sets: Mapping[str, Sequence], ref, part: int | None = None) -> list[dict]:
@@ -107,7 +109,7 @@ def member_predictions(workdirs: Sequence, sets: Mapping[str, Sequence], ref, pa
         got = {}
         for name, trajs in sets.items():
             u, vm = m.rollout_trajectories(trajs)
-            got[name] = ([np.asarray(a) for a in u], _objective(trajs, vm, part), [np.asarray(a) for a in vm])
+            got[name] = ([np.asarray(a) for a in u], rollout_objectives(trajs, vm, part), [np.asarray(a) for a in vm])
         out.append(got)
     return out
 

@@ -147,13 +147,12 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
         m["baselines"] = baseline_metrics(train_trajs, test_trajs,
                                            lambda u, vm: _scores(scene, test_trajs, u, vm, bnodes, pnodes))
     if mgn_spread and train_trajs and "OLED" in scene.part_names:
-        from pcmgn_jax.eval.ensemble import ResidualSpread, residual_spread_record
+        from pcmgn_jax.eval.ensemble import ResidualSpread, residual_spread_record, rollout_objectives
         part = scene.part_names.index("OLED")
-        obj = lambda trajs, vms: [float(metrics.oled_objective_of(t, np.asarray(v), part=part))  # noqa: E731
-                                  for t, v in zip(trajs, vms)]
         _, tv = mgn.rollout_trajectories(train_trajs)
-        spread = ResidualSpread(train_trajs, obj(train_trajs, tv), part=part)
-        m["mgn_spread"] = residual_spread_record(spread, test_trajs, obj(test_trajs, ps), part=part)
+        spread = ResidualSpread(train_trajs, rollout_objectives(train_trajs, tv, part), part=part)
+        # the test predictions' objective, as _scores computed it above
+        m["mgn_spread"] = residual_spread_record(spread, test_trajs, m["oled_objective_area_pred_mpa"], part=part)
     out = plots.ensure_dir(workdir / "eval" / name if name else workdir / "eval")
     atomic_write_json(out / "metrics.json", m)
     if plot:

@@ -325,12 +325,11 @@ class Explorer:
         self.mgn_seconds = float(model.rollout_seconds)
         self.log(f"MGN ready in {time.perf_counter() - t0:.1f} s; one rollout takes {self.mgn_seconds:.2f} s")
         if spread:
-            from pcmgn_jax.eval.ensemble import ResidualSpread
+            from pcmgn_jax.eval.ensemble import ResidualSpread, rollout_objectives
             t0 = time.perf_counter()
             self.log(f"the MGN on its {len(self.train)} training scenes (its ± comes from its residuals there) ...")
             _, vms = model.rollout_trajectories(self.train)
-            f = [float(metrics.oled_objective_of(t, np.asarray(v), part=self.part, reading=self.reading))
-                 for t, v in zip(self.train, vms)]
+            f = rollout_objectives(self.train, vms, self.part, self.reading)
             self._mgn_spread = ResidualSpread(self.train, f, reading=self.reading, part=self.part)
             self._pred = _Cache(CACHE_DESIGNS)   # the warm-up's prediction was made without the ±
             self.log(f"MGN ± ready in {time.perf_counter() - t0:.1f} s (training residual rms "
