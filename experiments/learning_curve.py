@@ -28,12 +28,13 @@ def main(argv=None) -> int:
     args = cli.parse(CurveArgs, argv, description=__doc__, prog="python -m experiments.learning_curve")
     from pcmgn_jax.atomic import atomic_write_text
     from pcmgn_jax.eval.learning_curve import crossings, curve_plot, curve_rows, curve_table
+    files = cli.keyed_paths(args.point, "point")
     specs = cli.keyed_json_files(args.point, "point")
     bad = [n for n in specs if not n.isdigit()]
     if bad or not specs:
         raise ValueError(f"--point: give N=metrics.json[,...] with N a whole number of solver runs (got {bad or 'none'})")
     points = {int(n): files for n, files in specs.items()}
-    paths = {int(spec.partition("=")[0]): spec.partition("=")[2].split(",") for spec in args.point}
+    paths = {int(n): [str(p) for p in fs] for n, fs in files.items()}
     rows = curve_rows(points)
     command = "python -m experiments.learning_curve " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
     out = Path(args.out)

@@ -104,12 +104,10 @@ def parse(cls: type[T], argv: Sequence[str] | None = None, *, description: str |
                     use_underscores=True, config=(tyro.conf.OmitArgPrefixes,), **kw)
 
 
-def keyed_json_files(specs: Sequence[str], flag: str) -> dict[str, list[dict]]:
-    """``["K=a.json,b.json", ...]`` (a flag's ``KEY=FILE[,FILE...]`` values) -> {KEY: [parsed JSON of each
-    file]}, in order. ValueError naming the flag and the spec for a malformed spec, a repeated key or a
-    missing file."""
-    import json
-    out: dict[str, list[dict]] = {}
+def keyed_paths(specs: Sequence[str], flag: str) -> dict[str, list[Path]]:
+    """``["K=a.json,b.json", ...]`` (a flag's ``KEY=FILE[,FILE...]`` values) -> {KEY: [Path of each file]},
+    in order. ValueError naming the flag and the spec for a malformed spec, a repeated key or a missing file."""
+    out: dict[str, list[Path]] = {}
     for spec in specs:
         key, sep, files = spec.partition("=")
         if not sep or not key or not files:
@@ -120,8 +118,20 @@ def keyed_json_files(specs: Sequence[str], flag: str) -> dict[str, list[dict]]:
         for p in paths:
             if not p.is_file():
                 raise ValueError(f"--{flag} {key}: {p} does not exist")
-        out[key] = [json.loads(p.read_text()) for p in paths]
+        out[key] = paths
     return out
+
+
+def keyed_json_files(specs: Sequence[str], flag: str) -> dict[str, list[dict]]:
+    """:func:`keyed_paths`, each file parsed as JSON (ValueError naming the file if it is not JSON)."""
+    import json
+
+    def load(p: Path):
+        try:
+            return json.loads(p.read_text())
+        except json.JSONDecodeError as err:
+            raise ValueError(f"--{flag}: {p} is not JSON ({err})") from None
+    return {key: [load(p) for p in paths] for key, paths in keyed_paths(specs, flag).items()}
 
 
 def run(main_fn, argv: Sequence[str] | None = None) -> int:

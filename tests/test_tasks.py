@@ -37,6 +37,10 @@ def test_cli_writes_the_table_and_names_a_missing_file(tmp_path):
     assert text.count("Winner per metric") == 2 and "(2 seed(s) of the MGN)" in text
     with pytest.raises(ValueError, match="does not exist"):
         tasks_table.main(["--task", f"b={tmp_path / 'nope.json'}"])
+    bad = tmp_path / "half.json"
+    bad.write_text('{"position_mae_um": 0.3,')  # a file cut off mid-write
+    with pytest.raises(ValueError, match="half.json is not JSON"):
+        tasks_table.main(["--task", f"b={bad}"])
 
 
 def test_rows_carry_the_mgn_seed_range_into_the_table():
@@ -71,6 +75,7 @@ def test_learning_curve_crossings_table_plot_and_cli(tmp_path):
     assert cli_curve.main(["--point", *files, "--out", str(out)]) == 0
     rec = json.loads((out / "learning_curve.json").read_text())
     assert rec["crossings"]["oled_objective_area_rel_error_pct_mean"] == {"kriging": [48]}
+    assert rec["files"]["24"] == files[0].partition("=")[2].split(",")
     assert (out / "learning_curve.png").stat().st_size > 1000 and (out / "learning_curve.md").exists()
     with pytest.raises(ValueError, match="whole number of solver runs"):
         cli_curve.main(["--point", f"many={tmp_path / 'm0_0.json'}", "--out", str(out)])
