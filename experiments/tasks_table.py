@@ -24,12 +24,12 @@ class TasksArgs:
 def main(argv=None) -> int:
     args = cli.parse(TasksArgs, argv, description=__doc__, prog="python -m experiments.tasks_table")
     from pcmgn_jax.atomic import atomic_write_text
-    from pcmgn_jax.eval.tasks import task_rows, task_table
+    from pcmgn_jax.eval.tasks import code_note, task_rows, task_table
     runs = cli.keyed_json_files(args.task, "task")
     seeds = {task: len(files) for task, files in runs.items()}
     command = "python -m experiments.tasks_table " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
     text = "\n".join(["# Four tasks: the MGN beside the response surfaces", "", f"`{command}`", "",
-                      *[f"{n}" for n in args.note], "", task_table(task_rows(runs), seeds=seeds)])
+                      *[f"{n}" for n in args.note], code_note(runs), "", task_table(task_rows(runs), seeds=seeds)])
     print(text)
     if args.out:
         atomic_write_text(Path(args.out), text + "\n")

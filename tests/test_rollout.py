@@ -64,6 +64,7 @@ def test_evaluate_scores_model_and_baselines(tiny_run, tiny_trajs):
     m = evaluation.evaluate(workdir, test_trajs=test, train_trajs=train, plot=True)
     saved = json.loads((workdir / "eval" / "metrics.json").read_text())
     assert saved["position_mae_um"] == m["position_mae_um"]
+    assert set(saved["code"]) == {"version", "commit", "dirty"}  # which code made it (pcmgn_jax/provenance.py)
     pu, ps = MGNSurrogate(workdir, test[0]).rollout_trajectories(test)
     tu = np.stack([t.displacement for t in test])
     assert m["position_mae_um"] == pytest.approx(metrics.position_mae_um(pu, tu), rel=1e-6)

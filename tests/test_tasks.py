@@ -35,12 +35,23 @@ def test_cli_writes_the_table_and_names_a_missing_file(tmp_path):
     assert tasks_table.main(["--task", f"a={f}", f"b={f},{f}", "--out", str(out)]) == 0
     text = out.read_text()
     assert text.count("Winner per metric") == 2 and "(2 seed(s) of the MGN)" in text
+    assert "Code of the 3 metrics files: 3 from no code record (older files)." in text
     with pytest.raises(ValueError, match="does not exist"):
         tasks_table.main(["--task", f"b={tmp_path / 'nope.json'}"])
     bad = tmp_path / "half.json"
     bad.write_text('{"position_mae_um": 0.3,')  # a file cut off mid-write
     with pytest.raises(ValueError, match="half.json is not JSON"):
         tasks_table.main(["--task", f"b={bad}"])
+
+
+def test_code_note_names_mixed_code_versions():
+    from pcmgn_jax.eval.tasks import code_note
+    a = {**_m(0.3, 2.0, 0.1, 0.05), "code": {"commit": "a" * 40, "dirty": False}}
+    b = {**_m(0.3, 2.0, 0.1, 0.05), "code": {"commit": "b" * 40, "dirty": True}}
+    assert code_note({"a": [a, a]}) == f"Code of the 2 metrics files: 2 from {'a' * 10}."
+    mixed = code_note({"a": [a], "b": [b, _m(0.3, 2.0, 0.1, 0.05)]})
+    assert "1 from bbbbbbbbbb (uncommitted changes)" in mixed and "no code record" in mixed
+    assert mixed.endswith("made by different code: compare with care.")
 
 
 def test_rows_carry_the_mgn_seed_range_into_the_table():

@@ -32,6 +32,7 @@ from pcmgn_jax.eval.baselines import READING_KEYS, baseline_metrics, objective_s
 from pcmgn_jax.eval.surrogates import MGNSurrogate
 from pcmgn_jax.geometry import roi_boundary_nodes
 from pcmgn_jax.mgn.contact import contact_parts
+from pcmgn_jax.provenance import code_version
 from pcmgn_jax.scene import Scene
 
 
@@ -140,7 +141,7 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
              n_test=len(test_trajs), n_frames=T, n_nodes=ref.n_nodes,
              n_nodes_per_trajectory=[t.n_nodes for t in test_trajs], checkpoint=which,
              contact_projection=bool(mgn.sim.spec.formulation.contact_projection),
-             contact_capacity=int(mgn.sim.index.capacity),
+             contact_capacity=int(mgn.sim.index.capacity), code=code_version(),
              phases=[{k: list(v) for k, v in p.items()} for p in phases],
              window_has_all_phases=all(v[0] is not None for p in phases for v in p.values()))
     if train_trajs:

@@ -100,3 +100,18 @@ def _table(row: dict[str, dict[str, float]]) -> list[str]:
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     named = ", ".join(f"{dict(METRICS)[k]}: **{n}**" for k, n in win.items())
     return lines + ["", f"Winner per metric: {named}.", ""]
+
+
+def code_note(runs: Mapping[str, Sequence[dict]]) -> str:
+    """One line naming the code versions the metrics files come from (their ``code`` record, written by
+    evaluate since it has one): a table whose files were made by different code says so."""
+    counts: dict[str, int] = {}
+    for files in runs.values():
+        for m in files:
+            c = m.get("code") or {}
+            key = ("no code record (older files)" if not c.get("commit")
+                   else c["commit"][:10] + (" (uncommitted changes)" if c.get("dirty") else ""))
+            counts[key] = counts.get(key, 0) + 1
+    parts = [f"{n} from {k}" for k, n in sorted(counts.items(), key=lambda kv: -kv[1])]
+    warn = " — made by different code: compare with care" if len(counts) > 1 else ""
+    return f"Code of the {sum(counts.values())} metrics files: {'; '.join(parts)}{warn}."
