@@ -24,12 +24,15 @@ class TasksArgs:
 def main(argv=None) -> int:
     args = cli.parse(TasksArgs, argv, description=__doc__, prog="python -m experiments.tasks_table")
     from pcmgn_jax.atomic import atomic_write_text
-    from pcmgn_jax.eval.tasks import code_note, task_rows, task_table
+    from pcmgn_jax.eval.tasks import code_note, summary_table, task_rows, task_table
     runs = cli.keyed_json_files(args.task, "task")
     seeds = {task: len(files) for task, files in runs.items()}
     command = "python -m experiments.tasks_table " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
+    rows = task_rows(runs)
     text = "\n".join(["# Four tasks: the MGN beside the response surfaces", "", f"`{command}`", "",
-                      *[f"{n}" for n in args.note], code_note(runs), "", task_table(task_rows(runs), seeds=seeds)])
+                      *[f"{n}" for n in args.note], code_note(runs), "",
+                      "**At a glance** (mean over the MGN's seeds; bold where the MGN is at least as accurate):", "",
+                      summary_table(rows), "", task_table(rows, seeds=seeds)])
     print(text)
     if args.out:
         atomic_write_text(Path(args.out), text + "\n")

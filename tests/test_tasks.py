@@ -35,13 +35,22 @@ def test_cli_writes_the_table_and_names_a_missing_file(tmp_path):
     assert tasks_table.main(["--task", f"a={f}", f"b={f},{f}", "--out", str(out)]) == 0
     text = out.read_text()
     assert text.count("Winner per metric") == 2 and "(2 seed(s) of the MGN)" in text
-    assert "Code of the 3 metrics files: 3 from no code record (older files)." in text
+    assert "Code of the 3 metrics files: 3 from no code record (older files)." in text and "**At a glance**" in text
     with pytest.raises(ValueError, match="does not exist"):
         tasks_table.main(["--task", f"b={tmp_path / 'nope.json'}"])
     bad = tmp_path / "half.json"
     bad.write_text('{"position_mae_um": 0.3,')  # a file cut off mid-write
     with pytest.raises(ValueError, match="half.json is not JSON"):
         tasks_table.main(["--task", f"b={bad}"])
+
+
+def test_summary_names_the_best_baseline_and_the_ratio():
+    from pcmgn_jax.eval.tasks import summary_table
+    rows = task_rows({"a": [_m(0.3, 2.0, 0.1, 0.05)]})
+    text = summary_table(rows)
+    best_pos = min(v["position_mae_um"] for n, v in rows["a"].items() if n != "MGN" and "position_mae_um" in v)
+    name = next(n for n, v in rows["a"].items() if n != "MGN" and v.get("position_mae_um") == best_pos)
+    assert f"| a | " in text and f"0.3 / {best_pos:.3g} ({name}): {0.3 / best_pos:.2g}×" in text
 
 
 def test_code_note_names_mixed_code_versions():

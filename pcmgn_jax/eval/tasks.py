@@ -86,6 +86,31 @@ def task_table(rows: dict, commands: Mapping[str, str] = {}, seeds: Mapping[str,
     return "\n".join(lines)
 
 
+def summary_table(rows: dict) -> str:
+    """Markdown, one row per task (and variant): per winner metric the MGN's value, the best baseline's
+    (named) and their ratio MGN / best (< 1: the MGN is the more accurate), so the whole comparison reads
+    at a glance before the per-task tables."""
+    labels = dict(METRICS)
+    head = "| task | " + " | ".join(f"{labels[k]}: MGN / best baseline" for k in WINNER_METRICS) + " |"
+    lines = [head, "|---" * (len(WINNER_METRICS) + 1) + "|"]
+    for task, row in rows.items():
+        if "MGN" not in row:
+            continue
+        cells = []
+        for key in WINNER_METRICS:
+            base = [(v[key], n) for n, v in row.items() if n != "MGN" and key in v]
+            mgn = row["MGN"].get(key)
+            if mgn is None or not base:
+                cells.append("–")
+                continue
+            best, name = min(base, key=lambda t: t[0])
+            ratio = f"{mgn / best:.2g}×" if best > 0 else "–"
+            cell = f"{mgn:.3g} / {best:.3g} ({name}): {ratio}"
+            cells.append(f"**{cell}**" if mgn <= best else cell)
+        lines.append(f"| {task} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def _table(row: dict[str, dict[str, float]]) -> list[str]:
     win = winners(row)
     lines = ["| predictor | " + " | ".join(label for _, label in METRICS) + " |", "|---" * (len(METRICS) + 1) + "|"]
