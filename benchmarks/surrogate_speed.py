@@ -84,6 +84,7 @@ def trained_point(workdir: Path, test, *, batch: int, repeats: int, which: str, 
     form = mgn.sim.spec.formulation
     res = dict(mgn_s_per_design=rollout_s / len(test) + mesh_s, mgn_rollout_s_per_design=rollout_s / len(test),
                mesh_build_s=mesh_s, mgn_compile_s=max(first - 2 * rollout_s, 0.0), formulation=dataclasses.asdict(form),
+               residual_of=mgn.residual_of,  # a baseline's residual: its prediction is inside the rollout time
                latent=mgn.sim.config.latent_size, message_passing_steps=mgn.sim.config.message_passing_steps,
                objective_error_pct=obj.get("oled_objective_area_rel_error_pct_mean"),
                objective_error_pct_max=obj.get("oled_objective_area_rel_error_pct_max"), **errors(pu, pvm, test))

@@ -26,7 +26,9 @@ class EvaluateArgs:
     which: Literal["best", "periodic"] = "best"  # checkpoint: best validation or latest periodic
     data: str = ""                             # directory of trajectory files ("" = the run's test split)
     name: str = ""                             # output RUN/eval/NAME ("" = the --data folder's name)
+    split: Literal["test", "val"] = "test"     # val: score the run's validation trajectories (RUN/eval/val): choose rollout settings there, not on test
     contact_projection: Literal["", "on", "off"] = ""  # override the run's rollout contact projection ("" = the run's)
+    residual_ball: Literal["", "baseline", "network"] = ""  # a residual_of run: who moves the rigid ball in the rollouts ("" = the run's residual_ball)
     mgn_spread: bool = False                   # also roll out the training split: a GP of the MGN's objective residuals gives each prediction a ± (metrics.json mgn_spread)
 
 
@@ -38,7 +40,8 @@ def main(argv=None) -> int:
     from pcmgn_jax.eval.evaluate import summary_table
     from pcmgn_jax.eval.pipeline import output_name
     m = run(args.workdir, which=args.which, data=args.data, name=args.name,
-            contact_projection=args.contact_projection, mgn_spread=args.mgn_spread)
+            contact_projection=args.contact_projection, mgn_spread=args.mgn_spread, residual_ball=args.residual_ball,
+            split=args.split)
     print(summary_table(m))
     if "mgn_spread" in m:
         s = m["mgn_spread"]

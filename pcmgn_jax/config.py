@@ -25,6 +25,9 @@ from typing import Any
 
 from pcmgn_jax.mgn.formulation import FORMULATIONS, NOISE_PARTS, Formulation
 
+RESIDUAL_BASES = ("", "rom")  # residual_of: the baselines the network can learn a correction of
+RESIDUAL_BALLS = ("baseline", "network")  # residual_ball: who moves the rigid ball in a residual run's rollout
+
 
 @dataclass(frozen=True)
 class TrainConfig:
@@ -49,6 +52,8 @@ class TrainConfig:
     # ---- loss -------------------------------------------------------------------------------
     lambda_pen: float = 0.0          # weight of the penetration term (0 = vanilla MGN; paper: 10)
     lambda_obj: float = 0.0          # weight of the objective term: per graph, the squared error of the OLED's objective-section mean von Mises (normalised; docs/design.md §7); 0 = off
+    residual_of: str = ""            # "" (the network predicts the fields) | rom: the network predicts what the named baseline gets wrong (the panel's displacement and every node's von Mises minus the baseline's, out-of-fold on the training scenes); a rollout adds the baseline back (pcmgn_jax/eval/residual.py; docs/design.md §5.2)
+    residual_ball: str = "baseline"  # with residual_of, where a rollout's rigid ball goes: baseline (the baseline's ball trajectory; the network corrects the panel's fields along it) | network (the network's own ball dynamics); rollout-only (evaluate --residual_ball overrides)
     lambda_start: float = 0.0        # fraction of training before the penetration term switches on (then a 10 % linear ramp; 0 = from step 0, the paper)
     poly_ball: int = 6               # polynomial degree of the ball boundary fit (penetration term)
     poly_panel: int = 5              # polynomial degree of the cover-glass fit (penetration term)
@@ -101,6 +106,15 @@ class TrainConfig:
             bad("lambda_start", "must be in [0, 1) (a fraction of the training steps)")
         if self.contact_radius < 0 or self.noise_std < 0 or self.noise_rel < 0 or self.lambda_pen < 0 or self.lambda_obj < 0:
             bad("contact_radius/noise_std/noise_rel/lambda_pen/lambda_obj", "must be >= 0")
+        if self.residual_of not in RESIDUAL_BASES:
+            bad("residual_of", f"must be one of {RESIDUAL_BASES} ('' = the network predicts the fields themselves)")
+        if self.residual_of and (self.formulation.panel_model != "quasi_static" or self.lambda_pen > 0):
+            bad("residual_of", "needs formulation panel_model='quasi_static' and lambda_pen=0: only a panel whose "
+                "fields are outputs, never inputs, can be predicted as a baseline's residual, and the penetration "
+                f"term would judge the residual as a position (got panel_model={self.formulation.panel_model!r}, "
+                f"lambda_pen={self.lambda_pen:g})")
+        if self.residual_ball not in RESIDUAL_BALLS:
+            bad("residual_ball", f"must be one of {RESIDUAL_BALLS}")
         if not 0 < self.learning_rate < 1:
             bad("learning_rate", "must be in (0, 1)")
         if self.frames_per_sample < 0:
@@ -146,6 +160,16 @@ class TrainConfig:
 
     def replace(self, **kw) -> "TrainConfig":
         return dataclasses.replace(self, **kw)
+
+    @property
+    def scan_formulation(self) -> Formulation:
+        """The formulation a rollout's ``lax.scan`` runs (:func:`pcmgn_jax.mgn.checkpoint.make_spec`): the
+        run's, except that with ``residual_of`` the contact projection leaves the scan (the network's panel
+        output is then a residual, not a position); it acts on the corrected field once the baseline is
+        added (:func:`pcmgn_jax.eval.residual.corrected_rollouts`)."""
+        if self.residual_of:
+            return self.formulation.replace(contact_projection=False)
+        return self.formulation
 
     @property
     def frames(self) -> int:

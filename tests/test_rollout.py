@@ -1,4 +1,6 @@
 """Rollout: long horizons stay finite, boundary conditions hold, scan == loop, vmap == single, no recompiles."""
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -214,3 +216,32 @@ def test_contact_projection_of_a_union_is_each_graphs_own_and_has_finite_gradien
     assert np.all(out[n1 + n2:] == 0) and out[:n1 + n2, 1].min() < -4e-6
     grad = jax.grad(lambda uu: rl.project_contact(stacked, points, uu)[:, 1].sum())(u)
     assert np.all(np.isfinite(np.asarray(grad)))
+
+
+def test_a_given_ball_path_drives_the_ball_and_its_own_path_changes_nothing(tiny_run, tiny_trajs):
+    """rollout_designs with ``ball_u`` / ``ball_v``: the ball's rows follow the given path; given the path
+    the network itself produced, the rollout is the undriven one (the panel is the same map of the ball's
+    state). A dynamic panel refuses a path."""
+    from pcmgn_jax.eval.surrogates import MGNSurrogate
+    _, workdir, _ = tiny_run
+    t = tiny_trajs[3]
+    mgn = MGNSurrogate(workdir, t)
+    design = mgn._design(t, t.displacement[0], t.velocity[0], t.von_mises[0], t.meta["scene"])
+    spec, n = mgn.sim.spec, t.n_frames - 1
+    free = rl.rollout_designs(spec, n, mgn.sim.params, mgn.sim.stats, [design]).rollouts[0]
+    own = dict(design, ball_u=np.asarray(free.displacement[1:]), ball_v=np.asarray(free.velocity[1:]))
+    same = rl.rollout_designs(spec, n, mgn.sim.params, mgn.sim.stats, [own]).rollouts[0]
+    scale = float(np.abs(free.displacement).max())
+    np.testing.assert_allclose(same.displacement, free.displacement, rtol=1e-5, atol=1e-5 * scale)
+    np.testing.assert_allclose(same.von_mises, free.von_mises, rtol=1e-3, atol=1e-3 * float(np.abs(free.von_mises).max()))
+    ball = np.asarray(t.node_type) == 0
+    path = np.zeros((n, t.n_nodes, 2), np.float32)
+    path[:, :, 1] = -np.linspace(0.1e-6, 8e-6, n)[:, None]           # straight down, 8 µm by the end
+    driven = rl.rollout_designs(spec, n, mgn.sim.params, mgn.sim.stats,
+                                [dict(design, ball_u=path, ball_v=np.gradient(path, axis=0) / spec.dt)]).rollouts[0]
+    np.testing.assert_allclose(np.asarray(driven.displacement)[1:, ball], path[:, ball], atol=1e-12)
+    assert np.isfinite(driven.von_mises).all()
+    with pytest.raises(ValueError, match="quasi_static"):
+        dyn = dataclasses.replace(spec, formulation=spec.formulation.replace(panel_model="dynamic",
+                                                                             panel_target="velocity"))
+        rl.rollout_designs(dyn, n, mgn.sim.params, mgn.sim.stats, [dict(design, ball_u=path, ball_v=path)])

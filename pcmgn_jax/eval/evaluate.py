@@ -112,23 +112,27 @@ def summary_table(m: dict) -> str:
 
 def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence = (), which: str = "best",
              batch: int = 4, plot: bool = True, name: str | None = None, contact_projection: str = "",
-             mgn_spread: bool = False) -> dict:
+             mgn_spread: bool = False, residual_ball: str = "") -> dict:
     """Roll the run's model out on ``test_trajs`` and score it beside the baselines fitted on
     ``train_trajs`` (the run's training split). Writes WORKDIR/eval[/name]/metrics.json and PNGs.
     ``contact_projection``: "on" / "off" overrides the run's formulation in the rollouts (the projection
     is rollout-only, so the same checkpoint serves both); "" keeps it. ``mgn_spread``: also roll the model
     out on ``train_trajs`` and put the std of a GP of its objective residuals there beside each test
-    prediction (``mgn_spread`` in metrics.json, :class:`pcmgn_jax.eval.ensemble.ResidualSpread`)."""
+    prediction (``mgn_spread`` in metrics.json, :class:`pcmgn_jax.eval.ensemble.ResidualSpread`).
+    ``residual_ball``: "baseline" / "network" overrides a ``residual_of`` run's ``residual_ball`` (rollout-only)."""
     workdir = Path(workdir)
     ref = test_trajs[0]
     T = ref.n_frames
     scene = Scene.from_dict(ref.meta["scene"])
     cfg = None
-    if contact_projection:
+    if contact_projection or residual_ball:  # rollout-only fields: the same checkpoint serves both
         from pcmgn_jax.config import TrainConfig
         cfg = TrainConfig.load(workdir / "config.json")
-        cfg = cfg.replace(formulation=cfg.formulation.replace(contact_projection=contact_projection == "on"))
-    mgn = MGNSurrogate(workdir, ref, which=which, batch=batch, cfg=cfg)
+        if contact_projection:
+            cfg = cfg.replace(formulation=cfg.formulation.replace(contact_projection=contact_projection == "on"))
+        if residual_ball:
+            cfg = cfg.replace(residual_ball=residual_ball)
+    mgn = MGNSurrogate(workdir, ref, which=which, batch=batch, cfg=cfg, base_trajs=list(train_trajs) or None)
     pu, ps = mgn.rollout_trajectories(test_trajs)
     _, panel_part = contact_parts(scene)
     bnodes, pnodes = zip(*[boundary(t, panel_part) for t in test_trajs])
@@ -140,7 +144,8 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
     m.update(truth_pen, rollout_seconds_per_trajectory=mgn.rollout_seconds / len(test_trajs),
              n_test=len(test_trajs), n_frames=T, n_nodes=ref.n_nodes,
              n_nodes_per_trajectory=[t.n_nodes for t in test_trajs], checkpoint=which,
-             contact_projection=bool(mgn.sim.spec.formulation.contact_projection),
+             contact_projection=bool(mgn.sim.config.formulation.contact_projection), residual_of=mgn.residual_of,
+             residual_ball=mgn.sim.config.residual_ball if mgn.residual_of else None,
              contact_capacity=int(mgn.sim.index.capacity), code=code_version(),
              phases=[{k: list(v) for k, v in p.items()} for p in phases],
              window_has_all_phases=all(v[0] is not None for p in phases for v in p.values()))

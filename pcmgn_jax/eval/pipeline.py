@@ -33,22 +33,30 @@ def run_splits(workdir: str | Path):
 
 
 def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str = "",
-        contact_projection: str = "", mgn_spread: bool = False) -> dict:
+        contact_projection: str = "", mgn_spread: bool = False, residual_ball: str = "", split: str = "test") -> dict:
     """Evaluate the run in ``workdir`` and return the metrics dict written to
     ``WORKDIR/eval[/NAME]/metrics.json`` (:mod:`pcmgn_jax.eval.evaluate`; PNG plots beside it).
 
     ``which``: checkpoint, ``best`` (validation) or ``periodic`` (latest); ``data``: a directory of
     trajectory files ("" = the run's test split); ``name``: the output folder under RUN/eval (""= the
     ``data`` folder's name, :func:`output_name`); ``contact_projection``: ``on`` / ``off`` overrides the
-    run's rollout contact projection ("" = the run's)."""
+    run's rollout contact projection ("" = the run's); ``residual_ball``: a residual run's ball override ("" =
+    the run's); ``split``: ``val`` scores the run's validation trajectories instead (RUN/eval/val unless
+    ``name``), where a rollout setting is chosen without looking at the test split."""
     from pcmgn_jax.config import TrainConfig
     from pcmgn_jax.data.dataset import load_directory, load_splits
     from pcmgn_jax.eval import evaluate as evaluation
     cfg = TrainConfig.load(Path(workdir) / "config.json")
-    train, _, test = load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train, n_val=0,
-                                 n_test=0 if data else cfg.n_test)
+    if split not in ("test", "val"):
+        raise ValueError(f"evaluate: split={split!r} must be test or val")
+    if split == "val" and data:
+        raise ValueError("evaluate: split='val' scores the run's validation trajectories; it takes no data directory")
+    train, val, test = load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train, n_val=cfg.n_val if split == "val" else 0,
+                                   n_test=0 if data or split == "val" else cfg.n_test)
     if data:
         test = load_directory(data)
+    if split == "val":  # what choices between rollout settings are made on, never the test split
+        test, name = val, name or "val"
     return evaluation.evaluate(workdir, test_trajs=test, train_trajs=train, which=which,
                                name=output_name(data, name), contact_projection=contact_projection,
-                               mgn_spread=mgn_spread)
+                               mgn_spread=mgn_spread, residual_ball=residual_ball)

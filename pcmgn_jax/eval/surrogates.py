@@ -234,11 +234,16 @@ class MGNSurrogate:
 
     name = "mgn"
 
-    def __init__(self, workdir, ref, *, which: str = "best", batch: int = 8, cfg=None):
+    def __init__(self, workdir, ref, *, which: str = "best", batch: int = 8, cfg=None, base_trajs=None):
         """``cfg``: the run's TrainConfig with rollout-only fields changed (e.g. ``contact_projection``);
-        None = the run's own config.json."""
+        None = the run's own config.json. ``base_trajs``: for a ``residual_of`` run, the trajectories its
+        baseline is fitted on (None: the run's training split, read when first needed)."""
         from pcmgn_jax.mgn.checkpoint import load
+        self.workdir = workdir
         self.sim = load(workdir, ref, which=which, cfg=cfg)
+        self.residual_of = self.sim.config.residual_of
+        self._base_trajs, self._base = base_trajs, None
+        self.base_fit_seconds = 0.0
         self.ref = ref
         self.batch = batch
         self.rollout_seconds = 0.0
@@ -279,6 +284,7 @@ class MGNSurrogate:
         """Roll out from initial states (B, N, 2) x3 and (B, N) on the reference mesh's topology:
         (u (B,T,N,2) [m], vm (B,T,N) [Pa]). ``designs`` (B, D) [m]: the designs these meshes are of, for
         the scene features (e.g. ``layer_thickness``); None: the reference's scene."""
+        self._whole_fields_only("rollout")
         scenes = [None] * len(points) if designs is None else [self.scene_of(d) for d in designs]
         return self._rollout([dict(self._design(self.ref, u, v, vm, sc), points=np.asarray(p, np.float32))
                               for p, u, v, vm, sc in zip(points, u0, v0, vm0, scenes)])
@@ -291,14 +297,66 @@ class MGNSurrogate:
     def rollout_trajectories(self, trajs):
         """Roll out from frame 0 of each trajectory, each on its own mesh (stacked when the node counts
         agree, else lists)."""
-        return self._rollout([self._design(t, t.displacement[0], t.velocity[0], t.von_mises[0], t.meta["scene"])
-                              for t in trajs])
+        designs = [self._design(t, t.displacement[0], t.velocity[0], t.von_mises[0], t.meta["scene"]) for t in trajs]
+        if not self.residual_of:
+            return self._rollout(designs)
+        import time
+
+        from pcmgn_jax.eval.residual import ball_path
+        t0 = time.perf_counter()
+        base = self._baseline_fields(trajs)
+        if self.sim.config.residual_ball == "baseline":  # the ball follows the baseline's trajectory
+            for d, t, bu in zip(designs, trajs, base[0]):
+                d["ball_u"], d["ball_v"] = ball_path(t, bu, self.sim.spec.dt)
+        base_s = time.perf_counter() - t0
+        u, vm = self._rollout(designs)
+        self.rollout_seconds += base_s
+        return self._corrected(trajs, designs, u, vm, base)
+
+    def _whole_fields_only(self, what: str):
+        if self.residual_of:
+            raise ValueError(f"MGNSurrogate.{what}: this run predicts the {self.residual_of} baseline's residual "
+                             f"(residual_of={self.residual_of!r}), which needs each query's scene parameters: "
+                             "use rollout_trajectories with trajectories that carry them")
+
+    def _baseline_fields(self, trajs):
+        """A ``residual_of`` run's baseline fields (u list, vm list) on ``trajs``; the baseline is fitted
+        once, on the run's training split unless ``base_trajs`` was given (``base_fit_seconds``)."""
+        import time
+
+        from pcmgn_jax.eval.residual import fit_baseline
+        if self._base is None:
+            t0 = time.perf_counter()
+            if self._base_trajs is None:
+                from pcmgn_jax.eval.pipeline import run_splits
+                self._base_trajs = run_splits(self.workdir)[1]
+            self._base = fit_baseline(self.residual_of, self._base_trajs)
+            self.base_fit_seconds = time.perf_counter() - t0
+        return self._base.predict_trajectories(trajs)
+
+    def _corrected(self, trajs, designs, u, vm, base):
+        """A ``residual_of`` run's rollouts (residuals) plus its baseline's fields ``base`` (u, vm lists),
+        then the contact projection on the sum when the run's formulation has it
+        (:mod:`pcmgn_jax.eval.residual`). The baseline's prediction counts in ``rollout_seconds``."""
+        import time
+
+        from pcmgn_jax.eval.residual import corrected
+        from pcmgn_jax.mgn.rollout import project_frames
+        t0 = time.perf_counter()
+        u, vm = corrected(trajs, u, vm, *base)
+        if self.sim.config.formulation.contact_projection:
+            u = [project_frames(d["index"], d["points"], x) for d, x in zip(designs, u)]
+        self.rollout_seconds += time.perf_counter() - t0
+        if len({a.shape for a in u}) == 1:
+            return np.stack(u), np.stack(vm)
+        return u, vm
 
     def predict(self, designs_m):
         """Designs (B, D) [m] -> fields, each on its own mesh (the training data's scene and preset):
         (u (B,T,N,2), vm (B,T,N)), or lists when the designs' meshes differ in node count."""
         from pcmgn_jax.scene import Scene
         from pcmgn_jax.sim.mesh import build_mesh, roi
+        self._whole_fields_only("predict")
         scene = Scene.from_dict(self.ref.meta["scene"])
         preset = self.ref.meta.get("solver", {}).get("preset")
         if preset is None:

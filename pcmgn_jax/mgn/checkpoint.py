@@ -42,8 +42,9 @@ class Loaded(NamedTuple):
 
 
 def make_spec(cfg: TrainConfig, dt: float) -> Spec:
-    """The static simulator settings (model sizes, formulation, frame interval [s]) of a config."""
-    form = cfg.formulation
+    """The static simulator settings (model sizes, formulation, frame interval [s]) of a config (the
+    formulation its rollouts scan: :attr:`TrainConfig.scan_formulation`)."""
+    form = cfg.scan_formulation
     model = EncodeProcessDecode(output_size=form.output_size, latent_size=cfg.latent_size,
                                 mlp_layers=cfg.mlp_layers, message_passing_steps=cfg.message_passing_steps,
                                 decoder_condition=form.decoder_condition)

@@ -113,6 +113,17 @@ def project_contact(index: contact_lib.ContactIndex, points, u):
     return u.at[panel.reshape(-1), 1].add(-depth.reshape(-1))
 
 
+_project_frames = jax.jit(jax.vmap(lambda index, points, u: project_contact(index, points, u), in_axes=(None, None, 0)))
+
+
+def project_frames(index: contact_lib.ContactIndex, points, u) -> np.ndarray:
+    """:func:`project_contact` of every frame of ``u`` (T, N, 2) [m] on one mesh (float64 NumPy out): the
+    projection applied after a rollout, to a field the scan did not produce whole (a baseline's residual
+    plus the baseline, :mod:`pcmgn_jax.eval.residual`)."""
+    moved = _project_frames(index, jnp.asarray(points, jnp.float32), jnp.asarray(u, jnp.float32))
+    return np.asarray(u, np.float64) + (np.asarray(moved, np.float64) - np.asarray(u, np.float32))
+
+
 # ---- one step -------------------------------------------------------------------------------
 
 def input_graph(form: Formulation, topology: Topology, index: contact_lib.ContactIndex, points, u, v,
@@ -184,13 +195,18 @@ def step(spec: Spec, params, stats: Stats, topology: Topology, index, points, u,
     return u_next, v_next, vm, edges
 
 
-def _advance_quasi_static(spec: Spec, stats, topology, index, points, u, v, out, net, layout=None):
+def _advance_quasi_static(spec: Spec, stats, topology, index, points, u, v, out, net, layout=None, drive=None):
     """A quasi-static panel's frame forward from the output ``out`` at the state (u, v): the ball moves
     on by its acceleration, then the network ``net`` (:func:`network`), evaluated at the ball's new
     state, gives the panel's fields there (the panel's outputs are fields at the input's own time,
     :func:`formulation.training_sample`). Returns (u_next, v_next, vm_next, out_next, edges); a rollout
-    carries ``out_next`` to the next frame, so one evaluation per frame (and one for the initial state)."""
+    carries ``out_next`` to the next frame, so one evaluation per frame (and one for the initial state).
+    ``drive``: None, or the ball's next (u, v) (N, 2) given (its rows are used): the ball follows that
+    path instead of the network's acceleration (:func:`rollout_union`'s ``ball_path``)."""
     ub, vb, _ = integrate_output(spec, stats, topology, points, u, v, out, layout)
+    if drive is not None:
+        ball = ball_mask(topology)[:, None]
+        ub, vb = jnp.where(ball, drive[0], ub), jnp.where(ball, drive[1], vb)
     out_next, edges = net(ub, vb)
     up, _, vm = integrate_output(spec, stats, topology, points, ub, vb, out_next, layout)
     ball = ball_mask(topology)[:, None]
@@ -226,15 +242,18 @@ def jitted_step(spec: Spec, params, stats, topology, index, points, u, v):
 
 
 def _rollout(spec: Spec, n_steps: int, params, stats, topology, index, points, u0, v0, vm0,
-             layout: Layout | None = None):
+             layout: Layout | None = None, ball_path=None):
     points = jnp.asarray(points, jnp.float32)
     quasi_static = spec.formulation.panel_model == "quasi_static"
+    if ball_path is not None and not quasi_static:
+        raise ValueError("rollout: a given ball path needs the quasi_static panel (its fields are a map of the "
+                         "ball's state); a dynamic panel integrates its own state")
 
-    def body(carry, _):
+    def body(carry, drive):
         u, v, out = carry
         if quasi_static:  # carry the output at (u, v): one network evaluation per frame
             u_next, v_next, vm, out, edges = _advance_quasi_static(spec, stats, topology, index, points,
-                                                                   u, v, out, net, layout)
+                                                                   u, v, out, net, layout, drive)
         else:
             u_next, v_next, vm, edges = step(spec, params, stats, topology, index, points, u, v, layout)
         return (u_next, v_next, out), (u_next, v_next, vm, edges.overflow, edges.count)
@@ -246,7 +265,7 @@ def _rollout(spec: Spec, n_steps: int, params, stats, topology, index, points, u
         u0, v0 = (rigidify(a, ball_mask(topology), segments) for a in (u0, v0))
     net = network(spec, params, stats, topology, index, points, u0, v0, layout) if quasi_static else None
     out0 = net(u0, v0)[0] if quasi_static else None  # per_design: the processor ran once, in network()
-    _, (us, vs, vms, ovf, cnt) = jax.lax.scan(body, (u0, v0, out0), None, length=n_steps)
+    _, (us, vs, vms, ovf, cnt) = jax.lax.scan(body, (u0, v0, out0), ball_path, length=n_steps)
     cat = lambda a, b: jnp.concatenate([a[None], b], axis=0)  # noqa: E731
     return Rollout(cat(u0, us), cat(v0, vs), cat(jnp.asarray(vm0, jnp.float32), vms), ovf, cnt)
 
@@ -267,16 +286,19 @@ def rollout_batch(spec: Spec, n_steps: int, params, stats, topology, index, poin
 
 
 @functools.partial(jax.jit, static_argnames=("spec", "n_steps"))
-def rollout_union(spec: Spec, n_steps: int, params, stats, batch: GraphBatch, u0, v0, vm0):
+def rollout_union(spec: Spec, n_steps: int, params, stats, batch: GraphBatch, u0, v0, vm0, ball_path=None):
     """``rollout`` of a padded disjoint union of designs (:func:`pcmgn_jax.mgn.batching.batch_graphs`).
 
     u0, v0 (N, 2), vm0 (N,): the union's initial frame (:func:`pcmgn_jax.mgn.batching.to_union`).
+    ``ball_path``: None (the ball moves by the network's acceleration), or (u, v) (n_steps, N, 2) [m, m/s]:
+    the rigid ball's displacement and velocity at frames 1..n_steps, given (ball rows used; quasi_static
+    panel only): the panel's fields are then the network's map evaluated along that path.
     Returns :class:`Rollout` over the union's N nodes, with ``overflow`` / ``contact_count`` [T, G-1]
     per graph slot. One compilation per (spec, n_steps, size bucket): another mesh or batch in the
     same bucket reuses it.
     """
     return _rollout(spec, n_steps, params, stats, batch.topology, batch.index, batch.points, u0, v0, vm0,
-                    batch.layout)
+                    batch.layout, ball_path)
 
 
 def _until_no_overflow(run, index, max_grow: int):
@@ -306,12 +328,12 @@ def rollout_checked(spec: Spec, n_steps: int, params, stats, topology, index, po
 
 
 def rollout_union_checked(spec: Spec, n_steps: int, params, stats, batch: GraphBatch, u0, v0, vm0,
-                          *, max_grow: int = 6):
+                          *, max_grow: int = 6, ball_path=None):
     """:func:`rollout_union` growing the per-graph contact buffer until nothing overflows.
 
     Returns (Rollout over the union, the batch actually used)."""
     res, index = _until_no_overflow(
-        lambda idx: rollout_union(spec, n_steps, params, stats, batch.replace(index=idx), u0, v0, vm0),
+        lambda idx: rollout_union(spec, n_steps, params, stats, batch.replace(index=idx), u0, v0, vm0, ball_path),
         batch.index, max_grow)
     return res, batch.replace(index=index)
 
@@ -334,7 +356,8 @@ def rollout_designs(spec: Spec, n_steps: int, params, stats, designs, *, batch_s
     """Roll out many designs, each on its own mesh, ``batch_size`` at a time as padded disjoint unions.
 
     designs: sequence of dicts with ``topology``, ``index`` (its ContactIndex), ``points`` (N_g, 2) [m],
-    ``u0``, ``v0`` (N_g, 2), ``vm0`` (N_g,). A grown contact buffer is kept for the following batches.
+    ``u0``, ``v0`` (N_g, 2), ``vm0`` (N_g,), and optionally (every design or none) ``ball_u``, ``ball_v``
+    (n_steps, N_g, 2): a given ball path (:func:`rollout_union`'s ``ball_path``). A grown contact buffer is kept for the following batches.
     ``compiled``: size buckets (:meth:`GraphBatch.bucket`) already compiled; a batch of a new bucket runs
     once untimed first (compilation, buffer sizing) and its bucket is added. ``seconds`` times the
     rollouts only (host-side batching and splitting excluded).
@@ -346,11 +369,17 @@ def rollout_designs(spec: Spec, n_steps: int, params, stats, designs, *, batch_s
                              [d["points"] for d in chunk], min_slots=min(batch_size, len(designs)),
                              min_capacity=capacity)
         init = [to_union(batch, [d[k] for d in chunk]) for k in ("u0", "v0", "vm0")]
+        path = None
+        if "ball_u" in chunk[0]:  # (n_steps, N_g, 2) per design -> (n_steps, N, 2) on the union
+            path = tuple(np.moveaxis(to_union(batch, [np.moveaxis(np.asarray(d[k]), 0, 1) for d in chunk]), 1, 0)
+                         for k in ("ball_u", "ball_v"))
         if compiled is not None and batch.bucket() not in compiled:
-            _, batch = rollout_union_checked(spec, n_steps, params, stats, batch, *init, max_grow=max_grow)
+            _, batch = rollout_union_checked(spec, n_steps, params, stats, batch, *init, max_grow=max_grow,
+                                             ball_path=path)
             compiled.add(batch.bucket())
         t0 = time.perf_counter()
-        res, batch = rollout_union_checked(spec, n_steps, params, stats, batch, *init, max_grow=max_grow)
+        res, batch = rollout_union_checked(spec, n_steps, params, stats, batch, *init, max_grow=max_grow,
+                                           ball_path=path)
         jax.block_until_ready(res)
         seconds += time.perf_counter() - t0
         capacity = batch.index.capacity
