@@ -53,6 +53,17 @@ def test_summary_names_the_best_baseline_and_the_ratio():
     assert f"| a | " in text and f"0.3 / {best_pos:.3g} ({name}): {0.3 / best_pos:.2g}×" in text
 
 
+def test_a_corrected_mgn_is_named_and_not_mixed_with_a_plain_one():
+    from pcmgn_jax.eval.tasks import summary_table, task_table
+    plain, fixed = _m(0.3, 2.0, 0.1, 0.05), {**_m(0.2, 1.0, 0.1, 0.05), "residual_of": "rom"}
+    rows = task_rows({"b": [plain], "b.rom": [fixed, fixed]})
+    assert "residual_of" not in rows["b"]["MGN"] and rows["b.rom"]["MGN"]["residual_of"] == "rom"
+    assert "the rom baseline corrected by the network" in task_table(rows)
+    assert "| b.rom (MGN = rom + correction) |" in summary_table(rows)
+    with pytest.raises(ValueError, match="mix"):
+        task_rows({"b": [plain, fixed]})
+
+
 def test_code_note_names_mixed_code_versions():
     from pcmgn_jax.eval.tasks import code_note
     a = {**_m(0.3, 2.0, 0.1, 0.05), "code": {"commit": "a" * 40, "dirty": False}}

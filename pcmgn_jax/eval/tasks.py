@@ -43,6 +43,12 @@ def mean_rows(files: Sequence[dict]) -> dict[str, dict[str, float]]:
     out = {name: {k: float(np.mean(x)) for k, x in d.items()} for name, d in acc.items()}
     if len(files) > 1 and "MGN" in acc:
         out["MGN"].update({f"{k}_seeds": [float(min(x)), float(max(x))] for k, x in acc["MGN"].items()})
+    corrected = {m.get("residual_of") or "" for m in files}
+    if len(corrected) > 1:
+        raise ValueError(f"one task's metrics files mix MGNs that predict the fields and corrections of a baseline "
+                         f"(residual_of {sorted(corrected)}): give each its own T.VARIANT")
+    if "MGN" in out and corrected != {""}:
+        out["MGN"]["residual_of"] = corrected.pop()   # the MGN row is the network's correction of this baseline
     return out
 
 
@@ -82,6 +88,9 @@ def task_table(rows: dict, commands: Mapping[str, str] = {}, seeds: Mapping[str,
                 ([f"({seeds[task]} seed(s) of the MGN)"] if task in seeds else [])
             if head:
                 lines += [" ".join(head), ""]
+            if base := rows[task].get("MGN", {}).get("residual_of"):
+                lines += [f"MGN here = the {base} baseline corrected by the network (`--residual_of={base}`, "
+                          "docs/design.md §5.2).", ""]
             lines += _table(rows[task])
     return "\n".join(lines)
 
@@ -107,7 +116,8 @@ def summary_table(rows: dict) -> str:
             ratio = f"{mgn / best:.2g}×" if best > 0 else "–"
             cell = f"{mgn:.3g} / {best:.3g} ({name}): {ratio}"
             cells.append(f"**{cell}**" if mgn <= best else cell)
-        lines.append(f"| {task} | " + " | ".join(cells) + " |")
+        label = task + (f" (MGN = {row['MGN']['residual_of']} + correction)" if row["MGN"].get("residual_of") else "")
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
