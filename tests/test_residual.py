@@ -103,3 +103,24 @@ def test_residual_run_trains_and_reports_the_corrected_fields(scenes, tmp_path):
     assert m["residual_ball"] == "baseline"
     with pytest.raises(ValueError, match="residual"):
         mgn.predict(np.array([[100e-6]]))
+
+
+def test_rigid_contact_makes_the_ball_rigid_and_removes_the_overlap(scenes):
+    """A prediction whose ball sinks 5 µm into a panel that does not move: rigid_contact (the rollout's
+    contact rule, also the rom_contact baseline) leaves one rigid ball and no cover-glass node inside it."""
+    from pcmgn_jax.eval import metrics
+    from pcmgn_jax.eval.evaluate import boundary
+    t = scenes[2]
+    ball = is_ball(t.node_type)
+    u = np.zeros_like(t.displacement)
+    gap = t.points[ball, 1].min() - t.points[~ball, 1].max()                  # 10 µm above the cover glass
+    u[:, ball, 1] = -(gap + 5e-6) * np.sin(np.linspace(0, np.pi, t.n_frames))[:, None]
+    u[:, ball, 0] = 1e-7 * np.arange(ball.sum())                              # a non-rigid ball row
+    bn, pn = boundary(t, 1)
+    depth = lambda v: metrics.penetration_stats((t.points + v)[:, bn], (t.points + v)[:, pn])["max_um"]  # noqa: E731
+    assert depth(u) > 4.0
+    fixed = residual.rigid_contact(t, u)
+    assert depth(fixed) < 0.05 and np.ptp(fixed[:, ball], axis=1).max() == 0.0
+    np.testing.assert_allclose(fixed[:, ball, 1], u[:, ball, 1].mean(axis=1, keepdims=True).repeat(ball.sum(), 1))
+    moved = np.abs(fixed - u)[:, ~ball].max(axis=(0, 2)) > 0
+    assert moved.any() and not moved[t.points[~ball, 1] < t.points[~ball, 1].max() - 1e-12].any()  # top nodes only

@@ -28,7 +28,7 @@ import numpy as np
 
 from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.eval import metrics, plots
-from pcmgn_jax.eval.baselines import READING_KEYS, baseline_metrics, objective_scores
+from pcmgn_jax.eval.baselines import EVALUATE_KINDS, READING_KEYS, baseline_metrics, objective_scores
 from pcmgn_jax.eval.surrogates import MGNSurrogate
 from pcmgn_jax.geometry import roi_boundary_nodes
 from pcmgn_jax.mgn.contact import contact_parts
@@ -151,7 +151,8 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
              window_has_all_phases=all(v[0] is not None for p in phases for v in p.values()))
     if train_trajs:
         m["baselines"] = baseline_metrics(train_trajs, test_trajs,
-                                           lambda u, vm: _scores(scene, test_trajs, u, vm, bnodes, pnodes))
+                                           lambda u, vm: _scores(scene, test_trajs, u, vm, bnodes, pnodes),
+                                           kinds=EVALUATE_KINDS)
     if mgn_spread and train_trajs and "OLED" in scene.part_names:
         from pcmgn_jax.eval.ensemble import ResidualSpread, residual_spread_record, rollout_objectives
         part = scene.part_names.index("OLED")

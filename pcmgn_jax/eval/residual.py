@@ -122,6 +122,24 @@ def ball_path(traj, u, dt: float) -> tuple[np.ndarray, np.ndarray]:
             np.broadcast_to((np.diff(mean, axis=0) / dt)[:, None], shape).astype(np.float32))
 
 
+def rigid_contact(traj, u) -> np.ndarray:
+    """A displacement prediction ``u`` (T, N, 2) [m] on ``traj``'s mesh made to respect the contact the
+    way an MGN rollout does: the ball's rows at their mean vertical motion (one rigid body on the axis)
+    and the cover glass's top nodes inside the ball moved down onto its lower surface
+    (:func:`pcmgn_jax.mgn.rollout.project_frames`). Used for the baseline-corrected rollouts and for the
+    ``rom_contact`` baseline (the rom with the same hard constraint: what the network adds beyond it)."""
+    from pcmgn_jax.mgn.checkpoint import contact_index_for
+    from pcmgn_jax.mgn.rollout import project_frames
+    from pcmgn_jax.scene import Scene
+    u = np.array(u, np.float64)
+    ball = is_ball(traj.node_type)
+    if ball.any():
+        u[:, ball] = axial(u[:, ball].mean(axis=1))[:, None]
+    # the projection reads only which nodes can touch (radius and buffer size do not enter it)
+    index = contact_index_for(traj, Scene.from_dict(traj.meta["scene"]), radius=1e-12, capacity=2)
+    return project_frames(index, traj.points, u)
+
+
 def corrected(trajs: Sequence, res_u, res_vm, us: Sequence, vms: Sequence) -> tuple[list, list]:
     """The inverse of :func:`residual_trajectories` for predictions: per trajectory the rolled-out
     residual (T, N, 2) [m] / (T, N) [Pa] plus the baseline's fields, the ball's rows as rolled out."""

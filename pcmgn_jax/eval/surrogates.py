@@ -311,7 +311,7 @@ class MGNSurrogate:
         base_s = time.perf_counter() - t0
         u, vm = self._rollout(designs)
         self.rollout_seconds += base_s
-        return self._corrected(trajs, designs, u, vm, base)
+        return self._corrected(trajs, u, vm, base)
 
     def _whole_fields_only(self, what: str):
         if self.residual_of:
@@ -334,18 +334,17 @@ class MGNSurrogate:
             self.base_fit_seconds = time.perf_counter() - t0
         return self._base.predict_trajectories(trajs)
 
-    def _corrected(self, trajs, designs, u, vm, base):
+    def _corrected(self, trajs, u, vm, base):
         """A ``residual_of`` run's rollouts (residuals) plus its baseline's fields ``base`` (u, vm lists),
         then the contact projection on the sum when the run's formulation has it
         (:mod:`pcmgn_jax.eval.residual`). The baseline's prediction counts in ``rollout_seconds``."""
         import time
 
-        from pcmgn_jax.eval.residual import corrected
-        from pcmgn_jax.mgn.rollout import project_frames
+        from pcmgn_jax.eval.residual import corrected, rigid_contact
         t0 = time.perf_counter()
         u, vm = corrected(trajs, u, vm, *base)
         if self.sim.config.formulation.contact_projection:
-            u = [project_frames(d["index"], d["points"], x) for d, x in zip(designs, u)]
+            u = [rigid_contact(t, x) for t, x in zip(trajs, u)]
         self.rollout_seconds += time.perf_counter() - t0
         if len({a.shape for a in u}) == 1:
             return np.stack(u), np.stack(vm)
