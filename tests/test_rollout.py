@@ -196,6 +196,10 @@ def test_contact_projection_moves_only_nodes_inside_the_ball_onto_its_surface():
     after = penetration_stats((points + out)[None][:, ball], (points + out)[None][:, near])["max_um"]
     # what is left is a chord sagitta, L^2 / 8R with L up to a ball + a panel spacing: (42.5 µm)^2 / 40 mm = 0.045 µm
     assert before > 1.9 and after < 0.05, (before, after)
+    axis = u.copy()  # round-off on the symmetry axis: a panel node at x = -1e-16 m is still under the ball
+    axis[panel[0], 0] = -1e-16
+    assert points[panel[0], 0] == 0.0 and inside[0]
+    np.testing.assert_allclose(np.asarray(rl.project_contact(index, points, axis))[panel[0], 1], surface[0], atol=2e-9)
     clear_points, clear_index = _contact_scene(gap_um=1.0)
     clear = np.asarray(rl.project_contact(clear_index, clear_points, np.zeros_like(clear_points, np.float32)))
     assert np.all(clear == 0)  # no overlap, nothing moves

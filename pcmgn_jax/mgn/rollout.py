@@ -79,6 +79,9 @@ def impose_bc(topology: Topology, field):
     return field.at[:, 0].set(jnp.where(topology.axis, 0.0, field[:, 0]))
 
 
+X_MARGIN = 1e-9  # [m] round-off margin of the ball's x range in project_contact (1 nm: 4e-5 of a 25 µm element)
+
+
 def project_contact(index: contact_lib.ContactIndex, points, u):
     """``u`` (N, 2) [m] with the contact layer's top-surface nodes (``index.panel_nodes``) that lie inside
     the ball moved straight down onto the ball's lower surface: the polyline through the ball's
@@ -102,7 +105,9 @@ def project_contact(index: contact_lib.ContactIndex, points, u):
         lo, hi = xs[0], jnp.max(jnp.where(b_ok, xb, -big))
         xp, yp = pos[panel, 0], pos[panel, 1]
         surface = jnp.interp(xp, xs, ys)
-        inside = p_ok & (xp >= lo) & (xp <= hi) & (yp > surface)
+        # the x range with a round-off margin: an axis node at x = -1e-16 m (a field that is not exactly 0
+        # on the symmetry axis, e.g. a regression's) is inside the ball's range, not outside it
+        inside = p_ok & (xp >= lo - X_MARGIN) & (xp <= hi + X_MARGIN) & (yp > surface)
         return jnp.where(inside, yp - surface, 0.0)  # how far each panel node must move down [m]
 
     ball, panel, allowed = (jnp.asarray(a) for a in (index.ball_nodes, index.panel_nodes, index.allowed))
