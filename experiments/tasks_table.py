@@ -30,7 +30,7 @@ def main(argv=None) -> int:
     command = "python -m experiments.tasks_table " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
     rows = task_rows(runs)
     text = "\n".join(["# Four tasks: the MGN beside the response surfaces", "", f"`{command}`", "",
-                      *[f"{n}" for n in args.note], code_note(runs), "",
+                      *[x for n in args.note for x in (n, "")], code_note(runs), "",
                       "**At a glance** (mean over the MGN's seeds; bold where the MGN is at least as accurate):", "",
                       summary_table(rows), "", task_table(rows, seeds=seeds)])
     print(text)

@@ -12,7 +12,10 @@ Metrics (definitions in :mod:`pcmgn_jax.eval.metrics`; SI in, reports in µm and
                                        mop / rom (:mod:`pcmgn_jax.eval.baselines`), or {"not_applicable": why}
   penetration_*                        fit-free (ball boundary nodes below the CG top polyline,
                                        pcmgn_jax.eval.metrics.penetration_stats), prediction and truth
-  rollout_seconds_per_trajectory       wall time of the batched jitted rollout (compile excluded)
+  rollout_seconds_per_trajectory       wall time of the batched jitted rollout (compile excluded); a
+                                       residual_of run adds the baseline's prediction and the projection
+                                       (whose first call on a mesh compiles: benchmarks time it warm)
+  residual_of, residual_ball           the baseline the network corrects ("" = none) and who moved the ball
   phases                               per trajectory: frame ranges of drop / contact / rebound / separated
 
 Phases from ground truth: contact while the ball's lowest boundary node is at or below the CG top
