@@ -166,7 +166,7 @@ class TrainConfig:
         """The formulation a rollout's ``lax.scan`` runs (:func:`pcmgn_jax.mgn.checkpoint.make_spec`): the
         run's, except that with ``residual_of`` the contact projection leaves the scan (the network's panel
         output is then a residual, not a position); it acts on the corrected field once the baseline is
-        added (:func:`pcmgn_jax.eval.residual.corrected_rollouts`)."""
+        added (:meth:`pcmgn_jax.eval.surrogates.MGNSurrogate.rollout_trajectories`, :func:`pcmgn_jax.eval.residual.rigid_contact`)."""
         if self.residual_of:
             return self.formulation.replace(contact_projection=False)
         return self.formulation

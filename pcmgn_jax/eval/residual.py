@@ -108,6 +108,12 @@ def residual_trajectories(trajs: Sequence, us: Sequence, vms: Sequence) -> list:
     return out
 
 
+def _ball_mean(u, ball) -> np.ndarray:
+    """The ball nodes' (``ball`` (N,) bool) mean displacement (T, 2) [m] of ``u`` (T, N, 2), x = 0 on the
+    symmetry axis (:func:`pcmgn_jax.mgn.formulation.axial`): a field's rigid-ball motion, frame by frame."""
+    return axial(np.asarray(u, np.float64)[:, ball].mean(axis=1))
+
+
 def ball_path(traj, u, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """The rigid ball's path in a baseline's displacement ``u`` (T, N, 2) [m] on ``traj``'s mesh: its
     ball nodes' mean vertical displacement at frames 1..T-1 and the frame-averaged velocity
@@ -116,7 +122,7 @@ def ball_path(traj, u, dt: float) -> tuple[np.ndarray, np.ndarray]:
     ball = is_ball(traj.node_type)
     if not ball.any():
         raise ValueError(f"ball_path: {traj.meta.get('name', 'the trajectory')} has no ball nodes")
-    mean = axial(np.asarray(u, np.float64)[:, ball].mean(axis=1))          # (T, 2), x = 0 on the axis
+    mean = _ball_mean(u, ball)                                              # (T, 2), x = 0 on the axis
     shape = (mean.shape[0] - 1, traj.n_nodes, 2)
     return (np.broadcast_to(mean[1:, None], shape).astype(np.float32),
             np.broadcast_to((np.diff(mean, axis=0) / dt)[:, None], shape).astype(np.float32))
@@ -134,7 +140,7 @@ def rigid_contact(traj, u) -> np.ndarray:
     u = np.array(u, np.float64)
     ball = is_ball(traj.node_type)
     if ball.any():
-        u[:, ball] = axial(u[:, ball].mean(axis=1))[:, None]
+        u[:, ball] = _ball_mean(u, ball)[:, None]
     # the projection reads only which nodes can touch (radius and buffer size do not enter it)
     index = contact_index_for(traj, Scene.from_dict(traj.meta["scene"]), radius=1e-12, capacity=2)
     return project_frames(index, traj.points, u)

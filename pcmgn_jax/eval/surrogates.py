@@ -300,8 +300,6 @@ class MGNSurrogate:
         designs = [self._design(t, t.displacement[0], t.velocity[0], t.von_mises[0], t.meta["scene"]) for t in trajs]
         if not self.residual_of:
             return self._rollout(designs)
-        import time
-
         from pcmgn_jax.eval.residual import ball_path
         t0 = time.perf_counter()
         base = self._baseline_fields(trajs)
@@ -322,8 +320,6 @@ class MGNSurrogate:
     def _baseline_fields(self, trajs):
         """A ``residual_of`` run's baseline fields (u list, vm list) on ``trajs``; the baseline is fitted
         once, on the run's training split unless ``base_trajs`` was given (``base_fit_seconds``)."""
-        import time
-
         from pcmgn_jax.eval.residual import fit_baseline
         if self._base is None:
             t0 = time.perf_counter()
@@ -338,8 +334,6 @@ class MGNSurrogate:
         """A ``residual_of`` run's rollouts (residuals) plus its baseline's fields ``base`` (u, vm lists),
         then the contact projection on the sum when the run's formulation has it
         (:mod:`pcmgn_jax.eval.residual`). The baseline's prediction counts in ``rollout_seconds``."""
-        import time
-
         from pcmgn_jax.eval.residual import corrected, rigid_contact
         t0 = time.perf_counter()
         u, vm = corrected(trajs, u, vm, *base)

@@ -118,7 +118,7 @@ def project_contact(index: contact_lib.ContactIndex, points, u):
     return u.at[panel.reshape(-1), 1].add(-depth.reshape(-1))
 
 
-_project_frames = jax.jit(jax.vmap(lambda index, points, u: project_contact(index, points, u), in_axes=(None, None, 0)))
+_project_frames = jax.jit(jax.vmap(project_contact, in_axes=(None, None, 0)))
 
 
 def project_frames(index: contact_lib.ContactIndex, points, u) -> np.ndarray:
@@ -208,13 +208,12 @@ def _advance_quasi_static(spec: Spec, stats, topology, index, points, u, v, out,
     carries ``out_next`` to the next frame, so one evaluation per frame (and one for the initial state).
     ``drive``: None, or the ball's next (u, v) (N, 2) given (its rows are used): the ball follows that
     path instead of the network's acceleration (:func:`rollout_union`'s ``ball_path``)."""
+    ball = ball_mask(topology)[:, None]
     ub, vb, _ = integrate_output(spec, stats, topology, points, u, v, out, layout)
     if drive is not None:
-        ball = ball_mask(topology)[:, None]
         ub, vb = jnp.where(ball, drive[0], ub), jnp.where(ball, drive[1], vb)
     out_next, edges = net(ub, vb)
     up, _, vm = integrate_output(spec, stats, topology, points, ub, vb, out_next, layout)
-    ball = ball_mask(topology)[:, None]
     u_next = jnp.where(ball, ub, up)
     if spec.formulation.contact_projection:
         u_next = project_contact(index, points, u_next)
