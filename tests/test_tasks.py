@@ -58,7 +58,10 @@ def test_a_corrected_mgn_is_named_and_not_mixed_with_a_plain_one():
     plain, fixed = _m(0.3, 2.0, 0.1, 0.05), {**_m(0.2, 1.0, 0.1, 0.05), "residual_of": "rom"}
     rows = task_rows({"b": [plain], "b.rom": [fixed, fixed]})
     assert "residual_of" not in rows["b"]["MGN"] and rows["b.rom"]["MGN"]["residual_of"] == "rom"
-    assert "the rom baseline corrected by the network" in task_table(rows)
+    text = task_table(rows)
+    assert "the rom baseline corrected by the network" in text
+    # every heading keeps its task letter, after a corrected variant too
+    assert "### (b) scene family (family test split): rom" in text and "### (None)" not in text
     assert "| b.rom (MGN = rom + correction) |" in summary_table(rows)
     with pytest.raises(ValueError, match="mix"):
         task_rows({"b": [plain, fixed]})

@@ -88,9 +88,9 @@ def task_table(rows: dict, commands: Mapping[str, str] = {}, seeds: Mapping[str,
                 ([f"({seeds[task]} seed(s) of the MGN)"] if task in seeds else [])
             if head:
                 lines += [" ".join(head), ""]
-            if base := rows[task].get("MGN", {}).get("residual_of"):
-                lines += [f"MGN here = the {base} baseline corrected by the network (`--residual_of={base}`, "
-                          "docs/design.md §5.2).", ""]
+            if corrected_by := rows[task].get("MGN", {}).get("residual_of"):
+                lines += [f"MGN here = the {corrected_by} baseline corrected by the network "
+                          f"(`--residual_of={corrected_by}`, docs/design.md §5.2).", ""]
             lines += _table(rows[task])
     return "\n".join(lines)
 
