@@ -196,25 +196,72 @@ def test_graph_inputs_are_what_training_surrogates_and_objectives_build():
 
 def test_zero_shot_scenes_change_the_models_inputs_where_it_can_see_them():
     """A scene that changes a number training held fixed: a thicker cover glass or plate changes the MGN's
-    inputs (the mesh, and the layer_thickness channels of the non-contact nodes); a layer's modulus does
-    not (no material channel): the model answers such a scene as if the modulus were unchanged."""
+    inputs (the mesh, and the layer_thickness channels of the non-contact nodes); a layer's modulus changes
+    them only through the ``material`` channel, and there only on that layer's own nodes (without the
+    channel the model answers such a scene as if the modulus were unchanged)."""
     import dataclasses
 
     from pcmgn_jax.mgn.inputs import graph_inputs
     from pcmgn_jax.scene import default_scene
     from pcmgn_jax.sim.mesh import build_mesh
 
-    def inputs(**change):
+    def inputs(names=("layer_thickness",), **change):
         base = default_scene()
         layers = tuple(dataclasses.replace(l, **change[l.name]) if l.name in change else l for l in base.layers)
         scene = dataclasses.replace(base, layers=layers)
-        g = graph_inputs(build_mesh(scene, "tiny"), scene.to_dict(), scene_features=("layer_thickness",))
-        return g.points, np.asarray(g.topology.scene_features)
+        g = graph_inputs(build_mesh(scene, "tiny"), scene.to_dict(), scene_features=names)
+        return g.points, np.asarray(g.topology.scene_features), np.asarray(g.topology.node_type)
 
-    p0, f0 = inputs()
+    p0, f0, _ = inputs()
     for change in ({"CG": {"thickness": 130e-6}}, {"PLATE": {"thickness": 1.5e-3}}):
-        p, f = inputs(**change)
+        p, f, _ = inputs(**change)
         assert p.shape != p0.shape or not np.array_equal(p, p0)
         assert f.shape[0] != f0.shape[0] or not np.array_equal(f, f0)
-    p, f = inputs(OCA1={"youngs": 20e6})
+    p, f, _ = inputs(OCA1={"youngs": 20e6})
     assert np.array_equal(p, p0) and np.array_equal(f, f0)
+    names = ("layer_thickness", "material")
+    _, m0, node_type = inputs(names)
+    _, m, _ = inputs(names, OCA1={"youngs": 20e6})
+    changed = np.any(m != m0, axis=1)
+    oca1 = node_type == 2  # part 2: the second layer from the top (ball 0, CG 1)
+    assert changed.any() and np.array_equal(changed, oca1)
+    np.testing.assert_allclose(m[oca1, -3] - m0[oca1, -3], np.log10(2.0), rtol=1e-5)  # log10 E: a ratio
+
+
+def test_material_rows_per_part_and_named_errors():
+    """Each node carries its own part's [log10 E, nu, log10 rho]; fixed nodes the last layer's; a part
+    without a property is named."""
+    from pcmgn_jax.mgn.formulation import across_part_channels, material_rows, scene_feature_rows
+    from pcmgn_jax.scene import default_scene
+
+    scene = default_scene().to_dict()
+    n_parts = 1 + len(scene["layers"])
+    rows = material_rows(scene, np.arange(n_parts + 1))
+    np.testing.assert_allclose(rows[0], [np.log10(200e9), 0.30, np.log10(7850.0)], rtol=1e-6)
+    np.testing.assert_allclose(rows[1], [np.log10(77e9), 0.21, np.log10(2500.0)], rtol=1e-6)
+    np.testing.assert_array_equal(rows[-1], rows[-2])  # fixed nodes: the plate's
+    got = scene_feature_rows(scene, ("ball_radius", "material"), np.array([0, 3]))
+    assert got.shape == (2, 4) and got.dtype == np.float32 and np.array_equal(got[:, 1:], rows[[0, 3]])
+    assert across_part_channels(scene, ("layer_thickness", "material", "ball_radius")) == \
+        [len(scene["layers"]), len(scene["layers"]) + 1, len(scene["layers"]) + 2]
+    bad = {**scene, "layers": [dict(scene["layers"][0], youngs=None)] + scene["layers"][1:]}
+    with pytest.raises(ValueError, match="part 'CG' needs numbers youngs"):
+        material_rows(bad, np.array([1]))
+    with pytest.raises(ValueError, match="node types must lie in 0..7"):
+        material_rows(scene, np.array([8]))
+
+
+def test_material_identity_keeps_only_the_ball_and_fixed_one_hot_columns():
+    """``identity='material'``: a layer's node sets no one-hot column (it is known by its material), the
+    ball's and the fixed nodes' columns stay; the width is unchanged; the formulation asks for the
+    channel it needs."""
+    from pcmgn_jax.mgn.formulation import Formulation
+    topo = graphs.make_topology(points=POINTS, cells=CELLS, node_type=np.array([0, 0, 2, 0, 1, 1]), n_parts=2)
+    z = np.zeros((6, 2))
+    by_type = np.asarray(graphs.node_features(topo, POINTS, z, z, "paper"))
+    by_material = np.asarray(graphs.node_features(topo, POINTS, z, z, "paper", identity="material"))
+    assert by_type.shape == by_material.shape
+    np.testing.assert_array_equal(by_material[:, :3], by_type[:, :3] * [1, 0, 1])
+    np.testing.assert_array_equal(by_material[:, 3:], by_type[:, 3:])
+    with pytest.raises(ValueError, match="needs 'material' among scene_features"):
+        Formulation(part_identity="material")

@@ -1,4 +1,5 @@
 """Normalisation statistics (pcmgn_jax.mgn.normalization, train.setup.compute_stats) against NumPy references."""
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -61,3 +62,35 @@ def test_target_statistics_match_numpy_reference(tiny_trajs, name):
     t = jnp.asarray(tgt[3], jnp.float32)
     back = denormalize_output(stats, node_type, normalize_target(stats, node_type, t))
     np.testing.assert_allclose(np.asarray(back), tgt[3], rtol=1e-5, atol=1e-12 + 1e-5 * np.abs(tgt[3]).max())
+
+
+def test_a_parts_own_material_is_normalised_across_parts(tiny_trajs, tmp_path):
+    """``material`` is one number per part: with ``per_part`` normalisation it still takes the all-node
+    statistics (a per-part normaliser would send it to 0 on every training node), so the normalised
+    channel tells the parts apart, and a run with the layers known only by it trains to a finite loss."""
+    from pcmgn_jax.mgn.formulation import material_rows
+    from pcmgn_jax.mgn.normalization import normalize_graph
+    from pcmgn_jax.mgn.rollout import input_graph
+    from pcmgn_jax.train import loop as training
+
+    cfg = tiny_config(scene_features="material", part_identity="material", noise_std=0.0, num_steps=20,
+                      steps_per_dispatch=10, ckpt_every=20, val_every=20, log_every=10)
+    setup = prepare(cfg, tiny_trajs[:3])
+    g = setup.graphs[0]
+    node_type = np.asarray(g.topology.node_type)
+    mat = material_rows(tiny_trajs[0].meta["scene"], node_type).astype(np.float64)
+    end = setup.stats.node_mean.shape[1] - setup.spec.sim.formulation.node_extra  # the ball state comes last
+    mean, std = (np.asarray(a)[:, end - 3:end] for a in (setup.stats.node_mean, setup.stats.node_std))
+    assert np.all(mean == mean[0]) and np.all(std == std[0])  # one row for every part
+    np.testing.assert_allclose(mean[0], mat.mean(0), rtol=1e-5)
+    np.testing.assert_allclose(std[0], mat.std(0), rtol=1e-4)
+    z = np.zeros((len(node_type), 2), np.float32)
+    raw, _ = input_graph(setup.spec.sim.formulation, g.topology, g.index, tiny_trajs[0].points, z, z)
+    nodes = np.asarray(normalize_graph(setup.stats, raw, node_type).nodes)
+    col = g.topology.n_node_types + end - 3  # log10 E, after the one-hot columns
+    per_part = {int(t): nodes[node_type == t, col] for t in np.unique(node_type)}
+    assert len({round(float(v[0]), 4) for v in per_part.values()}) >= 3  # ball, CG, PLATE differ
+    assert all(np.all(np.abs(v) < 5) for v in per_part.values())  # O(1)
+    summary = training.train(cfg, tmp_path / "run", train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:])
+    assert summary["step"] == cfg.num_steps  # a non-finite loss stops training with an error
+    assert all(np.all(np.isfinite(np.asarray(a))) for a in jax.tree.leaves(summary["state"].params))

@@ -148,8 +148,12 @@ def _norm(v: jnp.ndarray) -> jnp.ndarray:
 
 
 def node_features(topology: Topology, points, displacement, velocity, features: str = "paper",
-                  extra=None) -> jnp.ndarray:
+                  extra=None, identity: str = "type") -> jnp.ndarray:
     """(N, n_types + k) node features [m, m/s].
+
+    ``identity``: ``type``, the one-hot of every node type; ``material``, only the ball's (type 0) and
+    the fixed nodes' (the last type) columns are set: a layer's node is then known by its ``material``
+    scene feature and its geometry, not by which layer it is (the width is the same either way).
 
     'paper':  [one_hot(type), x^w, xdot^w]          (k = 4; x^w = X + u, the paper's Table 1)
     'strain': [one_hot(type), X, u, xdot^w]         (k = 6; reference position and displacement apart,
@@ -159,6 +163,12 @@ def node_features(topology: Topology, points, displacement, velocity, features: 
     [SI] when given (the formulation's state channels, :func:`pcmgn_jax.mgn.formulation.model_inputs`).
     """
     one_hot = jnp.eye(topology.n_node_types, dtype=jnp.float32)[jnp.asarray(topology.node_type)]
+    if identity == "material":
+        keep = np.zeros(topology.n_node_types, np.float32)
+        keep[[0, -1]] = 1.0
+        one_hot = one_hot * keep
+    elif identity != "type":
+        raise ValueError(f"identity must be 'type' or 'material', got {identity!r}")
     points = jnp.asarray(points, jnp.float32)
     displacement = jnp.asarray(displacement, jnp.float32)
     velocity = jnp.asarray(velocity, jnp.float32)
@@ -206,7 +216,7 @@ def contact_edge_features(points, displacement, senders, receivers, mask) -> jnp
 
 
 def build_graph(topology: Topology, *, points, displacement, velocity, contact,
-                features: str = "paper", layout=None, node_extra=None) -> jraph.GraphsTuple:
+                features: str = "paper", layout=None, node_extra=None, identity: str = "type") -> jraph.GraphsTuple:
     """Pure graph builder (jittable, vmappable).
 
     points:       (N, 2) reference coordinates [m]
@@ -216,6 +226,7 @@ def build_graph(topology: Topology, *, points, displacement, velocity, contact,
     features:     'paper' | 'strain' (see :func:`node_features`, :func:`mesh_edge_features`)
     layout:       None (one graph), or a padded disjoint union's :class:`pcmgn_jax.mgn.batching.Layout`
     node_extra:   None, or (N, k) extra node channels [SI] appended last (:func:`node_features`)
+    identity:     'type' | 'material': the one-hot columns set (:func:`node_features`)
     """
     n = topology.n_node
     mesh_mask = jnp.ones(topology.mesh_senders.shape, bool) if layout is None else jnp.asarray(layout.edge_mask)
@@ -226,7 +237,7 @@ def build_graph(topology: Topology, *, points, displacement, velocity, contact,
                                                   contact.receivers, contact.mask),
                    senders=contact.senders, receivers=contact.receivers, mask=contact.mask)
     return jraph.GraphsTuple(
-        nodes=node_features(topology, points, displacement, velocity, features, node_extra),
+        nodes=node_features(topology, points, displacement, velocity, features, node_extra, identity),
         edges={"mesh": mesh, "contact": cont},
         senders=mesh.senders, receivers=mesh.receivers,
         n_node=jnp.array([n], jnp.int32) if layout is None else jnp.asarray(layout.n_node),

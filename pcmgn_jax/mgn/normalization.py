@@ -2,7 +2,8 @@
 
 Statistics are per channel *and per node type* (rows: node types, the last one the fixed nodes), so a
 formulation can normalise each part on its own scale (``per_part``) or all parts on one scale
-(``global``, the paper: every row then holds the same all-node statistics). Mesh-edge statistics are
+(``global``, the paper: every row then holds the same all-node statistics). Node channels that are
+one number per part (a part's own material) use the all-node statistics in every row either way. Mesh-edge statistics are
 indexed by the edge's receiver type; contact edges have one row (they join two parts).
 
 Layout (T = node types, shapes of the float32 arrays)::
@@ -102,19 +103,25 @@ class TypedAccumulator:
         for k, acc in enumerate(self.per):
             acc.add(x, keep & (types == k))
 
-    def result(self, per_part: bool) -> tuple[np.ndarray, np.ndarray]:
-        """(mean, std) of shape [T, C]: per type (types without samples: all-node values) or global."""
+    def result(self, per_part: bool, across=()) -> tuple[np.ndarray, np.ndarray]:
+        """(mean, std) of shape [T, C]: per type (types without samples: all-node values) or global;
+        the channels ``across`` (indices) take the all-node values in every row either way."""
         gm, gs = self.all.result()
         rows = [(a.result() if (per_part and a.n) else (gm, gs)) for a in self.per]
-        return np.stack([r[0] for r in rows]), np.stack([r[1] for r in rows])
+        mean, std = np.stack([r[0] for r in rows]), np.stack([r[1] for r in rows])
+        across = list(across)
+        mean[:, across], std[:, across] = gm[across], gs[across]
+        return mean, std
 
 
 def make_stats(*, node: TypedAccumulator, mesh: TypedAccumulator, contact: Accumulator,
                motion: TypedAccumulator, stress: TypedAccumulator, ball: Accumulator, per_part: bool,
-               contact_default_std: float = 1.0) -> Stats:
-    """Stats from accumulators; the per-node target rows join the motion (a_x, a_y) and stress channels."""
+               contact_default_std: float = 1.0, node_across=()) -> Stats:
+    """Stats from accumulators; the per-node target rows join the motion (a_x, a_y) and stress channels.
+    ``node_across``: node channels normalised over all nodes even when ``per_part`` (a part's own
+    material, :func:`pcmgn_jax.mgn.formulation.across_part_channels`)."""
     f = lambda a: np.asarray(a, np.float32)  # noqa: E731
-    nm, ns = node.result(per_part)
+    nm, ns = node.result(per_part, node_across)
     mm, ms = mesh.result(per_part)
     cm, cs = contact.result(default_std=contact_default_std)
     (am, as_), (sm, ss) = motion.result(per_part), stress.result(per_part)

@@ -32,7 +32,7 @@ from pcmgn_jax.geometry import roi_boundary_nodes
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.batching import bucket_size
 from pcmgn_jax.mgn.checkpoint import make_spec
-from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, is_ball, model_inputs
+from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, across_part_channels, is_ball, model_inputs
 from pcmgn_jax.mgn.graphs import Topology, topology_from_trajectory
 from pcmgn_jax.mgn.inputs import contact_radius, graph_inputs, with_scene
 from pcmgn_jax.mgn.normalization import Accumulator, Stats, TypedAccumulator, make_stats
@@ -212,8 +212,10 @@ def compute_stats(spec: Spec, trajs, topology, index, sigma, *, max_frames: int 
         acc["stress"].add(target[:, 2:], node_type)
         if form.rigid_ball:
             acc["ball"].add(np.asarray(ball)[None])
+    n_phys = n_node - n_scene - form.node_extra
+    across = [n_phys + i for i in across_part_channels(trajs[0].meta.get("scene") or {}, form.scene_features)]
     return make_stats(**acc, per_part=form.normalization == "per_part",
-                      contact_default_std=indices[0].radius)
+                      contact_default_std=indices[0].radius, node_across=across)
 
 
 def contact_positions(form: Formulation, traj) -> np.ndarray:
