@@ -115,6 +115,8 @@ def batch_graphs(topologies: Sequence[Topology], indices: Sequence[contact_lib.C
     widths_sf = {None if t.scene_features is None else np.shape(t.scene_features)[1] for t in topologies}
     if len(widths_sf) != 1:
         raise ValueError(f"designs of one batch must carry the same scene features, got widths {widths_sf}")
+    if len({t.top_nodes is None for t in topologies}) != 1:
+        raise ValueError("designs of one batch must all mark their contact layer's top_nodes, or none")
     graphs = []
     for t, p in zip(topologies, points):
         p = np.asarray(p, np.float32)
@@ -124,6 +126,8 @@ def batch_graphs(topologies: Sequence[Topology], indices: Sequence[contact_lib.C
                      axis=np.asarray(t.axis, bool), points=p)
         if t.scene_features is not None:
             nodes["scene_features"] = np.asarray(t.scene_features, np.float32)
+        if t.top_nodes is not None:
+            nodes["top_nodes"] = np.asarray(t.top_nodes, bool)
         e = len(t.mesh_senders)
         graphs.append(jraph.GraphsTuple(nodes=nodes, edges=np.zeros((e, 0), np.float32),
                                         senders=np.asarray(t.mesh_senders, np.int32),
@@ -144,7 +148,7 @@ def batch_graphs(topologies: Sequence[Topology], indices: Sequence[contact_lib.C
                         n_node_types=n_types, mesh_senders=np.asarray(padded.senders, np.int32),
                         mesh_receivers=np.asarray(padded.receivers, np.int32),
                         fixed=nodes["fixed"] | ~node_mask, axis=nodes["axis"] & node_mask,
-                        scene_features=nodes.get("scene_features"))
+                        scene_features=nodes.get("scene_features"), top_nodes=None if "top_nodes" not in nodes else nodes["top_nodes"] & node_mask)
     layout = Layout(n_node=n_node, n_edge=np.asarray(padded.n_edge, np.int32),
                     node_graph=np.repeat(np.arange(len(n_node), dtype=np.int32), n_node),
                     node_mask=node_mask, edge_mask=edge_mask)

@@ -68,7 +68,11 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
   to 0. Layer-only features are 0 on the contact pair's nodes (ball and cover glass, :func:`scene_feature_rows`).
   ``material`` (3 channels, :func:`material_rows`) is each node's own part's [log10 E, nu, log10 rho],
   normalised over all nodes (:func:`across_part_channels`); with ``part_identity='material'`` the layers'
-  one-hot columns stay unset, so a layer is known by its material and geometry (docs/design.md §5). Node channels, not a graph-level global, because the processor has
+  one-hot columns stay unset, so a layer is known by its material and geometry (docs/design.md §5).
+- ``origin``: where the node features' positions are measured from: ``mesh`` (the mesh's coordinates, y
+  from the plate's bottom) or ``contact_top`` (y from the contact layer's top surface,
+  :func:`pcmgn_jax.mgn.graphs.contact_top`), so a layer below the contact that changes thickness does not
+  move the contact zone to heights training never saw (docs/design.md §5). Node channels, not a graph-level global, because the processor has
   no global block and every node of a scene carries the same value (a broadcast global); empty (the
   default) for single-scene datasets, where the channel would be constant.
 
@@ -93,6 +97,7 @@ LOSS_WEIGHTINGS = ("nodes", "parts")
 PANEL_MODELS = ("dynamic", "quasi_static")
 PROCESSORS = ("per_frame", "per_design")
 PART_IDENTITIES = ("type", "material")
+ORIGINS = ("mesh", "contact_top")
 BALL_STATE_CHANNELS = 2  # quasi_static: [u_ball,y, v_ball,y] on every node (the ball moves along the axis)
 NOISE_PARTS = ("none", "ball", "panel", "all")
 SCENE_FEATURES = {"ball_radius": ("ball", "radius"), "ball_velocity": ("ball", "velocity"),  # -> scene dict keys
@@ -223,6 +228,7 @@ class Formulation:
     contact_projection: bool = False    # rollouts move cover-glass nodes inside the rigid ball onto its surface
     processor: str = "per_frame"        # per_frame (the ball state is a node input: the processor runs every frame) | per_design (quasi_static only: the processor runs once per design on the static graph, the ball state enters the decoder)
     part_identity: str = "type"         # type (a one-hot of every part) | material (the layers known only by their 'material' scene feature: a one-hot is kept for the ball and the fixed nodes)
+    origin: str = "mesh"                # mesh (node positions in the mesh's coordinates, y from the plate's bottom) | contact_top (y from the contact layer's top surface: layers below it may change thickness without moving the nodes above in the features)
 
     def __post_init__(self):
         bad = [f for f in self.scene_features if f not in SCENE_FEATURES]
@@ -231,7 +237,8 @@ class Formulation:
         for name, allowed in (("ball_target", TARGETS), ("panel_target", TARGETS),
                               ("normalization", NORMALIZATIONS), ("features", FEATURES),
                               ("loss_weighting", LOSS_WEIGHTINGS), ("panel_model", PANEL_MODELS),
-                              ("processor", PROCESSORS), ("part_identity", PART_IDENTITIES)):
+                              ("processor", PROCESSORS), ("part_identity", PART_IDENTITIES),
+                              ("origin", ORIGINS)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"formulation: {name}={getattr(self, name)!r} must be one of {allowed}")
         if self.panel_model == "quasi_static" and not (self.rigid_ball and self.panel_target == "total_displacement"):

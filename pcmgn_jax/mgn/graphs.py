@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import jraph
 import numpy as np
@@ -63,6 +64,10 @@ class Topology:
     axis:           [N]   bool    nodes on the symmetry axis x = 0: u_x held at 0
     scene_features: [N, k] float32 per-scene node inputs [SI] (Formulation.scene_features; each node
                                   carries its scene's values), or None (k = 0)
+    top_nodes:      [N]   bool    the scene's contact layer (:func:`pcmgn_jax.mgn.inputs.design_topology`),
+                                  or None: their highest reference point is the origin of
+                                  ``Formulation.origin='contact_top'`` (taken from the points, so a
+                                  morphed mesh moves it)
     """
 
     node_type: np.ndarray
@@ -72,6 +77,7 @@ class Topology:
     fixed: np.ndarray
     axis: np.ndarray
     scene_features: np.ndarray | None = None
+    top_nodes: np.ndarray | None = None
 
     @property
     def n_node(self) -> int:
@@ -148,8 +154,13 @@ def _norm(v: jnp.ndarray) -> jnp.ndarray:
 
 
 def node_features(topology: Topology, points, displacement, velocity, features: str = "paper",
-                  extra=None, identity: str = "type") -> jnp.ndarray:
+                  extra=None, identity: str = "type", origin: str = "mesh", node_graph=None) -> jnp.ndarray:
     """(N, n_types + k) node features [m, m/s].
+
+    ``origin``: ``mesh``, positions in the mesh's own coordinates (y from the plate's bottom);
+    ``contact_top``, y measured from the contact layer's top surface (the highest reference point of the
+    topology's ``top_nodes``, per graph of a union: ``node_graph`` (N,) int32 each node's graph), so a
+    layer below that changes thickness does not move the nodes above it in the features.
 
     ``identity``: ``type``, the one-hot of every node type; ``material``, only the ball's (type 0) and
     the fixed nodes' (the last type) columns are set: a layer's node is then known by its ``material``
@@ -170,6 +181,10 @@ def node_features(topology: Topology, points, displacement, velocity, features: 
     elif identity != "type":
         raise ValueError(f"identity must be 'type' or 'material', got {identity!r}")
     points = jnp.asarray(points, jnp.float32)
+    if origin == "contact_top":
+        points = points - jnp.stack([jnp.zeros_like(points[:, 0]), contact_top(topology, points, node_graph)], -1)
+    elif origin != "mesh":
+        raise ValueError(f"origin must be 'mesh' or 'contact_top', got {origin!r}")
     displacement = jnp.asarray(displacement, jnp.float32)
     velocity = jnp.asarray(velocity, jnp.float32)
     extra = ([] if topology.scene_features is None else [jnp.asarray(topology.scene_features, jnp.float32)]) \
@@ -179,6 +194,22 @@ def node_features(topology: Topology, points, displacement, velocity, features: 
     if features == "strain":
         return jnp.concatenate([one_hot, points, displacement, velocity] + extra, axis=-1)
     raise ValueError(f"features must be 'paper' or 'strain', got {features!r}")
+
+
+def contact_top(topology: Topology, points, node_graph=None) -> jnp.ndarray:
+    """(N,) float32 [m]: the highest reference y of the topology's ``top_nodes`` (the contact layer) in
+    each node's graph (``node_graph`` (N,) int32 of a union, or None: one graph); 0 in a graph without
+    any (the union's padding graph)."""
+    if topology.top_nodes is None:
+        raise ValueError("origin='contact_top' needs the topology's top_nodes (built by "
+                         "pcmgn_jax.mgn.inputs.design_topology from a mesh and its scene)")
+    y = jnp.where(jnp.asarray(topology.top_nodes), points[:, 1], -jnp.inf)
+    if node_graph is None:
+        top = jnp.broadcast_to(jnp.max(y), y.shape)
+    else:
+        node_graph = jnp.asarray(node_graph)
+        top = jax.ops.segment_max(y, node_graph, num_segments=topology.n_node)[node_graph]
+    return jnp.where(jnp.isfinite(top), top, 0.0)
 
 
 def mesh_edge_features(topology: Topology, points, displacement, features: str = "paper") -> jnp.ndarray:
@@ -216,7 +247,8 @@ def contact_edge_features(points, displacement, senders, receivers, mask) -> jnp
 
 
 def build_graph(topology: Topology, *, points, displacement, velocity, contact,
-                features: str = "paper", layout=None, node_extra=None, identity: str = "type") -> jraph.GraphsTuple:
+                features: str = "paper", layout=None, node_extra=None, identity: str = "type",
+                origin: str = "mesh") -> jraph.GraphsTuple:
     """Pure graph builder (jittable, vmappable).
 
     points:       (N, 2) reference coordinates [m]
@@ -227,6 +259,7 @@ def build_graph(topology: Topology, *, points, displacement, velocity, contact,
     layout:       None (one graph), or a padded disjoint union's :class:`pcmgn_jax.mgn.batching.Layout`
     node_extra:   None, or (N, k) extra node channels [SI] appended last (:func:`node_features`)
     identity:     'type' | 'material': the one-hot columns set (:func:`node_features`)
+    origin:       'mesh' | 'contact_top': where node positions are measured from (:func:`node_features`)
     """
     n = topology.n_node
     mesh_mask = jnp.ones(topology.mesh_senders.shape, bool) if layout is None else jnp.asarray(layout.edge_mask)
@@ -237,7 +270,8 @@ def build_graph(topology: Topology, *, points, displacement, velocity, contact,
                                                   contact.receivers, contact.mask),
                    senders=contact.senders, receivers=contact.receivers, mask=contact.mask)
     return jraph.GraphsTuple(
-        nodes=node_features(topology, points, displacement, velocity, features, node_extra, identity),
+        nodes=node_features(topology, points, displacement, velocity, features, node_extra, identity, origin,
+                            None if layout is None else layout.node_graph),
         edges={"mesh": mesh, "contact": cont},
         senders=mesh.senders, receivers=mesh.receivers,
         n_node=jnp.array([n], jnp.int32) if layout is None else jnp.asarray(layout.n_node),

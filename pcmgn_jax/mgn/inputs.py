@@ -78,9 +78,13 @@ def with_scene(topology: Topology, scene, names, design=None) -> Topology:
 
 def design_topology(mesh, scene=None, scene_features=(), *, n_parts: int | None = None) -> Topology:
     """The topology of ``mesh`` (n_parts: :func:`n_parts_for`) with the scene features ``scene_features``
-    (names, :data:`pcmgn_jax.mgn.formulation.SCENE_FEATURES`) of ``scene``."""
+    (names, :data:`pcmgn_jax.mgn.formulation.SCENE_FEATURES`) of ``scene``, and (with a scene) its
+    contact layer's nodes (``top_nodes``, :func:`pcmgn_jax.mgn.graphs.contact_top`)."""
     topo = make_topology(points=mesh.points, cells=mesh.cells, node_type=mesh.node_type,
                          n_parts=n_parts_for(mesh, scene) if n_parts is None else n_parts)
+    if scene is not None:
+        _, panel_part = contact_lib.contact_parts(_scene_obj(scene))
+        topo = topo.replace(top_nodes=np.asarray(mesh.node_type) == panel_part)
     return with_scene(topo, scene, scene_features)
 
 

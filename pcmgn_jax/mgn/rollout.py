@@ -143,7 +143,8 @@ def input_graph(form: Formulation, topology: Topology, index: contact_lib.Contac
     search = contact_lib.update if layout is None else contact_lib.update_graphs
     edges = search(index, points + u_in)
     graph = build_graph(topology, points=points, displacement=u_in, velocity=v_in, contact=edges,
-                        features=form.features, layout=layout, node_extra=extra, identity=form.part_identity)
+                        features=form.features, layout=layout, node_extra=extra, identity=form.part_identity,
+                        origin=form.origin)
     return graph, edges
 
 
