@@ -304,3 +304,19 @@ def test_contact_top_origin_measures_height_from_the_contact_layer_per_graph():
     np.testing.assert_allclose(heights[n_a:n_a + n_b], b.points[np.asarray(b.topology.node_type) == 1, 1].max(),
                                rtol=1e-6)
     assert np.all(np.isfinite(heights)) and np.all(heights[n_a + n_b:] == 0.0)
+
+
+def test_stack_thickness_is_layer_thickness_on_every_node():
+    """``stack_thickness`` gives the contact pair (ball, cover glass) the layers' thicknesses that
+    ``layer_thickness`` hides from them; elsewhere the two are the same."""
+    from pcmgn_jax.mgn.formulation import scene_feature_rows
+    from pcmgn_jax.scene import default_scene
+
+    scene = default_scene().to_dict()
+    node_type = np.array([0, 1, 2, 3, 6, 7])
+    layer = scene_feature_rows(scene, ("layer_thickness",), node_type)
+    stack = scene_feature_rows(scene, ("stack_thickness",), node_type)
+    thick = np.array([la["thickness"] for la in scene["layers"]], np.float32)
+    np.testing.assert_array_equal(stack, np.broadcast_to(thick, stack.shape))
+    np.testing.assert_array_equal(layer[:2], 0.0)  # ball and cover glass
+    np.testing.assert_array_equal(layer[2:], stack[2:])

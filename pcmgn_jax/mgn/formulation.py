@@ -72,7 +72,9 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
 - ``origin``: where the node features' positions are measured from: ``mesh`` (the mesh's coordinates, y
   from the plate's bottom) or ``contact_top`` (y from the contact layer's top surface,
   :func:`pcmgn_jax.mgn.graphs.contact_top`), so a layer below the contact that changes thickness does not
-  move the contact zone to heights training never saw (docs/design.md §5). Node channels, not a graph-level global, because the processor has
+  move the contact zone to heights training never saw (docs/design.md §5).
+  ``stack_thickness`` is ``layer_thickness`` on every node, the contact pair's included: with
+  ``contact_top`` the ball's height no longer tells it how thick the stack below is, so it is told. Node channels, not a graph-level global, because the processor has
   no global block and every node of a scene carries the same value (a broadcast global); empty (the
   default) for single-scene datasets, where the channel would be constant.
 
@@ -102,6 +104,7 @@ BALL_STATE_CHANNELS = 2  # quasi_static: [u_ball,y, v_ball,y] on every node (the
 NOISE_PARTS = ("none", "ball", "panel", "all")
 SCENE_FEATURES = {"ball_radius": ("ball", "radius"), "ball_velocity": ("ball", "velocity"),  # -> scene dict keys
                   "layer_thickness": ("layers", "thickness"),  # one channel per layer, in the scene's order
+                  "stack_thickness": ("layers", "thickness"),  # the same on every node, the contact pair's too
                   "material": ("parts", "material")}  # per node: its own part's material (material_rows)
 LAYER_ONLY_FEATURES = ("layer_thickness",)  # 0 on the contact pair's nodes (scene_feature_rows)
 MATERIAL_CHANNELS = ("log10_youngs", "poisson", "log10_density")  # material_rows: log10(E / 1 Pa), nu, log10(rho / 1 kg m^-3)
@@ -109,7 +112,7 @@ ACROSS_PART_FEATURES = ("material",)  # constant within a part: normalised over 
 
 
 def scene_feature_widths(scene: dict, names) -> list[int]:
-    """Node channels of each scene feature in ``names``: one per layer (``layer_thickness``),
+    """Node channels of each scene feature in ``names``: one per layer (``layer_thickness``, ``stack_thickness``),
     ``len(MATERIAL_CHANNELS)`` (``material``), else 1."""
     widths = {"layers": len(scene.get("layers") or ()), "parts": len(MATERIAL_CHANNELS)}
     return [widths.get(SCENE_FEATURES[n][0], 1) for n in names]
@@ -223,7 +226,7 @@ class Formulation:
     normalization: str = "per_part"     # per_part (one normaliser per node type) | global (the paper)
     features: str = "strain"            # strain (deformation channels of their own) | paper
     loss_weighting: str = "parts"       # parts (every part counts alike) | nodes (the paper: mean over nodes)
-    scene_features: tuple[str, ...] = ()  # per-scene node inputs: ball_radius, ball_velocity, layer_thickness, material (flag: comma list or none)
+    scene_features: tuple[str, ...] = ()  # per-scene node inputs: ball_radius, ball_velocity, layer_thickness, stack_thickness, material (flag: comma list or none)
     panel_model: str = "dynamic"        # dynamic (the layers' state integrated) | quasi_static (their fields a map of the ball's state)
     contact_projection: bool = False    # rollouts move cover-glass nodes inside the rigid ball onto its surface
     processor: str = "per_frame"        # per_frame (the ball state is a node input: the processor runs every frame) | per_design (quasi_static only: the processor runs once per design on the static graph, the ball state enters the decoder)
