@@ -268,9 +268,10 @@ def test_material_identity_keeps_only_the_ball_and_fixed_one_hot_columns():
 
 
 def test_contact_top_origin_measures_height_from_the_contact_layer_per_graph():
-    """``origin='contact_top'``: node heights are measured from the contact layer's top, so a thicker plate
-    leaves the cover glass's node features as they were (the mesh origin moves them by the change); in a
-    union each graph has its own origin, and the padding graph's nodes stay finite."""
+    """``origin='contact_top'`` / ``'support_top'``: node heights are measured from the contact layer's top
+    / the plate's top, so a thicker plate leaves the cover glass's node features as they were (the mesh
+    origin moves them by the change); in a union each graph has its own origin, and the padding graph's
+    nodes stay finite."""
     import dataclasses
 
     from pcmgn_jax.mgn.batching import batch_graphs
@@ -289,16 +290,20 @@ def test_contact_top_origin_measures_height_from_the_contact_layer_per_graph():
         g = design(plate)
         z = np.zeros_like(g.points)
         cg = np.asarray(g.topology.node_type) == 1
-        for origin in ("mesh", "contact_top"):
+        for origin in ("mesh", "contact_top", "support_top"):
             f = np.asarray(graphs.node_features(g.topology, g.points, z, z, "strain", origin=origin))
             feats[plate, origin] = f[cg][:, g.topology.n_node_types:g.topology.n_node_types + 2]
         assert np.isclose(feats[plate, "contact_top"][:, 1].max(), 0.0, atol=1e-9)
     np.testing.assert_allclose(feats[1.5e-3, "contact_top"], feats[1.2e-3, "contact_top"], atol=1e-9)
+    np.testing.assert_allclose(feats[1.5e-3, "support_top"], feats[1.2e-3, "support_top"], atol=1e-9)
+    # support_top: the mesh's heights less the plate's top (1.2 mm here), a constant the normaliser removes
+    np.testing.assert_allclose(feats[1.2e-3, "mesh"][:, 1] - feats[1.2e-3, "support_top"][:, 1], 1.2e-3, rtol=1e-5)
     np.testing.assert_allclose(feats[1.5e-3, "mesh"][:, 1] - feats[1.2e-3, "mesh"][:, 1], 0.3e-3, rtol=1e-4)
     # a union of both: each graph's own origin, as alone
     a, b = design(1.2e-3), design(1.5e-3)
     batch = batch_graphs([a.topology, b.topology], [a.index, b.index], [a.points, b.points])
-    heights = np.asarray(graphs.contact_top(batch.topology, jnp.asarray(batch.points), batch.layout.node_graph))
+    heights = np.asarray(graphs.origin_height(batch.topology, jnp.asarray(batch.points), "contact_top",
+                                                batch.layout.node_graph))
     n_a, n_b = a.topology.n_node, b.topology.n_node
     np.testing.assert_allclose(heights[:n_a], a.points[np.asarray(a.topology.node_type) == 1, 1].max(), rtol=1e-6)
     np.testing.assert_allclose(heights[n_a:n_a + n_b], b.points[np.asarray(b.topology.node_type) == 1, 1].max(),

@@ -70,9 +70,11 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
   normalised over all nodes (:func:`across_part_channels`); with ``part_identity='material'`` the layers'
   one-hot columns stay unset, so a layer is known by its material and geometry (docs/design.md §5).
 - ``origin``: where the node features' positions are measured from: ``mesh`` (the mesh's coordinates, y
-  from the plate's bottom) or ``contact_top`` (y from the contact layer's top surface,
-  :func:`pcmgn_jax.mgn.graphs.contact_top`), so a layer below the contact that changes thickness does not
-  move the contact zone to heights training never saw (docs/design.md §5).
+  from the plate's bottom), ``contact_top`` (y from the contact layer's top surface), so a layer below the
+  contact that changes thickness does not move the contact zone to heights training never saw, or
+  ``support_top`` (y from the bottom layer's top), so the plate's thickness moves nothing above it: with
+  a plate every training scene shares, the same features as ``mesh`` up to a constant, which the
+  per-part normaliser removes (:func:`pcmgn_jax.mgn.graphs.origin_height`, docs/design.md §5).
   ``stack_thickness`` is ``layer_thickness`` on every node, the contact pair's included: with
   ``contact_top`` the ball's height no longer tells it how thick the stack below is, so it is told. Node channels, not a graph-level global, because the processor has
   no global block and every node of a scene carries the same value (a broadcast global); empty (the
@@ -99,7 +101,7 @@ LOSS_WEIGHTINGS = ("nodes", "parts")
 PANEL_MODELS = ("dynamic", "quasi_static")
 PROCESSORS = ("per_frame", "per_design")
 PART_IDENTITIES = ("type", "material")
-ORIGINS = ("mesh", "contact_top")
+ORIGINS = ("mesh", "contact_top", "support_top")
 BALL_STATE_CHANNELS = 2  # quasi_static: [u_ball,y, v_ball,y] on every node (the ball moves along the axis)
 NOISE_PARTS = ("none", "ball", "panel", "all")
 SCENE_FEATURES = {"ball_radius": ("ball", "radius"), "ball_velocity": ("ball", "velocity"),  # -> scene dict keys
@@ -231,7 +233,7 @@ class Formulation:
     contact_projection: bool = False    # rollouts move cover-glass nodes inside the rigid ball onto its surface
     processor: str = "per_frame"        # per_frame (the ball state is a node input: the processor runs every frame) | per_design (quasi_static only: the processor runs once per design on the static graph, the ball state enters the decoder)
     part_identity: str = "type"         # type (a one-hot of every part) | material (the layers known only by their 'material' scene feature: a one-hot is kept for the ball and the fixed nodes)
-    origin: str = "mesh"                # mesh (node positions in the mesh's coordinates, y from the plate's bottom) | contact_top (y from the contact layer's top surface: layers below it may change thickness without moving the nodes above in the features)
+    origin: str = "mesh"                # mesh (node positions in the mesh's coordinates, y from the plate's bottom) | contact_top (y from the contact layer's top surface: layers below it may change thickness without moving the nodes above in the features) | support_top (y from the bottom layer's top: the plate's thickness moves nothing above it)
 
     def __post_init__(self):
         bad = [f for f in self.scene_features if f not in SCENE_FEATURES]

@@ -160,7 +160,9 @@ def node_features(topology: Topology, points, displacement, velocity, features: 
     ``origin``: ``mesh``, positions in the mesh's own coordinates (y from the plate's bottom);
     ``contact_top``, y measured from the contact layer's top surface (the highest reference point of the
     topology's ``top_nodes``, per graph of a union: ``node_graph`` (N,) int32 each node's graph), so a
-    layer below that changes thickness does not move the nodes above it in the features.
+    layer below that changes thickness does not move the nodes above it in the features;
+    ``support_top``, y measured from the top of the bottom layer (the plate: the last part before the
+    fixed nodes), so the plate's thickness moves nothing above it (:func:`origin_height`).
 
     ``identity``: ``type``, the one-hot of every node type; ``material``, only the ball's (type 0) and
     the fixed nodes' (the last type) columns are set: a layer's node is then known by its ``material``
@@ -181,10 +183,9 @@ def node_features(topology: Topology, points, displacement, velocity, features: 
     elif identity != "type":
         raise ValueError(f"identity must be 'type' or 'material', got {identity!r}")
     points = jnp.asarray(points, jnp.float32)
-    if origin == "contact_top":
-        points = points - jnp.stack([jnp.zeros_like(points[:, 0]), contact_top(topology, points, node_graph)], -1)
-    elif origin != "mesh":
-        raise ValueError(f"origin must be 'mesh' or 'contact_top', got {origin!r}")
+    if origin != "mesh":
+        points = points - jnp.stack([jnp.zeros_like(points[:, 0]),
+                                     origin_height(topology, points, origin, node_graph)], -1)
     displacement = jnp.asarray(displacement, jnp.float32)
     velocity = jnp.asarray(velocity, jnp.float32)
     extra = ([] if topology.scene_features is None else [jnp.asarray(topology.scene_features, jnp.float32)]) \
@@ -196,14 +197,21 @@ def node_features(topology: Topology, points, displacement, velocity, features: 
     raise ValueError(f"features must be 'paper' or 'strain', got {features!r}")
 
 
-def contact_top(topology: Topology, points, node_graph=None) -> jnp.ndarray:
-    """(N,) float32 [m]: the highest reference y of the topology's ``top_nodes`` (the contact layer) in
-    each node's graph (``node_graph`` (N,) int32 of a union, or None: one graph); 0 in a graph without
-    any (the union's padding graph)."""
-    if topology.top_nodes is None:
-        raise ValueError("origin='contact_top' needs the topology's top_nodes (built by "
-                         "pcmgn_jax.mgn.inputs.design_topology from a mesh and its scene)")
-    y = jnp.where(jnp.asarray(topology.top_nodes), points[:, 1], -jnp.inf)
+def origin_height(topology: Topology, points, origin: str, node_graph=None) -> jnp.ndarray:
+    """(N,) float32 [m]: the height the node features measure y from, per node's graph (``node_graph``
+    (N,) int32 of a union, or None: one graph): the highest reference y of the contact layer (the
+    topology's ``top_nodes``; ``origin='contact_top'``) or of the bottom layer (node type
+    ``n_node_types - 2``; ``'support_top'``); 0 in a graph without any (the union's padding graph)."""
+    if origin == "contact_top":
+        if topology.top_nodes is None:
+            raise ValueError("origin='contact_top' needs the topology's top_nodes (built by "
+                             "pcmgn_jax.mgn.inputs.design_topology from a mesh and its scene)")
+        mask = jnp.asarray(topology.top_nodes)
+    elif origin == "support_top":
+        mask = jnp.asarray(topology.node_type) == topology.n_node_types - 2
+    else:
+        raise ValueError(f"origin must be 'mesh', 'contact_top' or 'support_top', got {origin!r}")
+    y = jnp.where(mask, points[:, 1], -jnp.inf)
     if node_graph is None:
         top = jnp.broadcast_to(jnp.max(y), y.shape)
     else:
@@ -259,7 +267,7 @@ def build_graph(topology: Topology, *, points, displacement, velocity, contact,
     layout:       None (one graph), or a padded disjoint union's :class:`pcmgn_jax.mgn.batching.Layout`
     node_extra:   None, or (N, k) extra node channels [SI] appended last (:func:`node_features`)
     identity:     'type' | 'material': the one-hot columns set (:func:`node_features`)
-    origin:       'mesh' | 'contact_top': where node positions are measured from (:func:`node_features`)
+    origin:       'mesh' | 'contact_top' | 'support_top': where node heights are measured from (:func:`node_features`)
     """
     n = topology.n_node
     mesh_mask = jnp.ones(topology.mesh_senders.shape, bool) if layout is None else jnp.asarray(layout.edge_mask)

@@ -79,7 +79,7 @@ def with_scene(topology: Topology, scene, names, design=None) -> Topology:
 def design_topology(mesh, scene=None, scene_features=(), *, n_parts: int | None = None) -> Topology:
     """The topology of ``mesh`` (n_parts: :func:`n_parts_for`) with the scene features ``scene_features``
     (names, :data:`pcmgn_jax.mgn.formulation.SCENE_FEATURES`) of ``scene``, and (with a scene) its
-    contact layer's nodes (``top_nodes``, :func:`pcmgn_jax.mgn.graphs.contact_top`)."""
+    contact layer's nodes (``top_nodes``, :func:`pcmgn_jax.mgn.graphs.origin_height`)."""
     topo = make_topology(points=mesh.points, cells=mesh.cells, node_type=mesh.node_type,
                          n_parts=n_parts_for(mesh, scene) if n_parts is None else n_parts)
     if scene is not None:
