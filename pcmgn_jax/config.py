@@ -314,10 +314,12 @@ PRESETS: dict[str, dict[str, Any]] = {
                    message_passing_steps=8, epochs=1, num_steps=4000, steps_per_dispatch=25, batch_graphs=2,
                    log_every=100, ckpt_every=1000, val_every=500, formulation="default",
                    lambda_pen=0.0, lambda_start=0.5, noise_std=0.0, noise_rel=0.0, noise_parts="none",
-                   scene_features=("ball_radius", "layer_thickness"), ema_decay=0.998),
+                   scene_features=("ball_radius", "layer_thickness"), ema_decay=0.998,
+                   origin="support_top"),  # heights from the plate's top: a plate change moves nothing above it (design §5)
     # tests and smoke checks of the family path: a handful of tiny scenes, a small model, seconds
     "family_tiny": dict(data_preset="family_tiny", n_train=4, n_val=1, n_test=2, latent_size=32,
                         message_passing_steps=3, epochs=1, num_steps=60, steps_per_dispatch=20, batch_graphs=2,
                         log_every=20, ckpt_every=60, val_every=60, formulation="default", lambda_pen=10.0,
-                        noise_rel=1.0, noise_parts="panel", scene_features=("ball_radius", "layer_thickness")),
+                        noise_rel=1.0, noise_parts="panel", scene_features=("ball_radius", "layer_thickness"),
+                        origin="support_top"),
 }
