@@ -148,7 +148,7 @@ def batch_graphs(topologies: Sequence[Topology], indices: Sequence[contact_lib.C
                         n_node_types=n_types, mesh_senders=np.asarray(padded.senders, np.int32),
                         mesh_receivers=np.asarray(padded.receivers, np.int32),
                         fixed=nodes["fixed"] | ~node_mask, axis=nodes["axis"] & node_mask,
-                        scene_features=nodes.get("scene_features"), top_nodes=None if "top_nodes" not in nodes else nodes["top_nodes"] & node_mask)
+                        scene_features=nodes.get("scene_features"), top_nodes=nodes.get("top_nodes"))
     layout = Layout(n_node=n_node, n_edge=np.asarray(padded.n_edge, np.int32),
                     node_graph=np.repeat(np.arange(len(n_node), dtype=np.int32), n_node),
                     node_mask=node_mask, edge_mask=edge_mask)

@@ -191,7 +191,8 @@ def compute_stats(spec: Spec, trajs, topology, index, sigma, *, max_frames: int 
         pairs = pairs[np.linspace(0, len(pairs) - 1, max_frames).round().astype(int)]
     T = topos[0].n_node_types
     n_scene = 0 if topos[0].scene_features is None else int(np.shape(topos[0].scene_features)[1])
-    n_node = (6 if form.features == "strain" else 4) + n_scene + form.node_extra
+    n_phys = 6 if form.features == "strain" else 4
+    n_node = n_phys + n_scene + form.node_extra
     acc = {"node": TypedAccumulator(T, n_node), "mesh": TypedAccumulator(T, 6), "contact": Accumulator(3),
            "motion": TypedAccumulator(T, 2), "stress": TypedAccumulator(T, 1), "ball": Accumulator(2)}
     key = jax.random.PRNGKey(seed)
@@ -212,7 +213,6 @@ def compute_stats(spec: Spec, trajs, topology, index, sigma, *, max_frames: int 
         acc["stress"].add(target[:, 2:], node_type)
         if form.rigid_ball:
             acc["ball"].add(np.asarray(ball)[None])
-    n_phys = n_node - n_scene - form.node_extra
     across = [n_phys + i for i in across_part_channels(trajs[0].meta.get("scene") or {}, form.scene_features)]
     return make_stats(**acc, per_part=form.normalization == "per_part",
                       contact_default_std=indices[0].radius, node_across=across)
