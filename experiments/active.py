@@ -19,7 +19,6 @@ RUN/active/solver/.
 """
 from __future__ import annotations
 
-import shlex
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -61,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     from pcmgn_jax.opt import active_tasks as tasks
     from pcmgn_jax.opt.active import LoopConfig, run_loop
 
-    command = "python -m experiments.active " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
+    command = cli.command_line("experiments.active", argv)
     if args.compare:
         out = Path(args.out or Path(args.workdir) / "active")
         result = tasks.compare(args.workdir, budgets=_ints(args.budgets, "budgets"), seeds=_ints(args.seeds, "seeds"),

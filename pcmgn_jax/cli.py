@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import shlex
 import sys
 import typing
 from dataclasses import dataclass
@@ -102,6 +103,13 @@ def parse(cls: type[T], argv: Sequence[str] | None = None, *, description: str |
     kw: dict[str, Any] = {} if default is None else {"default": default}
     return tyro.cli(cls, args=normalize_argv(cls, argv), description=description, prog=prog,
                     use_underscores=True, config=(tyro.conf.OmitArgPrefixes,), **kw)
+
+
+def command_line(module: str, argv: Sequence[str] | None = None) -> str:
+    """The command as a user would type it again, for the record: ``python -m MODULE ARG...`` with every
+    argument shell-quoted (``argv`` default ``sys.argv[1:]``)."""
+    args = sys.argv[1:] if argv is None else list(argv)
+    return " ".join(["python", "-m", module, *(shlex.quote(str(a)) for a in args)])
 
 
 def keyed_paths(specs: Sequence[str], flag: str) -> dict[str, list[Path]]:
