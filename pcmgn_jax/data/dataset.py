@@ -235,6 +235,12 @@ def _is_done(root: Path, entry: dict[str, Any], layers: Sequence[str]) -> bool:
     return True
 
 
+def default_batch() -> int:
+    """Designs per solver batch when none is given: 8 (a manifest save every 8 designs), or the solver's
+    designs per compiled call where that is larger (an accelerator, :func:`pcmgn_jax.sim.solver.designs_per_call`)."""
+    return max(8, importlib.import_module("pcmgn_jax.sim.solver").designs_per_call())
+
+
 def _solver(solve_fn):
     """(solve_designs or ``solve_fn`` if given, (SolverError,)); the solver (JAX) is imported lazily,
     through ``sys.modules`` (``import_module``), so a test can substitute the module."""
@@ -245,7 +251,7 @@ def _solver(solve_fn):
 # ---- generation ---------------------------------------------------------------------------------
 def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: int = 100,
                    n_test: int = 50, seed: int = 0, designs: np.ndarray | None = None,
-                   split: str | None = None, scene: Scene | None = None, batch: int = 8,
+                   split: str | None = None, scene: Scene | None = None, batch: int = 0,
                    progress: bool = True, low: float = DESIGN_LOW, high: float = DESIGN_HIGH,
                    solve_fn: Callable[..., list[Trajectory]] | None = None, shard: tuple[int, int] | None = None,
                    merge: bool = False) -> Path:
@@ -257,7 +263,9 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     its box (:func:`parse_scene_params`).
     Resumable: valid trajectories (hash-verified, same design) are skipped. The solver is called as
     ``solve_fn(scene, designs (b, n_design) [m], preset=preset) -> list[Trajectory]`` in batches of
-    ``batch`` (default ``pcmgn_jax.sim.solver.solve_designs``). Designs that raise ``SolverError`` are
+    ``batch`` designs (default ``pcmgn_jax.sim.solver.solve_designs``; ``batch`` 0: :func:`default_batch`,
+    8 on CPU, the solver's designs per call on an accelerator; give it explicitly when shards run on
+    different devices, since the shards' plan depends on it). Designs that raise ``SolverError`` are
     retried one by one, recorded in the manifest with their error, and reported in a DatasetError
     raised after everything else has been written.
 
@@ -278,8 +286,9 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
                            "dataset?); the solver does not write into it: use another --out")
     if preset not in PRESETS:
         raise DatasetError(f"preset must be one of {PRESETS}, got {preset!r}")
-    if not isinstance(batch, int) or batch < 1:
-        raise DatasetError(f"batch must be an integer >= 1, got {batch!r}")
+    if not isinstance(batch, int) or batch < 0:
+        raise DatasetError(f"batch must be an integer >= 0 (0: the device's default), got {batch!r}")
+    batch = batch or default_batch()
     family = FAMILIES.get(preset)
     if family is not None:
         scene = family.base(scene)
