@@ -62,10 +62,10 @@ run() {
   [ "$budget" -gt "$rest" ] && budget=$rest
   if [ "$budget" -lt 5 ]; then
     printf '%s\tskipped\t0\t%s\n' "$name" "$budget" >> "$OUT/phases.tsv"
-    echo "== $name: skipped ($rest s of TOTAL_S=$TOTAL_S left)" | tee -a "$OUT/$name.log"
+    echo "== $name: skipped ($rest s of TOTAL_S=$TOTAL_S left)" | tee "$OUT/$name.log"
     return 0
   fi
-  echo "== $name (timeout $budget s): $*" | tee "$OUT/$name.log"
+  echo "== $name (timeout $budget s): $*" > "$OUT/$name.log"
   local t0 t1 rc
   t0=$(date +%s.%N)
   timeout --kill-after=5 "$budget" "$@" >> "$OUT/$name.log" 2>&1
@@ -73,7 +73,7 @@ run() {
   t1=$(date +%s.%N)
   local secs; secs=$("$PY" -c "print(round($t1 - $t0, 2))")
   printf '%s\t%s\t%s\t%s\n' "$name" "$rc" "$secs" "$budget" >> "$OUT/phases.tsv"
-  echo "== $name: exit $rc after $secs s (budget $budget s)" | tee -a "$OUT/$name.log"
+  echo "== $name: exit $rc after $secs s (budget $budget s)" >> "$OUT/$name.log"
   tail -n 40 "$OUT/$name.log"
 }
 
@@ -113,5 +113,5 @@ run startup "$BUDGET_STARTUP" "$PY" -m benchmarks.startup $STARTUP_ARGS --data "
     --budget-s $((BUDGET_STARTUP - 10)) --json "$OUT/startup.json"
 
 echo "== total $("$PY" -c "import time; print(round(time.time() - $START, 1))") s; figures in $OUT" \
-  | tee -a "$OUT/phases.tsv.log"
+  | tee "$OUT/total.log"
 cat "$OUT/phases.tsv"
