@@ -8,7 +8,6 @@ import json
 import os
 import subprocess
 import sys
-from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -89,20 +88,20 @@ FRAMES = 6
 
 
 def test_padded_calls_equal_unpadded_and_compile_once():
-    """3 designs at 2 per call (the last call padded with a copy) give what one call of 3 and three calls of 1
-    give (float32 round-off), and every call of the padded run shares one compilation."""
+    """3 designs at 2 per call (the last call padded with a copy) give what one call of 3 gives (float32
+    round-off; one call against one design at a time: test_solver.test_batch_equals_single_runs), and every
+    call of the padded run shares one compilation."""
     with CompileCounter("_run") as c:
         padded = solver.simulate(SCENES, "tiny", n_frames=FRAMES, settings=solver.SolverSettings(designs_per_call=2))
     assert c.count <= 1        # 0 when another test compiled this shape already
     with CompileCounter("_run") as c:
         solver.simulate(SCENES[::-1], "tiny", n_frames=FRAMES, settings=solver.SolverSettings(designs_per_call=2))
     assert c.count == 0
-    for per_call in (3, 1):
-        ref = solver.simulate(SCENES, "tiny", n_frames=FRAMES, settings=solver.SolverSettings(designs_per_call=per_call))
-        assert ref.n_sub == padded.n_sub and ref.dt == padded.dt
-        for name in ("u", "v", "von_mises", "force"):
-            a, b = getattr(padded, name), getattr(ref, name)
-            assert a.shape == b.shape and np.abs(a - b).max() <= 1e-5 * np.abs(b).max(), (per_call, name)
+    ref = solver.simulate(SCENES, "tiny", n_frames=FRAMES, settings=solver.SolverSettings(designs_per_call=3))
+    assert ref.n_sub == padded.n_sub and ref.dt == padded.dt
+    for name in ("u", "v", "von_mises", "force"):
+        a, b = getattr(padded, name), getattr(ref, name)
+        assert a.shape == b.shape and np.abs(a - b).max() <= 1e-5 * np.abs(b).max(), name
     assert np.abs(padded.u[0] - padded.u[1]).max() > 1e-3 * np.abs(padded.u).max()  # the designs differ
 
 
@@ -115,26 +114,45 @@ def test_designs_per_call_device_default():
         solver.designs_per_call(solver.SolverSettings(designs_per_call=-1))
 
 
-def test_generate_ragged_last_batch_compiles_the_solver_once(tmp_path):
-    """5 designs in batches of 2 (2, 2, 1): with 2 designs per compiled call the last batch is padded, so the
-    solver compiles once (for a shape no other test uses: 7 frames)."""
+def test_generate_ragged_last_batch_compiles_the_solver_once(tmp_path, monkeypatch):
+    """5 designs in batches of 2 (2, 2, 1) with 2 designs per compiled call (as an accelerator's 64, here on
+    the CPU): the last batch is padded with a copy, so the solver compiles once (a shape no other test uses:
+    7 frames), and its design's trajectory is the one an unpadded call gives."""
     from pcmgn_jax.data.dataset import ensure_dataset, load_manifest
+    from pcmgn_jax.data.trajectory_io import read_trajectory
+    monkeypatch.setattr(solver, "designs_per_call", lambda settings=solver.DEFAULT_SETTINGS: 2)
     scene = dataclasses.replace(default_scene(), n_frames=7)
-    solve = partial(solver.solve_designs, settings=solver.SolverSettings(designs_per_call=2))
+    calls = []
+    solve = lambda sc, des, preset: calls.append(len(des)) or solver.solve_designs(sc, des, preset=preset)  # noqa
     with CompileCounter("_run") as c:
         ensure_dataset(tmp_path / "d", preset="tiny", n_train=4, n_test=1, seed=3, scene=scene, batch=2,
                        progress=False, solve_fn=solve)
-    assert c.count == 1
+    assert c.count == 1 and calls == [2, 2, 2]
     man = load_manifest(tmp_path / "d")
-    assert sum(len(s["trajectories"]) for s in man["splits"].values()) == 5
-    assert all(e["sha256"] for s in man["splits"].values() for e in s["trajectories"])
+    entries = [e for s in man["splits"].values() for e in s["trajectories"]]
+    assert len(entries) == 5 and all(e["sha256"] for e in entries)
+    last = entries[-1]
+    got = read_trajectory(tmp_path / "d" / last["path"])
+    monkeypatch.setattr(solver, "designs_per_call", lambda settings=solver.DEFAULT_SETTINGS: 1)
+    (ref,) = solver.solve_designs(scene, np.asarray([last["design_m"]]), preset="tiny")
+    assert np.abs(got.displacement - ref.displacement).max() <= 1e-5 * np.abs(ref.displacement).max()
+    assert np.abs(got.von_mises - ref.von_mises).max() <= 1e-5 * np.abs(ref.von_mises).max()
 
 
 # ---- the learned simulator: validation and evaluation rollouts ------------------------------------------
+def test_compile_notes_of_a_training_run(tiny_run):
+    """The shared tiny run (validations at steps 80 and 160) noted each first compilation once, with seconds."""
+    _, workdir, _ = tiny_run
+    recs = [json.loads(line) for line in (workdir / "compile.jsonl").read_text().splitlines()]
+    assert [r["compile"] for r in recs] == ["the training step", "the validation rollout"]
+    assert all(r["seconds"] > 0 for r in recs)
+
+
+@pytest.mark.slow  # ~16 s on the shared 2-core machine (a training run of its own, so the counter sees it)
 def test_training_through_two_validations_compiles_the_validation_rollout_once(tiny_trajs, tmp_path):
     from pcmgn_jax.train import loop as training
-    cfg = tiny_config(num_steps=40, steps_per_dispatch=20, log_every=20, ckpt_every=40, val_every=20,
-                      latent_size=24)                       # a model no other test compiles
+    cfg = tiny_config(num_steps=20, steps_per_dispatch=10, log_every=10, ckpt_every=20, val_every=10,
+                      latent_size=16, message_passing_steps=1)   # a model no other test compiles
     with CompileCounter("rollout_union") as c:
         training.train(cfg, tmp_path, train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:])
     recs = [json.loads(line) for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]

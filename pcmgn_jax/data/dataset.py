@@ -392,6 +392,7 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
         return root
 
     solve, solver_errors = _solver(solve_fn)
+    call_size = importlib.import_module("pcmgn_jax.sim.solver").call_size
     from tqdm.auto import tqdm
 
     failures: list[str] = []
@@ -403,9 +404,13 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     try:
         for chunk in batches:
             groups = [chunk]
+            # a short last batch is padded with copies of its last design (results dropped) where the solver
+            # would compile a call of another size for it (an accelerator); one batch alone is not
+            pad = (batch - len(chunk) if family is None and len(batches) > 1 and call_size(len(chunk)) != call_size(batch)
+                   else 0)
             t0 = time.perf_counter()
             try:
-                results = [_solve_checked(solve, scene, chunk, preset, family)]
+                results = [_solve_checked(solve, scene, chunk, preset, family, pad=pad)]
             except solver_errors:
                 groups = [[item] for item in chunk]     # isolate the failing design(s)
                 results = []
@@ -440,9 +445,11 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     return root
 
 
-def _solve_checked(solve, scene: Scene, items, preset: str, family: SceneFamily | None = None) -> list[Trajectory]:
-    """Solve the entries ``items``: one batched call over the design layers, or for a scene family one
-    call per scene (each scene has its own mesh), its parameters recorded in meta['scene_params']."""
+def _solve_checked(solve, scene: Scene, items, preset: str, family: SceneFamily | None = None,
+                   pad: int = 0) -> list[Trajectory]:
+    """Solve the entries ``items``: one batched call over the design layers (``pad`` more copies of the last
+    design, whose trajectories are dropped), or for a scene family one call per scene (each scene has its
+    own mesh), its parameters recorded in meta['scene_params']."""
     if family is not None:
         trajs = []
         for _, e in items:
@@ -452,11 +459,11 @@ def _solve_checked(solve, scene: Scene, items, preset: str, family: SceneFamily 
             traj.meta["family"] = preset
             trajs.append(traj)
         return trajs
-    des = np.asarray([e["design_m"] for _, e in items], dtype=np.float64)
+    des = np.asarray([e["design_m"] for _, e in items] + [items[-1][1]["design_m"]] * pad, dtype=np.float64)
     trajs = list(solve(scene, des, preset=preset))
-    if len(trajs) != len(items):
-        raise DatasetError(f"solver returned {len(trajs)} trajectories for {len(items)} designs")
-    return trajs
+    if len(trajs) != len(des):
+        raise DatasetError(f"solver returned {len(trajs)} trajectories for {len(des)} designs")
+    return trajs[:len(items)]
 
 
 def __getattr__(name: str):

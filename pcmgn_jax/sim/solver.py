@@ -27,8 +27,9 @@ inside. The stiffness is applied as shifted slices of contiguous node rows
 (:mod:`pcmgn_jax.sim.stencil`); node arrays are (2, B, N) with a design axis kept in the arrays
 rather than vmapped, so designs of one topology can run in one call
 (``SolverSettings.designs_per_call``; on CPU they run one at a time, which is faster; on an
-accelerator 64 at a time, :func:`designs_per_call`). Every call has the same number of designs (a short
-last call is padded with copies of a design whose results are dropped), so a batch compiles once.
+accelerator 64 at a time, :func:`designs_per_call`). Every call of a batch has the same number of designs
+(a short last call is padded with copies of a design whose results are dropped; a batch of one call is
+padded to the next power of two, :func:`call_size`), so a batch compiles once.
 
 Modules: :mod:`pcmgn_jax.sim.prepare` (operators, masses, penalties, stable step),
 :mod:`pcmgn_jax.sim.integrate` (the jitted integration), :mod:`pcmgn_jax.sim.output` (the result
@@ -89,6 +90,7 @@ __all__ = [
     "_spec_dict",
     "_tributary",
     "contact_energy",
+    "call_size",
     "contact_phases",
     "designs_per_call",
     "initial_velocity",
@@ -113,6 +115,14 @@ def designs_per_call(settings: SolverSettings = DEFAULT_SETTINGS) -> int:
     if settings.designs_per_call:
         return settings.designs_per_call
     return 1 if jax.default_backend() == "cpu" else ACCELERATOR_DESIGNS_PER_CALL
+
+
+def call_size(n_designs: int, settings: SolverSettings = DEFAULT_SETTINGS) -> int:
+    """Designs per compiled call for a batch of ``n_designs``: :func:`designs_per_call` when the batch needs
+    several calls (the last one is padded to it: one compilation, whatever the batch's remainder), else the
+    next power of two >= ``n_designs`` up to it (a single design on a GPU is not padded to 64)."""
+    full = designs_per_call(settings)
+    return full if n_designs >= full else min(full, 1 << (max(1, n_designs) - 1).bit_length())
 
 
 class SolverError(RuntimeError):
@@ -170,7 +180,7 @@ def simulate(scenes: Sequence[Scene], preset: str | MeshSpec = "cpu", *,
     base = scenes[0]
     n_frames = base.n_frames if n_frames is None else n_frames
     output_dt = base.output_dt if output_dt is None else output_dt
-    per_call = designs_per_call(settings)
+    per_call = call_size(len(scenes), settings)
     calls = Calls(scenes, prepare(scenes, preset, settings), settings=settings, n_frames=n_frames,
                   output_dt=output_dt)
     prep, n_sub, dt = calls.prep, calls.n_sub, calls.dt
