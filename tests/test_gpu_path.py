@@ -140,14 +140,6 @@ def test_generate_ragged_last_batch_compiles_the_solver_once(tmp_path, monkeypat
 
 
 # ---- the learned simulator: validation and evaluation rollouts ------------------------------------------
-def test_compile_notes_of_a_training_run(tiny_run):
-    """The shared tiny run (validations at steps 80 and 160) noted each first compilation once, with seconds."""
-    _, workdir, _ = tiny_run
-    recs = [json.loads(line) for line in (workdir / "compile.jsonl").read_text().splitlines()]
-    assert [r["compile"] for r in recs] == ["the training step", "the validation rollout"]
-    assert all(r["seconds"] > 0 for r in recs)
-
-
 @pytest.mark.slow  # ~16 s on the shared 2-core machine (a training run of its own, so the counter sees it)
 def test_training_through_two_validations_compiles_the_validation_rollout_once(tiny_trajs, tmp_path):
     from pcmgn_jax.train import loop as training
