@@ -8,6 +8,8 @@
 Benchmarks are not tests: tests only run them at tiny sizes. Ratios measured in the same run carry
 the claims; absolute times depend on the machine recorded in each JSON's ``machine`` block.
 """
+from pcmgn_jax.compile_cache import enable_compile_cache
 from pcmgn_jax.heap import keep_freed_memory
 
 keep_freed_memory()  # before any JAX computation: XLA's per-call scratch buffer stays mapped (pcmgn_jax/heap.py)
+enable_compile_cache()  # compiled programs persist across runs (pcmgn_jax/compile_cache.py; PCMGN_JAX_CACHE=0: off)

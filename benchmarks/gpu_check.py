@@ -16,15 +16,23 @@ Measured on ``jax.devices()[0]``, each after compilation (compile time reported 
 Full size: ``--preset paper``, 15 x 128, 100 frames. ``--smoke``: preset tiny, 1 x 8, 3 frames, a
 2-frame solver run, 256² matmul, and (when jax is not imported yet) XLA's quick compile options
 (:data:`SMOKE_XLA_FLAGS`: compilation is most of a smoke run's time, and its timings mean nothing).
-Prints one table; writes JSON (atomically) where ``--json`` says (default without ``--smoke``:
-benchmarks/results/gpu_check.json) and the table beside it (``--md``).
+
+Always returns something (issue 42): each part (``matmul``, ``mgn``, ``rollout``, ``solver``) runs in a process
+of its own, started only while ``--budget-s`` (default 300 s, the whole check) has time left and killed when
+it runs past it; each row is printed and the JSON (atomically rewritten) updated as soon as its part ends,
+and a part that did not fit is recorded as ``{"skipped": "why"}``. (The parent process never touches the
+device: on a GPU the parts would otherwise compete for its preallocated memory.) ``--parts`` picks and orders
+them. Writes JSON where ``--json`` says (default without ``--smoke``: benchmarks/results/gpu_check.json) and
+the table beside it (``--md``).
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -33,6 +41,8 @@ FULL = {"preset": "paper", "latent": 128, "layers": 15, "frames": 100, "solver_f
         "scan": 3, "matmul_n": 0}
 SMOKE = {"preset": "tiny", "latent": 8, "layers": 1, "frames": 3, "solver_frames": 2, "repeats": 2, "scan": 2,
          "matmul_n": 256}
+PARTS = ("matmul", "mgn", "rollout", "solver")
+MIN_PART_S = 10.0     # a part is not started with less of the budget left [s] (a process start and a compile)
 SMOKE_XLA_FLAGS = "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"  # ~1/3 less CPU
 
 
@@ -47,6 +57,11 @@ def _args(argv):
     p.add_argument("--repeats", type=int, help="timed calls of each (5; smoke: 2)")
     p.add_argument("--scan", type=int, help="train steps per dispatch of the lax.scan variant (3; smoke: 2)")
     p.add_argument("--matmul-n", type=int, help="matmul size (0 = 8192 on an accelerator, 1024 on a CPU)")
+    p.add_argument("--budget-s", type=float, default=300.0,
+                   help="seconds for the whole check: a part that does not fit is skipped or cut (300)")
+    p.add_argument("--parts", default=",".join(PARTS), help=f"comma list of parts, in order ({','.join(PARTS)})")
+    p.add_argument("--part", default=None, help=argparse.SUPPRESS)         # a child: run this part only
+    p.add_argument("--part-out", default=None, help=argparse.SUPPRESS)
     p.add_argument("--json", default=None)
     p.add_argument("--md", default=None)
     a = p.parse_args(argv)
@@ -111,55 +126,162 @@ def solver_time(a) -> dict:
     return timed_simulate([base.with_design(*designs(1)[0])], a.preset, a.solver_frames or base.n_frames)
 
 
-def main(argv=None) -> dict:
-    a = _args(sys.argv[1:] if argv is None else argv)
-    if a.smoke and "jax" not in sys.modules:        # XLA reads its flags when jax starts
-        os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {SMOKE_XLA_FLAGS}".strip()
-    import jax
-
+def run_part(a) -> dict:
+    """The child's work: one part on the default device, with the device and machine blocks."""
     from benchmarks import common
-    from pcmgn_jax.atomic import atomic_write_text
+    out: dict = {"device": device_info(), "machine": common.machine_info()}
+    if a.part == "matmul":
+        n = a.matmul_n or (1024 if out["device"]["backend"] == "cpu" else 8192)
+        out["result"] = {"n": n, "gflops": common.matmul_gflops_jax(n, repeats=max(a.repeats, 3))}
+    elif a.part == "rollout":
+        out["result"] = rollout_time(a)
+    elif a.part == "mgn":
+        from benchmarks.rollout_throughput import rollout_setup
+        n_nodes = rollout_setup(a.preset, latent=a.latent, layers=a.layers, n_designs=1)["n_nodes"]
+        out["result"] = train_and_forward(a, n_nodes)                # the rollout's node count
+    elif a.part == "solver":
+        out["result"] = solver_time(a)
+    else:
+        raise ValueError(f"--part {a.part!r}: one of {PARTS}")
+    return out
 
-    t_start = time.perf_counter()
-    dev = device_info()
-    n = a.matmul_n or (1024 if dev["backend"] == "cpu" else 8192)
-    peak = common.matmul_gflops_jax(n, repeats=max(a.repeats, 3))
-    roll = rollout_time(a)
-    mgn = train_and_forward(a, roll["n_nodes"])                  # the rollout's node count
+
+def _child(a, part: str, argv, timeout: float) -> tuple[dict | None, str]:
+    """Run ``part`` in a process of its own within ``timeout`` [s]: (its output, '') or (None, why)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "part.json"
+        cmd = [sys.executable, "-m", "benchmarks.gpu_check", *argv, "--part", part, "--part-out", str(out)]
+        t0 = time.perf_counter()
+        try:
+            run = subprocess.run(cmd, cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True,
+                                 timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return None, f"did not finish in the {timeout:.0f} s left of --budget-s={a.budget_s:g} (killed)"
+        if run.returncode != 0 or not out.exists():
+            tail = (run.stderr or run.stdout).strip().splitlines()[-3:]
+            return None, f"failed (exit {run.returncode} after {time.perf_counter() - t0:.0f} s): " + " | ".join(tail)
+        return json.loads(out.read_text()), ""
+
+
+def _rows(result: dict, a) -> list[list]:
+    """The table's rows for the parts measured so far (a skipped part: one row saying why)."""
+    rows = []
+    for part in a.parts.split(","):
+        r = result.get(part)
+        if r is None:
+            continue
+        if "skipped" in r:
+            rows.append([part, "skipped: " + r["skipped"], "", "", ""])
+        elif part == "matmul":
+            rows.append(["dense matmul", f"{r['n']}² float32 jnp.dot", r["gflops"], "GFLOP/s", ""])
+        elif part == "mgn":
+            frac = lambda k: f"{100 * r[k + '_fraction_of_matmul']:.0f} %" if k + "_fraction_of_matmul" in r else ""  # noqa: E731
+            rows += [["MGN forward", f"{r['n_nodes']} nodes, {a.layers} x {a.latent}", r["forward_ms"], "ms",
+                      frac("forward")],
+                     ["train step, 1 per dispatch", "model + MSE + Adam", r["train_steps_per_s"], "steps/s",
+                      frac("train_step")],
+                     [f"train step, {a.scan} per dispatch", "lax.scan", r["train_steps_per_s_scan"], "steps/s",
+                      frac("train_step_scan")]]
+        elif part == "rollout":
+            rows.append(["MGN rollout", f"{r['frames']} frames, {r['n_nodes']} nodes (compile {r['compile_s']:.1f} s)",
+                         r["s"], "s", ""])
+        elif part == "solver":
+            rows.append(["solver trajectory", (f"{a.preset} mesh, {r['n_frames']} frames x {r['n_sub_per_frame']} "
+                                               f"substeps (compile {r['compile_s']:.1f} s)"), r["wall_s"], "s", ""])
+    return rows
+
+
+def _fractions(result: dict) -> None:
+    """The MGN figures as fractions of the matmul rate, once both are measured."""
+    mgn, mm = result.get("mgn") or {}, result.get("matmul") or {}
+    if "gflops" not in mm or "flops" not in mgn:
+        return
     for key, ms, fl in (("forward", mgn["forward_ms"], mgn["flops"]["forward"]),
                         ("train_step", mgn["train_step_ms"], mgn["flops"]["train_step_approx"]),
                         ("train_step_scan", mgn["train_step_scan_ms"], mgn["flops"]["train_step_approx"])):
         mgn[f"{key}_gflops"] = fl / (ms * 1e-3) / 1e9
-        mgn[f"{key}_fraction_of_matmul"] = mgn[f"{key}_gflops"] / peak
-    sol = solver_time(a)
-    cmd = "python -m benchmarks.gpu_check " + " ".join(sys.argv[1:] if argv is None else argv)
-    result = {"device": dev, "matmul": {"n": n, "gflops": peak}, "mgn": mgn, "rollout": roll, "solver": sol,
-              "config": {**{k: getattr(a, k) for k in FULL}, "smoke": a.smoke, "mlp_layers": 2, "command": cmd},
-              "machine": common.machine_info(), "total_s": time.perf_counter() - t_start}
-    rows = [["dense matmul", f"{n}² float32 jnp.dot", peak, "GFLOP/s", ""],
-            ["MGN forward", f"{mgn['n_nodes']} nodes, {a.layers} x {a.latent}", mgn["forward_ms"], "ms",
-             f"{100 * mgn['forward_fraction_of_matmul']:.0f} %"],
-            ["train step, 1 per dispatch", "model + MSE + Adam", mgn["train_steps_per_s"], "steps/s",
-             f"{100 * mgn['train_step_fraction_of_matmul']:.0f} %"],
-            [f"train step, {a.scan} per dispatch", "lax.scan", mgn["train_steps_per_s_scan"], "steps/s",
-             f"{100 * mgn['train_step_scan_fraction_of_matmul']:.0f} %"],
-            ["MGN rollout", f"{roll['frames']} frames, {roll['n_nodes']} nodes (compile {roll['compile_s']:.1f} s)",
-             roll["s"], "s", ""],
-            ["solver trajectory", (f"{a.preset} mesh, {sol['n_frames']} frames x {sol['n_sub_per_frame']} substeps "
-             f"(compile {sol['compile_s']:.1f} s)"), sol["wall_s"], "s", ""],
-            ["whole check", "", result["total_s"], "s", ""]]
-    md = (f"## GPU check — {dev['platform']} {dev['kind']} (jax {jax.__version__}, {dev['device_count']} "
-          f"device(s))\n\n`{cmd}`\n\n" + common.md_table(["what", "size", "value", "unit", "of the matmul rate"], rows))
-    print(md)
+        mgn[f"{key}_fraction_of_matmul"] = mgn[f"{key}_gflops"] / mm["gflops"]
+
+
+def main(argv=None) -> dict:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    a = _args(argv)
+    if a.smoke and "jax" not in sys.modules:        # XLA reads its flags when jax starts (children inherit)
+        os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {SMOKE_XLA_FLAGS}".strip()
+    if a.part is not None:                          # a child process: one part, its JSON to --part-out
+        from benchmarks import common
+        from pcmgn_jax.atomic import atomic_write_text
+        atomic_write_text(Path(a.part_out), json.dumps(common._clean(run_part(a)), allow_nan=False))
+        return {}
+    from benchmarks import common
+    from pcmgn_jax.atomic import atomic_write_text
+
+    parts = a.parts.split(",")
+    if not parts or set(parts) - set(PARTS):
+        raise SystemExit(f"--parts {a.parts!r}: a comma list of {', '.join(PARTS)}")
+    t_start = time.perf_counter()
+    cmd = "python -m benchmarks.gpu_check " + " ".join(argv)
+    result: dict = {"device": None, "machine": None,
+                    "config": {**{k: getattr(a, k) for k in FULL}, "smoke": a.smoke, "mlp_layers": 2,
+                               "budget_s": a.budget_s, "parts": parts, "command": cmd}}
     json_path = Path(a.json) if a.json else (None if a.smoke else common.RESULTS / "gpu_check.json")
+    md_path = None if json_path is None else (Path(a.md) if a.md else json_path.with_suffix(".md"))
+
+    def table() -> str:
+        dev = result["device"] or {"platform": "?", "kind": "?", "device_count": "?"}
+        jax_v = (result["machine"] or {}).get("jax", "?")
+        rows = _rows(result, a) + [["whole check", f"budget {a.budget_s:g} s", result.get("total_s", 0.0), "s", ""]]
+        return (f"## GPU check — {dev['platform']} {dev['kind']} (jax {jax_v}, {dev['device_count']} device(s))\n\n"
+                f"`{cmd}`\n\n" + common.md_table(["what", "size", "value", "unit", "of the matmul rate"], rows))
+
+    def save() -> None:
+        result["total_s"] = time.perf_counter() - t_start
+        if json_path is None:
+            return
+        json_path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(json_path, json.dumps(common._clean(result), indent=1, allow_nan=False) + "\n")
+        atomic_write_text(md_path, table())
+
+    child_argv = _drop_values(argv, ("--json", "--md", "--budget-s", "--parts"))
+    for part in parts:
+        left = a.budget_s - (time.perf_counter() - t_start)
+        if left < MIN_PART_S:
+            result[part] = {"skipped": f"not started: {max(left, 0):.0f} s of --budget-s={a.budget_s:g} left "
+                                       f"(a part needs at least {MIN_PART_S:g} s)"}
+        else:
+            t0 = time.perf_counter()
+            out, why = _child(a, part, child_argv, left)
+            if out is None:
+                result[part] = {"skipped": why}
+            else:
+                result[part] = {**out["result"], "part_wall_s": time.perf_counter() - t0}
+                result["device"] = result["device"] or out["device"]
+                result["machine"] = result["machine"] or out["machine"]
+                _fractions(result)
+        for row in _rows({part: result[part], "matmul": result.get("matmul")}, SimpleNamespace(**{**vars(a), "parts": part})):
+            print(" | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in row), flush=True)
+        save()
+    save()
+    md = table()
+    print(md)
     if json_path is not None:
-        md_path = Path(a.md) if a.md else json_path.with_suffix(".md")
-        for path, text in ((json_path, json.dumps(common._clean(result), indent=1, allow_nan=False) + "\n"),
-                           (md_path, md)):
-            path.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write_text(path, text)
         print(f"wrote {json_path} and {md_path}")
     return result
+
+
+def _drop_values(argv, flags) -> list[str]:
+    """``argv`` without ``flags`` (``--flag value`` or ``--flag=value``)."""
+    out, skip = [], False
+    for x in argv:
+        if skip:
+            skip = False
+            continue
+        name = x.split("=", 1)[0]
+        if name in flags:
+            skip = "=" not in x
+            continue
+        out.append(x)
+    return out
 
 
 if __name__ == "__main__":

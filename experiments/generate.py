@@ -50,7 +50,7 @@ class GenerateArgs:
     scene_params: str | None = None            # a scene family's explicit scenes, SI: "ball.radius=3.5e-3,ball.velocity=0.8,OCA1=40e-6,OCA2=160e-6,POL=25e-6;..." (may leave its box)
     split: str | None = None                   # split name for --designs (None: extrap)
     scene: str | None = None                   # scene file (.toml/.json); default: the paper's scene
-    batch: int = 8                             # designs per solver call
+    batch: int = 0                             # designs per solver batch (0: 8 on CPU, 64 on an accelerator)
     progress: bool = True                      # progress bar (--no_progress: off)
     shard: str | None = None                   # K/N: only shard K (0-based, 0..N-1) of N; writes a manifest part, not the manifest
     merge: bool = False                        # solve nothing: verify every trajectory of the shards, write the manifest

@@ -10,10 +10,16 @@ Also the session fixture ``family_tiny`` (the one fixture here that runs the sol
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
-from pcmgn_jax.heap import keep_freed_memory
+# the suite never writes the user's persistent compilation cache (pcmgn_jax/compile_cache.py); the
+# cache's own tests point it at tmp_path in a subprocess
+os.environ["PCMGN_JAX_CACHE"] = "0"
+
+from pcmgn_jax.heap import keep_freed_memory  # noqa: E402
 
 keep_freed_memory()  # before any JAX computation, as the entry points do (pcmgn_jax/heap.py)
 

@@ -231,3 +231,31 @@ def test_gpu_check_smoke(tmp_path):
             assert isinstance(v, (int, float)) and math.isfinite(v) and v > 0, (group, k, v)
     assert r["rollout"]["frames"] == 3 and r["mgn"]["n_nodes"] > 0 and r["total_s"] > 0
     assert "| MGN rollout |" in out.with_suffix(".md").read_text()
+
+
+def test_gpu_check_budget_skips_and_says_so(tmp_path):
+    """A budget too small for any part: nothing is started, every part is recorded as skipped with the reason,
+    and the JSON and table are still written (the check always returns something)."""
+    from benchmarks import gpu_check
+    out = tmp_path / "g.json"
+    r = gpu_check.main(["--smoke", "--budget-s", "0", "--json", str(out)])
+    j = _load(out)
+    for part in gpu_check.PARTS:
+        assert "not started" in j[part]["skipped"] and "--budget-s=0" in j[part]["skipped"], part
+    assert r["config"]["budget_s"] == 0 and "skipped: not started" in out.with_suffix(".md").read_text()
+
+
+def test_solver_throughput_rows(tmp_path):
+    """`benchmarks.solver_throughput` at tiny sizes: one row per batch size, written as measured, finite."""
+    import math
+
+    from benchmarks import solver_throughput
+    out = tmp_path / "s.json"
+    solver_throughput.main(["--presets", "tiny", "--sizes", "1,2", "--frames", "1", "--repeats", "1",
+                            "--json", str(out)])
+    rows = _load(out)["rows"]
+    assert [r["batch"] for r in rows] == [1, 2] and rows[0]["speedup_vs_batch_1"] == 1.0
+    for r in rows:
+        for k in ("compile_s", "call_s", "designs_per_s", "designs_per_s_full_trajectory", "prepare_s_per_design"):
+            assert isinstance(r[k], float) and math.isfinite(r[k]) and r[k] > 0, (k, r[k])
+        assert r["finite"] and r["extrapolated_to_frames"] == 100 and r["substeps_per_call"] > 0

@@ -16,7 +16,8 @@ from pcmgn_jax.data.trajectory_io import read_trajectory
 
 
 class FakeSolver(types.ModuleType):
-    """Stand-in for pcmgn_jax.sim.solver (contract: solve_designs(scene, designs, *, preset))."""
+    """Stand-in for pcmgn_jax.sim.solver (contract: solve_designs(scene, designs, *, preset); designs_per_call
+    and call_size, which size the batches)."""
 
     class SolverError(RuntimeError):
         pass
@@ -25,6 +26,14 @@ class FakeSolver(types.ModuleType):
         super().__init__("pcmgn_jax.sim.solver")
         self.calls = []
         self.fail_above = fail_above
+
+    @staticmethod
+    def designs_per_call(settings=None):
+        return 1        # as the solver on CPU: one design per compiled call
+
+    @staticmethod
+    def call_size(n_designs, settings=None):
+        return 1
 
     def solve_designs(self, scene, designs, *, preset):
         self.calls.append((preset, np.array(designs)))

@@ -235,6 +235,12 @@ def _is_done(root: Path, entry: dict[str, Any], layers: Sequence[str]) -> bool:
     return True
 
 
+def default_batch() -> int:
+    """Designs per solver batch when none is given: 8 (a manifest save every 8 designs), or the solver's
+    designs per compiled call where that is larger (an accelerator, :func:`pcmgn_jax.sim.solver.designs_per_call`)."""
+    return max(8, importlib.import_module("pcmgn_jax.sim.solver").designs_per_call())
+
+
 def _solver(solve_fn):
     """(solve_designs or ``solve_fn`` if given, (SolverError,)); the solver (JAX) is imported lazily,
     through ``sys.modules`` (``import_module``), so a test can substitute the module."""
@@ -245,7 +251,7 @@ def _solver(solve_fn):
 # ---- generation ---------------------------------------------------------------------------------
 def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: int = 100,
                    n_test: int = 50, seed: int = 0, designs: np.ndarray | None = None,
-                   split: str | None = None, scene: Scene | None = None, batch: int = 8,
+                   split: str | None = None, scene: Scene | None = None, batch: int = 0,
                    progress: bool = True, low: float = DESIGN_LOW, high: float = DESIGN_HIGH,
                    solve_fn: Callable[..., list[Trajectory]] | None = None, shard: tuple[int, int] | None = None,
                    merge: bool = False) -> Path:
@@ -257,7 +263,9 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     its box (:func:`parse_scene_params`).
     Resumable: valid trajectories (hash-verified, same design) are skipped. The solver is called as
     ``solve_fn(scene, designs (b, n_design) [m], preset=preset) -> list[Trajectory]`` in batches of
-    ``batch`` (default ``pcmgn_jax.sim.solver.solve_designs``). Designs that raise ``SolverError`` are
+    ``batch`` designs (default ``pcmgn_jax.sim.solver.solve_designs``; ``batch`` 0: :func:`default_batch`,
+    8 on CPU, the solver's designs per call on an accelerator; give it explicitly when shards run on
+    different devices, since the shards' plan depends on it). Designs that raise ``SolverError`` are
     retried one by one, recorded in the manifest with their error, and reported in a DatasetError
     raised after everything else has been written.
 
@@ -278,8 +286,9 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
                            "dataset?); the solver does not write into it: use another --out")
     if preset not in PRESETS:
         raise DatasetError(f"preset must be one of {PRESETS}, got {preset!r}")
-    if not isinstance(batch, int) or batch < 1:
-        raise DatasetError(f"batch must be an integer >= 1, got {batch!r}")
+    if not isinstance(batch, int) or batch < 0:
+        raise DatasetError(f"batch must be an integer >= 0 (0: the device's default), got {batch!r}")
+    batch = batch or default_batch()
     family = FAMILIES.get(preset)
     if family is not None:
         scene = family.base(scene)
@@ -383,6 +392,7 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
         return root
 
     solve, solver_errors = _solver(solve_fn)
+    call_size = importlib.import_module("pcmgn_jax.sim.solver").call_size
     from tqdm.auto import tqdm
 
     failures: list[str] = []
@@ -394,9 +404,13 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     try:
         for chunk in batches:
             groups = [chunk]
+            # a short last batch is padded with copies of its last design (results dropped) where the solver
+            # would compile a call of another size for it (an accelerator); one batch alone is not
+            pad = (batch - len(chunk) if family is None and len(batches) > 1 and call_size(len(chunk)) != call_size(batch)
+                   else 0)
             t0 = time.perf_counter()
             try:
-                results = [_solve_checked(solve, scene, chunk, preset, family)]
+                results = [_solve_checked(solve, scene, chunk, preset, family, pad=pad)]
             except solver_errors:
                 groups = [[item] for item in chunk]     # isolate the failing design(s)
                 results = []
@@ -431,9 +445,11 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     return root
 
 
-def _solve_checked(solve, scene: Scene, items, preset: str, family: SceneFamily | None = None) -> list[Trajectory]:
-    """Solve the entries ``items``: one batched call over the design layers, or for a scene family one
-    call per scene (each scene has its own mesh), its parameters recorded in meta['scene_params']."""
+def _solve_checked(solve, scene: Scene, items, preset: str, family: SceneFamily | None = None,
+                   pad: int = 0) -> list[Trajectory]:
+    """Solve the entries ``items``: one batched call over the design layers (``pad`` more copies of the last
+    design, whose trajectories are dropped), or for a scene family one call per scene (each scene has its
+    own mesh), its parameters recorded in meta['scene_params']."""
     if family is not None:
         trajs = []
         for _, e in items:
@@ -443,11 +459,11 @@ def _solve_checked(solve, scene: Scene, items, preset: str, family: SceneFamily 
             traj.meta["family"] = preset
             trajs.append(traj)
         return trajs
-    des = np.asarray([e["design_m"] for _, e in items], dtype=np.float64)
+    des = np.asarray([e["design_m"] for _, e in items] + [items[-1][1]["design_m"]] * pad, dtype=np.float64)
     trajs = list(solve(scene, des, preset=preset))
-    if len(trajs) != len(items):
-        raise DatasetError(f"solver returned {len(trajs)} trajectories for {len(items)} designs")
-    return trajs
+    if len(trajs) != len(des):
+        raise DatasetError(f"solver returned {len(trajs)} trajectories for {len(des)} designs")
+    return trajs[:len(items)]
 
 
 def __getattr__(name: str):

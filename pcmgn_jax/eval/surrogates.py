@@ -271,7 +271,7 @@ class MGNSurrogate:
         from pcmgn_jax.mgn.rollout import rollout_designs
         s = self.sim
         out = rollout_designs(s.spec, self.ref.n_frames - 1, s.params, s.stats, designs, batch_size=self.batch,
-                              compiled=self._compiled)
+                              compiled=self._compiled, note="the model's rollout")
         self.rollout_seconds = out.seconds
         self.sim = s._replace(index=s.index.replace(capacity=max(s.index.capacity, out.capacity)))
         u = [np.asarray(r.displacement, np.float64) for r in out.rollouts]

@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from pcmgn_jax import compile_notes
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.batching import GraphBatch, Layout, batch_graphs, split, split_graphs, to_union
 from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, integrate, model_inputs, rigidify
@@ -357,7 +358,7 @@ class DesignRollouts(NamedTuple):
 
 
 def rollout_designs(spec: Spec, n_steps: int, params, stats, designs, *, batch_size: int = 8,
-                    max_grow: int = 6, compiled: set | None = None) -> DesignRollouts:
+                    max_grow: int = 6, compiled: set | None = None, note: str = "the rollout") -> DesignRollouts:
     """Roll out many designs, each on its own mesh, ``batch_size`` at a time as padded disjoint unions.
 
     designs: sequence of dicts with ``topology``, ``index`` (its ContactIndex), ``points`` (N_g, 2) [m],
@@ -365,7 +366,8 @@ def rollout_designs(spec: Spec, n_steps: int, params, stats, designs, *, batch_s
     (n_steps, N_g, 2): a given ball path (:func:`rollout_union`'s ``ball_path``). A grown contact buffer is kept for the following batches.
     ``compiled``: size buckets (:meth:`GraphBatch.bucket`) already compiled; a batch of a new bucket runs
     once untimed first (compilation, buffer sizing) and its bucket is added. ``seconds`` times the
-    rollouts only (host-side batching and splitting excluded).
+    rollouts only (host-side batching and splitting excluded). ``note``: the name in the console line
+    printed while a new size bucket compiles (:mod:`pcmgn_jax.compile_notes`).
     """
     out, capacity, seconds = [], 0, 0.0
     for i in range(0, len(designs), batch_size):
@@ -378,14 +380,17 @@ def rollout_designs(spec: Spec, n_steps: int, params, stats, designs, *, batch_s
         if "ball_u" in chunk[0]:  # (n_steps, N_g, 2) per design -> (n_steps, N, 2) on the union
             path = tuple(np.moveaxis(to_union(batch, [np.moveaxis(np.asarray(d[k]), 0, 1) for d in chunk]), 1, 0)
                          for k in ("ball_u", "ball_v"))
+        key = (spec, n_steps, batch.bucket(), path is None)
         if compiled is not None and batch.bucket() not in compiled:
-            _, batch = rollout_union_checked(spec, n_steps, params, stats, batch, *init, max_grow=max_grow,
-                                             ball_path=path)
+            with compile_notes.first_call(note, key):
+                _, batch = rollout_union_checked(spec, n_steps, params, stats, batch, *init, max_grow=max_grow,
+                                                 ball_path=path)
             compiled.add(batch.bucket())
         t0 = time.perf_counter()
-        res, batch = rollout_union_checked(spec, n_steps, params, stats, batch, *init, max_grow=max_grow,
-                                           ball_path=path)
-        jax.block_until_ready(res)
+        with compile_notes.first_call(note, key):
+            res, batch = rollout_union_checked(spec, n_steps, params, stats, batch, *init, max_grow=max_grow,
+                                               ball_path=path)
+            jax.block_until_ready(res)
         seconds += time.perf_counter() - t0
         capacity = batch.index.capacity
         out.extend(unbatch(batch, res))

@@ -24,9 +24,10 @@ class SolverSettings:
     with E' the plane-strain modulus of the softer contact body and h the master element size;
     energy_tol: allowed |E(t) - E(0)| / KE(0); dtype: 'float32' or 'float64' (float64 needs
     ``jax.enable_x64``); designs_per_call: designs of a batch integrated together in one
-    compiled call (0 = all of them on an accelerator, one at a time on CPU, where the
-    vectorised batch of 8 runs at 0.7-0.8x the per-design throughput of single runs:
-    benchmarks/README §3)."""
+    compiled call (0 = the device's default, :func:`pcmgn_jax.sim.solver.designs_per_call`:
+    64 on an accelerator, one at a time on CPU, where the vectorised batch of 8 runs at 0.7-0.8x
+    the per-design throughput of single runs: benchmarks/README §3); a call with fewer designs is
+    padded to this size, so every call shares one compilation."""
 
     safety: float = 0.9
     penalty_factor: float = 1.0

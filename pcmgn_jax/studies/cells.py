@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pcmgn_jax import compile_cache
 from pcmgn_jax.config import FORMULATION_FIELDS, TrainConfig
 
 
@@ -23,10 +24,7 @@ def use_compilation_cache(folder: str | Path, min_compile_seconds: float = 1.0) 
     the rest of this process, so the cells of a study that compile the same program (the same model
     and shapes under another seed; every cell's evaluation rollout) load it instead of compiling it
     again. Call it before the process's first compilation: JAX decides once whether the cache is used."""
-    import jax
-    Path(folder).mkdir(parents=True, exist_ok=True)
-    jax.config.update("jax_compilation_cache_dir", str(folder))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_seconds))
+    compile_cache.configure(folder, min_compile_s=min_compile_seconds)
 
 
 def as_flags(settings: dict) -> list[str]:

@@ -32,6 +32,7 @@ from typing import Sequence
 import jax
 import numpy as np
 
+from pcmgn_jax import compile_notes
 from pcmgn_jax.config import TrainConfig, check_resume
 from pcmgn_jax.eval.metrics import position_mae_um
 from pcmgn_jax.mgn import checkpoint
@@ -63,7 +64,8 @@ def rollout_frames(setup: Setup, params, trajs):
     per trajectory displacement (T, N, 2) [m] and von Mises (T, N) [Pa] (lists)."""
     designs = [dict(graph_for(setup, t), u0=t.displacement[0], v0=t.velocity[0], vm0=t.von_mises[0])
                for t in trajs]
-    out = rollout_designs(setup.spec.sim, trajs[0].n_frames - 1, params, setup.stats, designs)
+    out = rollout_designs(setup.spec.sim, trajs[0].n_frames - 1, params, setup.stats, designs,
+                          note="the validation rollout")
     return ([np.asarray(r.displacement, np.float64) for r in out.rollouts],
             [np.asarray(r.von_mises, np.float64) for r in out.rollouts])
 
@@ -142,6 +144,7 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
     primary = jax.process_index() == 0  # on several hosts one process writes the files (orbax: checkpoints)
     if primary:
         cfg.save_json(workdir / "config.json")
+        compile_notes.log_to(workdir / "compile.jsonl")  # each first compilation's seconds (console + file)
     form = setup.spec.sim.formulation
     table = pair_table(train_trajs)
     K, B = cfg.steps_per_dispatch, cfg.batch_graphs
@@ -171,8 +174,9 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
                                   frames=cfg.frames)
             if dp is not None:
                 batch = dp.put_batch(batch, shards)
-            new_state, m = train_chunk(setup.spec, state, setup.stats, batch, seed_key)
-            m = jax.device_get(m)
+            with compile_notes.first_call("the training step", (setup.spec, setup.sizes, K)):
+                new_state, m = train_chunk(setup.spec, state, setup.stats, batch, seed_key)
+                m = jax.device_get(m)
             if np.any(m["overflow"]):
                 need = int(np.max(m["contact_count"]))
                 setup = _grown(setup, need)  # static size only

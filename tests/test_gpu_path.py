@@ -1,0 +1,166 @@
+"""Issue 42, the GPU path on any device: the persistent compilation cache (on by default, redirectable, off
+by switch), compile notes, and no compilation after warm-up (the solver's padded calls in generation, the
+validation rollout through two validations, evaluate's rollout)."""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import CompileCounter, make_synthetic_trajectory, tiny_config
+from pcmgn_jax import compile_cache, compile_notes
+from pcmgn_jax.scene import default_scene
+from pcmgn_jax.sim import solver
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+# ---- the persistent compilation cache -------------------------------------------------------------------
+def test_cache_dir_default_override_and_switch(tmp_path):
+    home = str(tmp_path / "home")
+    assert compile_cache.cache_dir({"HOME": home, "XDG_CACHE_HOME": "/x/c"}) == Path("/x/c/pcmgn_jax/jax")
+    assert compile_cache.cache_dir({"PCMGN_JAX_CACHE_DIR": "/y"}) == Path("/y")
+    for off in ("0", "false", "OFF", "no"):
+        assert compile_cache.cache_dir({"PCMGN_JAX_CACHE": off, "PCMGN_JAX_CACHE_DIR": "/y"}) is None
+    assert compile_cache.cache_dir({"PCMGN_JAX_CACHE": "1"}) == Path.home() / ".cache" / "pcmgn_jax" / "jax"
+
+
+def _entry_point_jit(tmp_path, **env):
+    """A fresh process that imports the entry points' package (which turns the cache on) and compiles a
+    small function; HOME and XDG_CACHE_HOME point into tmp_path so nothing reaches the user's folders."""
+    base = {k: v for k, v in os.environ.items() if not k.startswith(("PCMGN_JAX_CACHE", "XDG_CACHE"))}
+    base.update(HOME=str(tmp_path / "home"), PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+                **env)
+    code = ("import experiments, jax, jax.numpy as jnp\n"
+            "from pcmgn_jax import compile_cache\n"
+            "print(compile_cache.active())\n"
+            "print(float(jax.jit(lambda x: jnp.sin(x) @ x.T)(jnp.ones((32, 32))).sum()))\n")
+    run = subprocess.run([sys.executable, "-c", code], env=base, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    return run.stdout.splitlines()[0]
+
+
+def _files(folder: Path) -> list[Path]:
+    return [p for p in folder.rglob("*") if p.is_file()] if folder.exists() else []
+
+
+def test_cache_written_where_told_and_not_when_off(tmp_path):
+    where = tmp_path / "cache"
+    assert _entry_point_jit(tmp_path, PCMGN_JAX_CACHE_DIR=str(where)) == str(where)
+    assert _files(where), "the small jit left nothing in PCMGN_JAX_CACHE_DIR"
+    off = tmp_path / "off"
+    assert _entry_point_jit(off, PCMGN_JAX_CACHE="0", PCMGN_JAX_CACHE_DIR=str(off / "cache")) == "None"
+    assert not _files(off), "PCMGN_JAX_CACHE=0 still wrote files"
+
+
+@pytest.mark.slow  # ~4 s: one more process
+def test_cache_default_is_under_the_users_cache_folder(tmp_path):
+    assert _entry_point_jit(tmp_path) == str(tmp_path / "home" / ".cache" / "pcmgn_jax" / "jax")
+    assert _files(tmp_path / "home" / ".cache" / "pcmgn_jax" / "jax")
+
+
+# ---- compile notes --------------------------------------------------------------------------------------
+def test_compile_note_once_per_key_with_seconds_logged(tmp_path, capsys):
+    log = tmp_path / "compile.jsonl"
+    compile_notes.log_to(log)
+    try:
+        for key in ("a", "a", "b"):
+            with compile_notes.first_call("the test step", ("test_compile_note", key)):
+                pass
+    finally:
+        compile_notes.log_to(None)
+    err = capsys.readouterr().err
+    assert err.count("compiling the test step…") == 2 and err.count("compiled the test step in") == 2
+    recs = [json.loads(line) for line in log.read_text().splitlines()]
+    assert [r["compile"] for r in recs] == ["the test step"] * 2
+    assert all(r["seconds"] >= 0 and r["xla_seconds"] >= 0 and r["time"] > 0 for r in recs)
+
+
+# ---- the solver: padded calls, batched == one at a time -------------------------------------------------
+SCENES = [default_scene(t_oca1=a * 1e-6, t_oca2=b * 1e-6) for a, b in ((50, 150), (120, 60), (90, 90))]
+FRAMES = 6
+
+
+def test_padded_calls_equal_unpadded_and_compile_once():
+    """3 designs at 2 per call (the last call padded with a copy) give what one call of 3 gives (float32
+    round-off; one call against one design at a time: test_solver.test_batch_equals_single_runs), and every
+    call of the padded run shares one compilation."""
+    with CompileCounter("_run") as c:
+        padded = solver.simulate(SCENES, "tiny", n_frames=FRAMES, settings=solver.SolverSettings(designs_per_call=2))
+    assert c.count <= 1        # 0 when another test compiled this shape already
+    with CompileCounter("_run") as c:
+        solver.simulate(SCENES[::-1], "tiny", n_frames=FRAMES, settings=solver.SolverSettings(designs_per_call=2))
+    assert c.count == 0
+    ref = solver.simulate(SCENES, "tiny", n_frames=FRAMES, settings=solver.SolverSettings(designs_per_call=3))
+    assert ref.n_sub == padded.n_sub and ref.dt == padded.dt
+    for name in ("u", "v", "von_mises", "force"):
+        a, b = getattr(padded, name), getattr(ref, name)
+        assert a.shape == b.shape and np.abs(a - b).max() <= 1e-5 * np.abs(b).max(), name
+    assert np.abs(padded.u[0] - padded.u[1]).max() > 1e-3 * np.abs(padded.u).max()  # the designs differ
+
+
+def test_designs_per_call_device_default():
+    import jax
+    want = 1 if jax.default_backend() == "cpu" else solver.ACCELERATOR_DESIGNS_PER_CALL
+    assert solver.designs_per_call() == want
+    assert solver.designs_per_call(solver.SolverSettings(designs_per_call=5)) == 5
+    with pytest.raises(ValueError, match="designs_per_call"):
+        solver.designs_per_call(solver.SolverSettings(designs_per_call=-1))
+
+
+def test_generate_ragged_last_batch_compiles_the_solver_once(tmp_path, monkeypatch):
+    """5 designs in batches of 2 (2, 2, 1) with 2 designs per compiled call (as an accelerator's 64, here on
+    the CPU): the last batch is padded with a copy, so the solver compiles once (a shape no other test uses:
+    7 frames), and its design's trajectory is the one an unpadded call gives."""
+    from pcmgn_jax.data.dataset import ensure_dataset, load_manifest
+    from pcmgn_jax.data.trajectory_io import read_trajectory
+    monkeypatch.setattr(solver, "designs_per_call", lambda settings=solver.DEFAULT_SETTINGS: 2)
+    scene = dataclasses.replace(default_scene(), n_frames=7)
+    calls = []
+    solve = lambda sc, des, preset: calls.append(len(des)) or solver.solve_designs(sc, des, preset=preset)  # noqa
+    with CompileCounter("_run") as c:
+        ensure_dataset(tmp_path / "d", preset="tiny", n_train=4, n_test=1, seed=3, scene=scene, batch=2,
+                       progress=False, solve_fn=solve)
+    assert c.count == 1 and calls == [2, 2, 2]
+    man = load_manifest(tmp_path / "d")
+    entries = [e for s in man["splits"].values() for e in s["trajectories"]]
+    assert len(entries) == 5 and all(e["sha256"] for e in entries)
+    last = entries[-1]
+    got = read_trajectory(tmp_path / "d" / last["path"])
+    monkeypatch.setattr(solver, "designs_per_call", lambda settings=solver.DEFAULT_SETTINGS: 1)
+    (ref,) = solver.solve_designs(scene, np.asarray([last["design_m"]]), preset="tiny")
+    assert np.abs(got.displacement - ref.displacement).max() <= 1e-5 * np.abs(ref.displacement).max()
+    assert np.abs(got.von_mises - ref.von_mises).max() <= 1e-5 * np.abs(ref.von_mises).max()
+
+
+# ---- the learned simulator: validation and evaluation rollouts ------------------------------------------
+@pytest.mark.slow  # ~16 s on the shared 2-core machine (a training run of its own, so the counter sees it)
+def test_training_through_two_validations_compiles_the_validation_rollout_once(tiny_trajs, tmp_path):
+    from pcmgn_jax.train import loop as training
+    cfg = tiny_config(num_steps=20, steps_per_dispatch=10, log_every=10, ckpt_every=20, val_every=10,
+                      latent_size=16, message_passing_steps=1)   # a model no other test compiles
+    with CompileCounter("rollout_union") as c:
+        training.train(cfg, tmp_path, train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:])
+    recs = [json.loads(line) for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
+    assert sum("val_position_mae_um" in r for r in recs) == 2
+    assert c.count == 1
+    notes = [json.loads(line)["compile"] for line in (tmp_path / "compile.jsonl").read_text().splitlines()]
+    assert notes.count("the training step") == 1 and notes.count("the validation rollout") == 1
+
+
+def test_evaluate_compiles_its_rollout_once_per_shape(tiny_run, tmp_path):
+    from pcmgn_jax.eval import evaluate as evaluation
+    _, workdir, _ = tiny_run
+    test = [make_synthetic_trajectory(d, n_frames=9) for d in (0.85, 1.15)]   # 8 steps: a shape of its own
+    with CompileCounter("rollout_union") as c:
+        evaluation.evaluate(workdir, test_trajs=test, plot=False, name="once_a")
+    assert c.count == 1
+    with CompileCounter("rollout_union") as c:
+        evaluation.evaluate(workdir, test_trajs=test, plot=False, name="once_b")
+    assert c.count == 0
