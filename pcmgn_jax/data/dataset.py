@@ -47,6 +47,7 @@ from pcmgn_jax.data.layout import (
     GENERATE,
     IMPORTED,
     MANIFEST,
+    SHARD_PARTS,
     DatasetError,
     dataset_source,
     entry_mismatch,
@@ -307,7 +308,7 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
             locks.enter_context(hold(root, "generate"))
         else:
             locks.enter_context(hold(root, "generate --shard", shared=True))
-            locks.enter_context(hold(root, f"generate --shard {shard[0]}/{shard[1]}",
+            locks.enter_context(hold(root / SHARD_PARTS, f"generate --shard {shard[0]}/{shard[1]}",
                                      name=f".lock-shard-{shard[0]}-of-{shard[1]}"))
         return _generate(root, plan, scene=scene, family=family, preset=preset, batch=batch, progress=progress,
                          solve_fn=solve_fn, shard=shard, merge=merge)
