@@ -273,9 +273,13 @@ def test_an_entry_point_answers_a_bad_run_with_one_line_and_writes_nothing(tmp_p
 
 
 # ---- a kill at a random moment (slow: subprocesses, the solver) ----------------------------------------------
-def _kill_after(cmd: list[str], delay: float) -> int:
+def _kill_when(cmd: list[str], started, delay: float) -> int:
+    """Run ``cmd``; once ``started()`` is true (the work has begun), wait ``delay`` s and SIGKILL it (if it
+    has not finished by then). Returns its exit status (-9 when killed)."""
     proc = subprocess.Popen(cmd, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    while proc.poll() is None and not started():
+        time.sleep(0.05)
     try:
         return proc.wait(timeout=delay)
     except subprocess.TimeoutExpired:
@@ -283,35 +287,38 @@ def _kill_after(cmd: list[str], delay: float) -> int:
         return proc.wait()
 
 
-@pytest.mark.slow  # ~1-2 min: three tiny generations with the solver
+@pytest.mark.slow  # ~1-2 min: two tiny generations with the solver
 @pytest.mark.parametrize("seed", [0])
 def test_generate_killed_at_a_random_moment_resumes_to_the_same_dataset(tmp_path, seed):
     from experiments import generate
     args = ["--preset", "tiny", "--designs", "60,60;90,80;120,140", "--batch", "1", "--no_progress"]
-    whole = tmp_path / "whole"
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
     t0 = time.perf_counter()
     assert generate.main([*args, "--out", str(whole)]) == 0
     took = time.perf_counter() - t0
-    cut = tmp_path / "cut"
-    delay = np.random.default_rng(seed).uniform(0.3, 1.0) * (took + 5.0)    # + the subprocess's start
-    _kill_after([sys.executable, "-m", "experiments.generate", *args, "--out", str(cut)], delay)
+    delay = np.random.default_rng(seed).uniform(0.2, 0.9) * took      # after the manifest is written: solving
+    rc = _kill_when([sys.executable, "-m", "experiments.generate", *args, "--out", str(cut)],
+                    lambda: (cut / "manifest.json").exists(), delay)
     assert generate.main([*args, "--out", str(cut)]) == 0
     sha = lambda root: [e["sha256"] for e in json.loads((root / "manifest.json").read_text())["splits"]["extrap"]["trajectories"]]  # noqa: E731
-    assert sha(cut) == sha(whole) and all(sha(whole))
+    assert sha(cut) == sha(whole) and all(sha(whole)), rc
 
 
-@pytest.mark.slow  # ~1 min: two training subprocesses
+@pytest.mark.slow  # ~1 min: a training in process, one killed in a subprocess, its resume
 @pytest.mark.parametrize("seed", [0, 1])
 def test_train_killed_at_a_random_moment_resumes_to_the_same_parameters(data, tmp_path, seed):
     from experiments import train
-    flags = [*TRAIN_FLAGS, f"--dataset_dir={data}", "--num_steps=60"]
+    flags = [*TRAIN_FLAGS, f"--dataset_dir={data}", "--num_steps=100"]
     whole, cut = tmp_path / "whole", tmp_path / "cut"
+    t0 = time.perf_counter()
     assert train.main([*flags, f"--workdir={whole}"]) == 0
-    delay = np.random.default_rng(seed).uniform(4.0, 25.0)
-    _kill_after([sys.executable, "-m", "experiments.train", *flags, f"--workdir={cut}"], delay)
+    took = time.perf_counter() - t0
+    delay = np.random.default_rng(seed).uniform(0.0, 0.5) * took        # once the first step is logged
+    rc = _kill_when([sys.executable, "-m", "experiments.train", *flags, f"--workdir={cut}"],
+                    lambda: (cut / "metrics.jsonl").exists() and (cut / "metrics.jsonl").stat().st_size > 0, delay)
     assert train.main([*flags, f"--workdir={cut}", "--resume"]) == 0
     a = checkpoint.load(whole, make_synthetic_trajectory(1.0), which="periodic")
     b = checkpoint.load(cut, make_synthetic_trajectory(1.0), which="periodic")
     for x, y in zip(jax.tree.leaves(a.params), jax.tree.leaves(b.params)):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
-    assert _steps_logged(cut) == _steps_logged(whole)
+    assert _steps_logged(cut) == _steps_logged(whole), rc
