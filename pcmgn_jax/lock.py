@@ -91,7 +91,7 @@ def hold(folder: str | os.PathLike, what: str, *, name: str = LOCK_NAME, shared:
     dataset's lock shared and its own part's exclusively)."""
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
-        raise NotADirectoryError(f"{folder}: exists and is not a folder")
+        raise ValueError(f"{folder}: exists and is not a folder ({what} writes into a folder there)")
     folder.mkdir(parents=True, exist_ok=True)
     key = folder.resolve() / name
     if key in _held:

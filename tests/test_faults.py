@@ -253,6 +253,14 @@ def test_an_empty_scene_file_is_refused(tmp_path, capsys, monkeypatch, name, tex
     assert f"{scene}: empty scene file" in capsys.readouterr().err and not out.exists()
 
 
+@pytest.mark.parametrize("text", ["", "  \n", "{not json"])
+def test_an_empty_or_broken_run_config_is_named(tmp_path, text):
+    from pcmgn_jax.config import TrainConfig
+    (tmp_path / "config.json").write_text(text)
+    with pytest.raises(ValueError, match=f"{tmp_path / 'config.json'}: not a run config"):
+        TrainConfig.load(tmp_path / "config.json")
+
+
 @pytest.mark.parametrize("command", ["evaluate", "optimize", "explore"])
 @pytest.mark.parametrize("what", ["missing", "file", "no_checkpoint"])
 def test_an_entry_point_answers_a_bad_run_with_one_line_and_writes_nothing(tmp_path, capsys, command, what):
@@ -287,38 +295,36 @@ def _kill_when(cmd: list[str], started, delay: float) -> int:
         return proc.wait()
 
 
-@pytest.mark.slow  # ~1-2 min: two tiny generations with the solver
+@pytest.mark.slow  # ~15-30 s: two tiny generations with the solver, one killed
 @pytest.mark.parametrize("seed", [0])
 def test_generate_killed_at_a_random_moment_resumes_to_the_same_dataset(tmp_path, seed):
     from experiments import generate
-    args = ["--preset", "tiny", "--designs", "60,60;90,80;120,140", "--batch", "1", "--no_progress"]
+    args = ["--preset", "tiny", "--designs", "60,60;90,80;120,140;140,60", "--batch", "1", "--no_progress"]
     whole, cut = tmp_path / "whole", tmp_path / "cut"
-    t0 = time.perf_counter()
     assert generate.main([*args, "--out", str(whole)]) == 0
-    took = time.perf_counter() - t0
-    delay = np.random.default_rng(seed).uniform(0.2, 0.9) * took      # after the manifest is written: solving
+    delay = np.random.default_rng(seed).uniform(0.0, 1.5)      # [s] after the first trajectory is written
     rc = _kill_when([sys.executable, "-m", "experiments.generate", *args, "--out", str(cut)],
-                    lambda: (cut / "manifest.json").exists(), delay)
+                    lambda: any((cut / "extrap").glob("*.json")), delay)
+    print(f"killed: rc={rc}, trajectories written {len(list((cut / 'extrap').glob('*.json')))}")
     assert generate.main([*args, "--out", str(cut)]) == 0
     sha = lambda root: [e["sha256"] for e in json.loads((root / "manifest.json").read_text())["splits"]["extrap"]["trajectories"]]  # noqa: E731
-    assert sha(cut) == sha(whole) and all(sha(whole)), rc
+    assert sha(cut) == sha(whole) and all(sha(whole))
 
 
-@pytest.mark.slow  # ~1 min: a training in process, one killed in a subprocess, its resume
+@pytest.mark.slow  # ~45 s each: a training in process, one killed in a subprocess, its resume
 @pytest.mark.parametrize("seed", [0, 1])
 def test_train_killed_at_a_random_moment_resumes_to_the_same_parameters(data, tmp_path, seed):
     from experiments import train
     flags = [*TRAIN_FLAGS, f"--dataset_dir={data}", "--num_steps=100"]
     whole, cut = tmp_path / "whole", tmp_path / "cut"
-    t0 = time.perf_counter()
     assert train.main([*flags, f"--workdir={whole}"]) == 0
-    took = time.perf_counter() - t0
-    delay = np.random.default_rng(seed).uniform(0.0, 0.5) * took        # once the first step is logged
+    delay = np.random.default_rng(seed).uniform(0.0, 2.0)      # [s] after the first step is logged
     rc = _kill_when([sys.executable, "-m", "experiments.train", *flags, f"--workdir={cut}"],
                     lambda: (cut / "metrics.jsonl").exists() and (cut / "metrics.jsonl").stat().st_size > 0, delay)
+    print(f"killed: rc={rc}, periodic steps {checkpoint.steps(cut / 'checkpoints' / 'periodic')}")
     assert train.main([*flags, f"--workdir={cut}", "--resume"]) == 0
     a = checkpoint.load(whole, make_synthetic_trajectory(1.0), which="periodic")
     b = checkpoint.load(cut, make_synthetic_trajectory(1.0), which="periodic")
     for x, y in zip(jax.tree.leaves(a.params), jax.tree.leaves(b.params)):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
-    assert _steps_logged(cut) == _steps_logged(whole), rc
+    assert _steps_logged(cut) == _steps_logged(whole)
