@@ -120,7 +120,8 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
         check_resume(cfg, workdir)  # a resumed run keeps its config.json; a changed config is refused
     dp = data_parallel(cfg.devices, cfg.batch_graphs)  # None on one device; checks the batch split first
     periodic_dir = workdir / "checkpoints" / "periodic"
-    at = resume_point(workdir) if resume else None  # damaged checkpoints set aside, later ones and log lines cut
+    # damaged checkpoints set aside, later ones and log lines cut (by process 0 on several hosts)
+    at = resume_point(workdir, write=jax.process_index() == 0) if resume else None
     periodic = checkpoint.manager(periodic_dir, cfg.max_to_keep, create=True)
     best_mgr = checkpoint.manager(workdir / "checkpoints" / "best", 1, create=True)
 

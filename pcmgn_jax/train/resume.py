@@ -18,11 +18,14 @@ from pcmgn_jax.mgn import checkpoint
 __all__ = ["cut_metrics", "resume_point"]
 
 
-def resume_point(workdir: str | Path) -> int | None:
+def resume_point(workdir: str | Path, *, write: bool = True) -> int | None:
     """The step ``workdir``'s run resumes from (None: no readable periodic checkpoint, a fresh start), with
-    the checkpoints after it removed and ``metrics.jsonl`` cut back to it (see the module docstring)."""
+    the checkpoints after it removed and ``metrics.jsonl`` cut back to it (see the module docstring).
+    ``write=False`` (several hosts: every process but 0) only finds the step and changes no file."""
     root = Path(workdir) / "checkpoints"
-    step = checkpoint.latest_intact(root / "periodic", set_aside=True)
+    step = checkpoint.latest_intact(root / "periodic", set_aside=write)
+    if not write:
+        return step
     at = -1 if step is None else step
     for which in ("periodic", "best"):
         checkpoint.drop_after(root / which, at)
