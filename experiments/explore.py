@@ -6,7 +6,8 @@
 
 Needs the explore extra: pip install -e ".[explore]". Any run directory with a config.json and its
 training data works: with a checkpoint the run's MGN is the default predictor; without one (a
-regression-only run) give --no_mgn and kriging is (a run without a checkpoint is refused otherwise). The page shows the training box (out-of-box designs are flagged), the
+regression-only run) give --no_mgn and kriging is (a run without a checkpoint is refused otherwise).
+The page shows the training box (out-of-box designs are flagged), the
 objective of the MGN and of every baseline (kriging with its GP std), the von Mises field on the deformed
 section at a chosen frame (log colour scale, axes in mm), the OLED layer on its own scale, the OLED reading
 and the ball over time, and a "check with the solver" button (the built-in solver at the design, its truth

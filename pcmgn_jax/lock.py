@@ -121,8 +121,8 @@ def hold(folder: str | os.PathLike, what: str, *, name: str = LOCK_NAME, shared:
     try:
         stale = stale_holder(folder, name)
         if stale is not None:
-            gone = ("no longer running" if stale.get("host") == socket.gethostname() and not _alive(int(stale.get("pid", 0)))
-                    else "not holding it")
+            here = stale.get("host") == socket.gethostname()
+            gone = "no longer running" if here and not _alive(int(stale.get("pid", 0))) else "not holding it"
             print(f"note: {folder}: stale lock of {describe(stale)}, {gone}; taken over (check what it left "
                   "half-done: the command resumes where it can)", file=sys.stderr)
         record = {"pid": os.getpid(), "host": socket.gethostname(), "command": f"{what}: {_command()}",
