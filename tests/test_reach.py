@@ -259,3 +259,19 @@ def test_tiny_training_run_is_finite(reach, form, tiny_trajs, tmp_path):
     losses = [json.loads(line)["loss"] for line in (tmp_path / "metrics.jsonl").read_text().splitlines()
               if "loss" in json.loads(line)]
     assert res["step"] == 20 and losses and np.isfinite(losses).all()
+
+
+@pytest.mark.slow  # ~60 s: compiles 8 rollouts (the benchmark's smoke run, no timing assertion)
+def test_reach_cost_benchmark_runs(tmp_path):
+    from benchmarks import reach_cost
+    out = reach_cost.main(["--preset", "tiny", "--frames", "2", "--repeats", "1", "--formulations", "realtime",
+                           "--json", str(tmp_path / "r.json")])
+    assert set(out["variants"]) == {f"realtime / {k}" for k in reach_cost.VARIANTS}
+    assert json.loads((tmp_path / "r.json").read_text())["variants"]
+
+
+def test_reach_entry_point_writes_the_report(tmp_path, capsys):
+    from experiments import reach
+    assert reach.main(["--preset", "tiny", "--out", str(tmp_path / "r.json")]) == 0
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert {"hops", "variants", "command"} <= set(rep) and "OLED" in capsys.readouterr().out
