@@ -76,7 +76,7 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
   a plate every training scene shares, the same features as ``mesh`` up to a constant, which the
   per-part normaliser removes (:func:`pcmgn_jax.mgn.graphs.origin_height`, docs/design.md §5).
   ``stack_thickness`` is ``layer_thickness`` on every node, the contact pair's included: with
-  ``contact_top`` the ball's height no longer tells it how thick the stack below is, so it is told. Node channels, not a graph-level global, because the processor has
+  ``contact_top`` the ball's height no longer tells it how thick the stack below is, so it is told. Node channels, not a graph-level global, because the local processor has
   no global block and every node of a scene carries the same value (a broadcast global); empty (the
   default) for single-scene datasets, where the channel would be constant.
 - ``reach``: how far a node sees within one processor pass (docs/design.md §5.3): ``local`` (the
