@@ -55,7 +55,9 @@ def make_spec(cfg: TrainConfig, dt: float) -> Spec:
     form = cfg.scan_formulation
     model = EncodeProcessDecode(output_size=form.output_size, latent_size=cfg.latent_size,
                                 mlp_layers=cfg.mlp_layers, message_passing_steps=cfg.message_passing_steps,
-                                decoder_condition=form.decoder_condition)
+                                decoder_condition=form.decoder_condition, reach=form.reach,
+                                reach_levels=form.reach_levels, reach_slices=form.reach_slices,
+                                reach_heads=form.reach_heads)
     return Spec(model=model, formulation=form, dt=float(dt))
 
 
@@ -209,7 +211,7 @@ def load(workdir: str | Path, ref, *, which: str = "best", cfg: TrainConfig | No
                          f"with `python -m experiments.train --workdir {workdir} --overwrite`")
     step, meta = read_meta(path, step)
     spec = make_spec(cfg, meta["dt"])
-    topology = topology_from_trajectory(ref, spec.formulation.scene_features)
+    topology = topology_from_trajectory(ref, spec.formulation.scene_features, spec.formulation.hierarchy_levels)
     index = contact_index_for(ref, Scene.from_dict(ref.meta["scene"]), radius=meta["contact_radius"],
                               capacity=meta["contact_capacity"])
     mgr = manager(path)
