@@ -175,7 +175,7 @@ def frd_trajectory(frd: str | os.PathLike, scene: Scene, preset: str | MeshSpec,
                    crop: bool = True, meta: dict[str, Any] | None = None) -> tuple[Trajectory, dict[str, Any]]:
     """The .frd of ``scene`` at ``preset`` -> (trajectory [SI], extra) where extra holds the full-mesh
     ``force_N`` (T-1,) per frame interval (:func:`ball_force`) and both stress readings' full-mesh von Mises
-    ``von_mises_full`` {reading: (T, N)}. The frames must be the scene's (0, output_dt, ... n_frames x
+    ``von_mises_full`` {reading: (T, N)}, the full ``mesh`` and the crop's ``node_map``. The frames must be the scene's (0, output_dt, ... n_frames x
     output_dt); InputFileError otherwise."""
     if stress not in STRESS_READINGS:
         raise ValueError(f"calculix: stress must be one of {STRESS_READINGS}, got {stress!r}")
@@ -208,7 +208,7 @@ def frd_trajectory(frd: str | os.PathLike, scene: Scene, preset: str | MeshSpec,
                       displacement=u[:, node_map], velocity=v[:, node_map], von_mises=vms[stress][:, node_map],
                       meta=info)
     traj.validate(where)
-    return traj, {"force_N": force, "von_mises_full": vms, "mesh": mesh}
+    return traj, {"force_N": force, "von_mises_full": vms, "mesh": mesh, "node_map": node_map}
 
 
 def run_scene(scene: Scene, preset: str | MeshSpec, folder: str | os.PathLike, *,

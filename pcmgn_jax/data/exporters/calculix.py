@@ -1,29 +1,35 @@
-"""Write a scene as a CalculiX (``ccx``) input deck: the project's own mesh, axisymmetric or plane strain.
+"""Write a scene as a CalculiX (``ccx``) input deck on the project's own mesh (axisymmetric scenes).
 
 What is mapped (Abaqus-style keywords, SI units: m, kg, s, Pa, like the project):
 
-* ``*NODE``: every mesh node, CalculiX node ``i + 1`` = mesh node ``i`` (z = 0); ``*ELEMENT, TYPE=CAX4``
-  (``CPE4`` in plane strain), element ``e + 1`` = cell ``e``, corner order counter-clockwise as in the
-  project (:func:`pcmgn_jax.sim.mesh.build_mesh`). Full 2x2 integration, like the built-in Q4.
-* one ``*ELSET`` per part named after the part (upper case: ``BALL``, ``CG``, ``OCA1`` ...), a
-  ``*MATERIAL`` of the same name (``*ELASTIC`` E, nu; ``*DENSITY`` rho) and a ``*SOLID SECTION``.
-  The layers share their interface nodes in the project's mesh (bonded), so no ``*TIE`` is needed.
-* node sets ``BALLN`` (the ball's nodes), ``FIXED`` (the clamped plate bottom: u_x = u_y = 0) and
-  ``AXIS`` (the symmetry axis x = 0: u_x = 0), from the mesh's own ``fixed`` mask.
-* the contact pair of the scene (ball -> its top layer): node-to-surface penalty contact, the ball's lower
-  surface nodes (``SBALL``, TYPE=NODE, the solver's slaves) against the top layer's upper element faces
-  (``MTOP``, face S3 of the top row, the solver's masters), ``PRESSURE-OVERCLOSURE=LINEAR`` with the
-  built-in solver's penalty k_p = ``penalty_factor`` x E'/h [Pa/m] (E' the plane-strain modulus of the
-  softer body, h the master element size; :mod:`pcmgn_jax.sim.prepare`), frictionless, no tension.
-* ``*INITIAL CONDITIONS, TYPE=VELOCITY``: v_y = -``ball.velocity`` on ``BALLN``; everything else at rest.
-* one ``*STEP`` of ``*DYNAMIC`` over the scene's window ``n_frames x output_dt``: implicit HHT-alpha with
-  a fixed increment (``DIRECT``; ``alpha = 0`` is the non-dissipative Newmark rule, like the built-in
-  central differences) or ``EXPLICIT``; ``*NODE FILE`` U, V and ``*EL FILE`` S written every
-  ``output_dt`` (``FREQUENCY`` = increments per frame), so the .frd holds the scene's frame times.
+* the geometry as a thin wedge of ``C3D8`` bricks: the 2D quad mesh (:func:`pcmgn_jax.sim.mesh.build_mesh`)
+  revolved by +-``wedge_deg``/2 about the symmetry axis, which becomes the global z axis (the project's
+  height y). ccx's own ``CAX4`` is expanded into exactly such a wedge internally, but ccx 2.20 then loses
+  the kinetic energy of ``*INITIAL CONDITIONS, TYPE=VELOCITY`` (Dhondtguido/CalculiX issue 63: the velocity
+  reaches the expanded nodes only through a surface, and the energy bookkeeping reads ~1e-36 J), and its
+  implicit impact control, which checks the energy balance at every contact change, then refuses every
+  increment. Node ``i + 1`` = mesh node ``i`` on the +half-angle face, node ``N + i + 1`` its copy on the
+  -half-angle face (the axis nodes exist once: those bricks collapse an edge); element ``e + 1`` = cell ``e``.
+  Full 2x2x2 integration, the counterpart of the built-in Q4's 2x2 (``*TRANSFORM, TYPE=C`` gives the
+  off-axis nodes (r, theta, z) dofs; u_theta = 0 on both faces is the axisymmetry).
+* one ``*ELSET`` per part named after the part (upper case: ``BALL``, ``CG``, ``OCA1`` ...), a ``*MATERIAL``
+  of the same name (``*ELASTIC`` E, nu; ``*DENSITY`` rho) and a ``*SOLID SECTION``. The layers share their
+  interface nodes in the project's mesh (bonded), so no ``*TIE`` is needed.
+* node sets ``BALLN`` (the ball), ``FIXED`` (the clamped plate bottom: all dofs), ``AXIS`` (x = 0: u_x = u_y = 0)
+  and ``OFFAXIS`` (the rest: u_theta = 0).
+* the scene's contact pair (ball -> top layer): node-to-surface penalty contact, the ball's lower surface
+  nodes (``SBALL``, the solver's slaves, without the pole: see :func:`inp_text`) against the top layer's
+  upper brick faces (``MTOP``, face S5), ``PRESSURE-OVERCLOSURE=LINEAR`` with the built-in solver's penalty
+  k_p = ``penalty_factor`` x E'/h [Pa/m] (:func:`contact_penalty`), frictionless.
+* ``*INITIAL CONDITIONS, TYPE=VELOCITY``: v_z = -``ball.velocity`` on ``BALLN``; everything else at rest.
+* one ``*STEP`` of implicit ``*DYNAMIC`` (HHT, ``alpha`` = 0 by default: Newmark's average acceleration, no
+  numerical damping) over the scene's window ``n_frames x output_dt``, the largest increment ``output_dt /
+  increments_per_frame`` (ccx's impact control shortens it in contact), and ``*NODE FILE`` U, V and
+  ``*EL FILE`` S at the frame times (``*TIME POINTS``), so the .frd holds the scene's frames.
 
 No gravity, no damping, small strains (``NLGEOM`` off), as in the built-in solver (docs/design.md §2-3).
-:func:`write_inp` writes the deck atomically and returns a summary; :func:`parse_inp` reads the parts of a
-deck this module writes back (for the round-trip tests and the importer).
+:func:`write_inp` writes the deck atomically and returns a summary; :func:`parse_inp` reads a deck this
+module writes back (for the round-trip tests).
 """
 from __future__ import annotations
 
@@ -57,6 +63,10 @@ class CalculixSettings:
     explicit:        ``*DYNAMIC, EXPLICIT`` (central differences, lumped mass; needs a tiny step: set
                      ``increments_per_frame`` so output_dt / it is below the stable step)
     penalty_factor:  contact penalty k_p = factor x E'/h [Pa/m] (the built-in solver's rule)
+    wedge_deg:       the wedge's angle [deg] (ccx revolves its own axisymmetric elements by 2 deg)
+    min_increment_ratio: smallest increment / largest: ccx's impact control shrinks the increment at
+                     contact changes and then grows it by 1 % per increment, so a floor keeps a rebound from
+                     leaving it at 1e-10 s for thousands of increments
     tension:         ccx's sigma_inf [Pa], the small tension node-to-surface springs keep at large
                      clearance (must be > 0; ccx's own default is MPa-sized, ~1 N over the contact zone)
     """
@@ -67,6 +77,7 @@ class CalculixSettings:
     penalty_factor: float = 1.0
     tension: float = 1e4
     wedge_deg: float = 2.0
+    min_increment_ratio: float = 0.05
 
     def __post_init__(self) -> None:
         if int(self.increments_per_frame) < 1:
@@ -203,7 +214,7 @@ def inp_text(scene: Scene, mesh: Mesh, settings: CalculixSettings = CalculixSett
     out += ["*TIME POINTS, NAME=FRAMES, GENERATE",
             f"{_num(scene.output_dt)}, {_num(window)}, {_num(scene.output_dt)}",
             f"*STEP, INC={100 * n_inc * scene.n_frames}", dyn,
-            f"{_num(dt)}, {_num(window)}, {_num(dt * 1e-4)}, {_num(dt)}",
+            f"{_num(dt)}, {_num(window)}, {_num(dt * settings.min_increment_ratio)}, {_num(dt)}",
             "*NODE FILE, TIME POINTS=FRAMES, GLOBAL=YES", "U, V", "*EL FILE, TIME POINTS=FRAMES, GLOBAL=YES", "S", "*END STEP"]
     return "\n".join(out) + "\n"
 
