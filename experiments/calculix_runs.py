@@ -89,7 +89,7 @@ def panel_case(out: Path, args, design: list[float], label: str) -> dict[str, An
             "figures": figs, "compare": cmp, "fields": field_errors(tc, tb, frames),
             "force_N": {"calculix": extra["force_N"].tolist(), "builtin": fb.tolist()},
             "n_nodes_2d": tc.meta["solver"]["full_mesh_nodes"], "ccx_wall_s": wall_c, "builtin_wall_s": wall_b,
-            "penalty_factor": args.penalty_factor,
+            "penalty_factor": args.penalty_factor, "output_dt_s": scene.output_dt,
             "goal_met": all(abs(cmp[k]["rel_diff"]) <= 0.05 for k in CHECKED if k in cmp)}
 
 
@@ -155,5 +155,22 @@ def write_report(out: Path, cases: list[dict], args, command: str) -> list[str]:
     return lines
 
 
-def load_check(path: str | Path) -> dict[str, Any]:
-    return json.loads(Path(path).read_text())
+def plot_forces(check_json: str | Path, png: str | Path) -> None:
+    """Contact force per frame interval, CalculiX against the built-in solver, one panel per design."""
+    import matplotlib.pyplot as plt
+
+    panel = [c for c in json.loads(Path(check_json).read_text())["cases"] if c["case"] == "panel"]
+    if not panel:
+        return
+    fig, axes = plt.subplots(1, len(panel), figsize=(4 * len(panel), 3.2), sharey=True, squeeze=False)
+    for ax, c in zip(axes[0], panel):
+        for code, style in (("builtin", "-"), ("calculix", "--")):
+            f = np.asarray(c["force_N"][code])
+            ax.plot((np.arange(len(f)) + 0.5) * c.get("output_dt_s", 4e-6) * 1e6, f, style, label="built-in" if code == "builtin" else "CalculiX")
+        ax.set_title(f"{c['design_um'][0]:.1f} / {c['design_um'][1]:.1f} µm", fontsize=9)
+        ax.set_xlabel("t [µs]")
+    axes[0][0].set_ylabel("contact force [N]")
+    axes[0][0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
