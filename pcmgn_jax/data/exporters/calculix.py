@@ -221,12 +221,14 @@ def inp_text(scene: Scene, mesh: Mesh, settings: CalculixSettings = CalculixSett
 
 def write_inp(path: str | os.PathLike, scene: Scene, preset: str | MeshSpec,
               settings: CalculixSettings = CalculixSettings()) -> dict[str, Any]:
-    """Write ``scene`` on the preset's mesh as ``path`` (.inp, atomically); return a summary: node and
-    element counts, part names, the penalty [Pa/m], the increment [s] and the frame count."""
+    """Write ``scene`` on the preset's mesh as ``path`` (.inp, atomically); return a summary: node counts (the
+    2D mesh's and the wedge's), the element count, part names, the penalty [Pa/m], the increment [s] and the frame count."""
     mesh = calculix_mesh(scene, preset)
     text = inp_text(scene, mesh, settings, title=f"pcmgn_jax scene, design {scene.design}")
     write_text_atomic(path, text)
-    return {"inp": str(path), "n_nodes": mesh.n_nodes, "n_elements": int(len(mesh.cells)),
+    n_axis = int(np.count_nonzero(mesh.points[:, 0] <= 0.0))
+    return {"inp": str(path), "n_nodes": mesh.n_nodes, "n_nodes_wedge": 2 * mesh.n_nodes - n_axis,
+            "n_elements": int(len(mesh.cells)),
             "part_names": list(scene.part_names), "element_type": ELEMENT_TYPE,
             "penalty_Pa_per_m": contact_penalty(scene, mesh, settings.penalty_factor),
             "increment_s": scene.output_dt / settings.increments_per_frame,
