@@ -131,3 +131,18 @@ def test_ccx_round_trip_tiny_scene(tmp_path):
     assert np.abs(extra["force_N"]).max() < 1e-6 * scene.ball.velocity   # no contact yet: momentum kept
     for reading in ccx.STRESS_READINGS:
         assert np.isfinite(extra["von_mises_full"][reading]).all()
+
+
+def test_contact_window_and_compare_read_a_force_history():
+    from pcmgn_jax.eval.calculix_check import compare, contact_window
+
+    dt = 4e-6
+    t = (np.arange(100) + 0.5) * dt
+    force = np.where((t > 16e-6) & (t < 316e-6), 28.0 * np.sin(np.pi * (t - 16e-6) / 300e-6), 0.0)
+    w = contact_window(force, dt)
+    assert w["contact_start_s"] == pytest.approx(16e-6) and w["contact_end_s"] == pytest.approx(316e-6)
+    assert w["contact_duration_s"] == pytest.approx(300e-6) and w["peak_force_N"] == pytest.approx(28.0, rel=1e-3)
+    still_on = contact_window(np.ones(10), dt)
+    assert np.isnan(still_on["contact_end_s"])   # no separation inside the window
+    c = compare({"peak_force_N": 29.4}, {"peak_force_N": 28.0})
+    assert c["peak_force_N"]["rel_diff"] == pytest.approx(0.05)
