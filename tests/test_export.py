@@ -49,7 +49,8 @@ def test_export_cli(tmp_path, capsys):
                  "--out", str(tmp_path / "o" / "cmp")]) == 0
     assert (tmp_path / "o" / "cmp.xdmf").exists()
     assert main(["--trajectory", str(tmp_path / "traj"), "--workdir", str(tmp_path / "no_run")]) == 2
-    assert "config.json" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "no_run: no such run folder" in err and "experiments.train --workdir" in err
 
 
 def test_export_cli_with_trained_model(tiny_run, tiny_trajs, tmp_path):
