@@ -261,7 +261,7 @@ def test_tiny_training_run_is_finite(reach, form, tiny_trajs, tmp_path):
     assert res["step"] == 20 and losses and np.isfinite(losses).all()
 
 
-@pytest.mark.slow  # ~60 s: compiles 8 rollouts (the benchmark's smoke run, no timing assertion)
+@pytest.mark.slow  # ~80 s: compiles 8 rollouts (the benchmark's smoke run, no timing assertion)
 def test_reach_cost_benchmark_runs(tmp_path):
     from benchmarks import reach_cost
     out = reach_cost.main(["--preset", "tiny", "--frames", "2", "--repeats", "1", "--formulations", "realtime",
