@@ -76,7 +76,7 @@ def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2,
         u[ball, 1] = -(base.ball.gap + depth)
         pressed.append(m0.points + u)
     topo, index, _ = graph_inputs(m0, base, scene_features=form.scene_features, positions=[np.stack(pressed)],
-                                  capacity_factor=2.0)
+                                  capacity_factor=2.0, levels=form.hierarchy_levels)
     radius = index.radius
     points = np.stack([m.points for m in meshes]).astype(np.float32)
     u0 = np.zeros_like(points)
@@ -95,7 +95,9 @@ def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2,
     acc["mesh"].add(np.asarray(g.edges["mesh"].features), node_type[np.asarray(topo.mesh_receivers)])
     stats = make_stats(**acc, per_part=True, contact_default_std=radius)
     model = EncodeProcessDecode(output_size=form.output_size, latent_size=latent, mlp_layers=mlp_layers,
-                                message_passing_steps=layers, decoder_condition=form.decoder_condition)
+                                message_passing_steps=layers, decoder_condition=form.decoder_condition,
+                                reach=form.reach, reach_levels=form.reach_levels, reach_slices=form.reach_slices,
+                                reach_heads=form.reach_heads)
     spec = Spec(model=model, formulation=form, dt=float(base.output_dt))
     params = model.init(jax.random.PRNGKey(seed), normalize_graph(stats, g, node_type))
     return {"spec": spec, "params": params, "stats": stats, "topology": topo, "index": index, "points": points,

@@ -30,7 +30,7 @@ class AblationArgs:
 def main(argv=None) -> int:
     args = cli.parse(AblationArgs, argv, description=__doc__, prog="python -m experiments.ablation")
     from pcmgn_jax.studies import ablation
-    command = "python -m experiments.ablation " + " ".join(sys.argv[1:] if argv is None else argv)
+    command = cli.command_line("experiments.ablation", argv)
     seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
     md = ablation.run([c for c in args.cells.split(",") if c], seeds=seeds, num_steps=args.num_steps,
                       runs=args.runs, out=args.out, command=command)

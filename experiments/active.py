@@ -19,8 +19,8 @@ RUN/active/solver/.
 """
 from __future__ import annotations
 
-import shlex
 import sys
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -56,12 +56,25 @@ def _ints(text: str, flag: str) -> tuple[int, ...]:
 
 def main(argv: list[str] | None = None) -> int:
     args = cli.parse(ActiveArgs, argv, description=__doc__, prog="python -m experiments.active")
+    from pcmgn_jax.lock import hold
+    from pcmgn_jax.mgn.checkpoint import require_run
+    require_run(args.workdir, checkpoint=args.surrogate == "mgn" or (args.compare and "mgn" in args.strategies))
+    command = cli.command_line("experiments.active", argv)
+    run = Path(args.workdir)
+    folder = Path(args.out or run / "active") if args.compare else \
+        Path(args.out).parent if args.out else run / "active"
+    with ExitStack() as locks:   # one writer per folder: the log's (or table's) and the solver cache's
+        for f in dict.fromkeys([folder, run / "active"]):
+            locks.enter_context(hold(f, "active"))
+        return _main(args, command)
+
+
+def _main(args: ActiveArgs, command: str) -> int:
     from pcmgn_jax.atomic import atomic_write_text
     from pcmgn_jax.data.trajectory_io import atomic_write_json
     from pcmgn_jax.opt import active_tasks as tasks
     from pcmgn_jax.opt.active import LoopConfig, run_loop
 
-    command = "python -m experiments.active " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
     if args.compare:
         out = Path(args.out or Path(args.workdir) / "active")
         result = tasks.compare(args.workdir, budgets=_ints(args.budgets, "budgets"), seeds=_ints(args.seeds, "seeds"),

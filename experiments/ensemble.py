@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.extrap:
         sets["extrap"] = load_directory(args.extrap)
     rep = ensemble_report(members, sets, train)
-    command = "python -m experiments.ensemble " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
+    command = cli.command_line("experiments.ensemble", argv)
     rep["command"] = command
     out = Path(args.out or (Path(args.base) if args.train else Path(members[0])) / "ensemble.json")
     atomic_write_json(out, rep)

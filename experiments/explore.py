@@ -5,8 +5,9 @@
   python -m experiments.explore --workdir RUN --no_mgn             # baselines only (no model load, quick start)
 
 Needs the explore extra: pip install -e ".[explore]". Any run directory with a config.json and its
-training data works: with a checkpoint the run's MGN is the default predictor, without one (a
-regression-only run) kriging is. The page shows the training box (out-of-box designs are flagged), the
+training data works: with a checkpoint the run's MGN is the default predictor; without one (a
+regression-only run) give --no_mgn and kriging is (a run without a checkpoint is refused otherwise).
+The page shows the training box (out-of-box designs are flagged), the
 objective of the MGN and of every baseline (kriging with its GP std), the von Mises field on the deformed
 section at a chosen frame (log colour scale, axes in mm), the OLED layer on its own scale, the OLED reading
 and the ball over time, and a "check with the solver" button (the built-in solver at the design, its truth
@@ -32,6 +33,11 @@ class ExploreArgs:
 
 def main(argv=None) -> int:
     args = cli.parse(ExploreArgs, argv, description=__doc__, prog="python -m experiments.explore")
+    from pcmgn_jax.mgn.checkpoint import MissingRun, require_run
+    try:   # before anything starts: a bad path or a run without a checkpoint is one line (status 2)
+        require_run(args.workdir, checkpoint=args.mgn)
+    except MissingRun as err:
+        raise MissingRun(f"{err}" + (" (or explore its baselines only: --no_mgn)" if args.mgn else "")) from None
     try:
         import dash  # noqa: F401
     except ImportError:

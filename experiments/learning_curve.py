@@ -10,7 +10,6 @@ runs' training split. Writes OUT/learning_curve.{json,md,png} (pcmgn_jax/eval/le
 For more training scenes than one LHS holds: ``experiments.generate --pool`` (same test scenes).
 """
 import json
-import shlex
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,7 +35,7 @@ def main(argv=None) -> int:
     points = {int(n): files for n, files in specs.items()}
     paths = {int(n): [str(p) for p in fs] for n, fs in files.items()}
     rows = curve_rows(points)
-    command = "python -m experiments.learning_curve " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
+    command = cli.command_line("experiments.learning_curve", argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     text = "\n".join([f"`{command}`", "", curve_table(rows)])

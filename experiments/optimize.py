@@ -17,7 +17,6 @@ after a kill replays them and carries on; the file is removed when the result is
 """
 from __future__ import annotations
 
-import shlex
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -53,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from pcmgn_jax.opt import run
     from pcmgn_jax.opt.pipeline import result_tag
-    command = "python -m experiments.optimize " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
+    command = cli.command_line("experiments.optimize", argv)
     out = run(**asdict(args), command=command)
     line = (f"{args.surrogate} {args.method}: optimum {np.round(np.asarray(out['optimum_um']), 1).tolist()} µm, "
             f"predicted {out['predicted_mpa']:.4f} ± {out['predicted_std_mpa']:.4f} MPa ({out['spread']['source']}) in {out['search_seconds']:.1f} s ({out['n_evals']} evaluations)")

@@ -44,7 +44,7 @@ def main(argv=None) -> int:
     if args.render:   # the table of a finished (or cut) study again, e.g. after the table's format changed
         paper.render(args.name, out=args.out)
         return 0
-    command = "python -m experiments.study " + " ".join(sys.argv[1:] if argv is None else argv)
+    command = cli.command_line("experiments.study", argv)
     paper.run(args.name, formulations=[f for f in args.formulations.split(",") if f],
               seeds=[int(s) for s in args.seeds.split(",") if s.strip()], num_steps=args.num_steps,
               runs=args.runs, out=args.out, data=args.data, command=command)

@@ -1,13 +1,18 @@
-"""The four-task table (issue 24): the MGN beside every baseline on each task, the winner per metric named.
+"""The task tables: the MGN beside every baseline on each task, the winner per metric named.
 
+  python -m experiments.tasks_table --manifest results/tasks.toml --out docs/results/tasks.md
   python -m experiments.tasks_table --task a=runs/cpu/eval/metrics.json,runs/cpu_seed1/eval/metrics.json \
-      b=runs/family/eval/metrics.json c=runs/cpu/eval/extrap/metrics.json --out docs/results/tasks.md
+      b=runs/family/eval/metrics.json --out /tmp/t.md
 
-Each ``T=FILES`` after ``--task`` gives evaluate()'s metrics.json files of task T (a | b | c | d, see
-pcmgn_jax.eval.tasks.TASKS), one per MGN seed; a task not given is listed as not measured.
+The manifest (TOML) has one ``[tasks]`` table: each key a task (a | b | c | d, see
+pcmgn_jax.eval.tasks.TASKS) or ``T.VARIANT``, each value the list of evaluate()'s metrics.json files, one
+per MGN seed; ``--task T=FILES`` gives the same on the command line (both may be used; a key given twice is
+an error). A task not given is listed as not measured. When ``--out`` exists and holds the line
+:data:`KEEP_MARKER`, everything from that line on (the hand-written reading) is kept below the new tables.
 """
-import shlex
 import sys
+import textwrap
+import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,26 +21,56 @@ from pcmgn_jax import cli
 
 @dataclass(frozen=True)
 class TasksArgs:
+    manifest: str = ""             # TOML file with a [tasks] table: "T" = ["metrics.json", ...] (e.g. results/tasks.toml)
     task: tuple[str, ...] = ()     # T=metrics.json[,metrics.json...] ... (T: a | b | c | d, or T.VARIANT such as d.cg_thin), space-separated after one --task
     out: str = ""                  # Markdown file to write ("" = print only)
     note: tuple[str, ...] = field(default_factory=tuple)   # lines to put under the title (budgets, what is missing)
+
+
+KEEP_MARKER = "<!-- hand-written below this line: kept when the tables are regenerated -->"
+
+
+def manifest_specs(path: str) -> list[str]:
+    """The ``[tasks]`` table of a TOML manifest as ``--task`` specs (``T=a.json,b.json``); ValueError naming the
+    file and the key for a missing file, bad TOML, a missing table or a value that is not a list of paths."""
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"--manifest: {p} does not exist")
+    try:
+        tasks = tomllib.loads(p.read_text()).get("tasks")
+    except tomllib.TOMLDecodeError as err:
+        raise ValueError(f"--manifest: {p} is not TOML ({err})") from None
+    if not isinstance(tasks, dict) or not tasks:
+        raise ValueError(f"--manifest: {p} has no [tasks] table of TASK = [metrics.json, ...]")
+    specs = []
+    for key, files in tasks.items():
+        if not (isinstance(files, list) and files and all(isinstance(f, str) and f for f in files)):
+            raise ValueError(f"--manifest {p}: tasks.{key} must be a non-empty list of metrics.json paths")
+        specs.append(f"{key}={','.join(files)}")
+    return specs
 
 
 def main(argv=None) -> int:
     args = cli.parse(TasksArgs, argv, description=__doc__, prog="python -m experiments.tasks_table")
     from pcmgn_jax.atomic import atomic_write_text
     from pcmgn_jax.eval.tasks import code_note, summary_table, task_rows, task_table
-    runs = cli.keyed_json_files(args.task, "task")
+    specs = (manifest_specs(args.manifest) if args.manifest else []) + list(args.task)
+    if not specs:
+        raise ValueError("give --manifest FILE.toml or --task T=metrics.json[,...]")
+    runs = cli.keyed_json_files(specs, "task")
     seeds = {task: len(files) for task, files in runs.items()}
-    command = "python -m experiments.tasks_table " + " ".join(shlex.quote(a) for a in (argv or sys.argv[1:]))
+    command = cli.command_line("experiments.tasks_table", argv)
     rows = task_rows(runs)
-    text = "\n".join(["# Four tasks: the MGN beside the response surfaces", "", f"`{command}`", "",
-                      *[x for n in args.note for x in (n, "")], code_note(runs), "",
+    text = "\n".join(["# The tasks: the MGN beside the response surfaces", "", f"`{command}`", "",
+                      *[x for n in args.note for x in (n, "")], textwrap.fill(code_note(runs), 120), "",
                       "**At a glance** (mean over the MGN's seeds; bold where the MGN is at least as accurate):", "",
                       summary_table(rows), "", task_table(rows, seeds=seeds)])
     print(text)
     if args.out:
-        atomic_write_text(Path(args.out), text + "\n")
+        out = Path(args.out)
+        old = out.read_text() if out.is_file() else ""
+        kept = old[old.index(KEEP_MARKER):] if KEEP_MARKER in old else ""
+        atomic_write_text(out, text + "\n" + ("\n" + kept if kept else ""))
     return 0
 
 

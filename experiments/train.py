@@ -2,7 +2,9 @@
 
 Every TrainConfig field is a flag (``--key=value``; ``--help`` lists them); ``--preset tiny|cpu|paper``
 fills the defaults (pcmgn_jax.config.PRESETS); plus ``--workdir DIR`` and ``--resume``, which continues the
-run from its last checkpoint and refuses flags that change its saved config.json. ``--devices`` splits each
+run from its last checkpoint and refuses flags that change its saved config.json. A workdir that holds a run
+is refused without ``--resume`` unless ``--overwrite`` (the earlier run is moved to ``DIR.old-<time>``); a
+workdir another process trains in is refused (docs/reliability.md). ``--devices`` splits each
 batch over several devices; ``--coordinator_address``, ``--num_processes``, ``--process_id``: several hosts
 (README, "Several machines").
 On a fresh machine the preset's dataset is generated first (data/<data_preset>, cached).
@@ -34,7 +36,7 @@ def main(argv=None) -> int:
     from pcmgn_jax.train import run
     from pcmgn_jax.train.pipeline import fit_to_dataset
     cfg = args.config if args.resume else fit_to_dataset(args.config, given=cli.given_flags(argv or sys.argv[1:]))
-    res = run(cfg, args.run_dir, resume=args.resume)
+    res = run(cfg, args.run_dir, resume=args.resume, overwrite=args.overwrite)
     print(f"done: {res['step']} steps in {res['seconds']:.0f} s; best validation position MAE "
           f"{res['best_val_position_mae_um']:.3f} µm; run directory {args.run_dir}")
     if res.get("best_predates_penalty"):

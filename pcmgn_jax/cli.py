@@ -11,9 +11,9 @@ Flags are written ``--key=value`` or ``--key value`` with underscores (the paper
 raises ``ValueError`` naming it (entry points print it and exit with status 2).
 
 Training: :func:`parse_train` reads ``--preset tiny|cpu|paper`` first, fills every default from
-``pcmgn_jax.config.PRESETS``, then parses every :class:`TrainConfig` field as a flag, plus ``--workdir``
-and ``--resume``. ``--formulation=paper|default|dynamic|realtime`` is read first too, wherever it stands: it sets
-the nested formulation to ``FORMULATIONS[name]`` (with the preset's formulation overrides) before the
+``pcmgn_jax.config.PRESETS``, then parses every :class:`TrainConfig` field as a flag, plus ``--workdir``,
+``--resume`` and ``--overwrite``. ``--formulation=paper|default|dynamic|realtime`` is read first too, wherever it
+stands: it sets the nested formulation to ``FORMULATIONS[name]`` (with the preset's formulation overrides) before the
 formulation's field flags (``--panel_target=X``, ``--rigid_ball``, ``--contact_projection``,
 ``--scene_features=a,b|none``) apply. With ``--resume`` the defaults come from the run's ``config.json`` instead, and a flag
 that changes a saved value is refused (:func:`pcmgn_jax.config.check_resume`).
@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import shlex
 import sys
 import typing
 from dataclasses import dataclass
@@ -104,6 +105,13 @@ def parse(cls: type[T], argv: Sequence[str] | None = None, *, description: str |
                     use_underscores=True, config=(tyro.conf.OmitArgPrefixes,), **kw)
 
 
+def command_line(module: str, argv: Sequence[str] | None = None) -> str:
+    """The command as a user would type it again, for the record: ``python -m MODULE ARG...`` with every
+    argument shell-quoted (``argv`` default ``sys.argv[1:]``)."""
+    args = sys.argv[1:] if argv is None else list(argv)
+    return " ".join(["python", "-m", module, *(shlex.quote(str(a)) for a in args)])
+
+
 def keyed_paths(specs: Sequence[str], flag: str) -> dict[str, list[Path]]:
     """``["K=a.json,b.json", ...]`` (a flag's ``KEY=FILE[,FILE...]`` values) -> {KEY: [Path of each file]},
     in order. ValueError naming the flag and the spec for a malformed spec, a repeated key or a missing file."""
@@ -180,6 +188,7 @@ class TrainArgs:
     config: Annotated[TrainConfig, tyro.conf.arg(name="")]   # the flags are its fields, no prefix
     workdir: str = ""        # run directory (checkpoints, metrics.jsonl, config.json); "" -> runs/<preset>
     resume: bool = False     # continue the run in --workdir from its last checkpoint (same config only)
+    overwrite: bool = False  # start over in a --workdir that holds a run: the earlier run moves to WORKDIR.old-<time>
     # several hosts (README "Several machines"): jax.distributed.initialize before training; not saved
     coordinator_address: str = ""  # host:port of process 0, reachable from every host; "" -> one host
     num_processes: int = 1   # processes in the run (one per host)

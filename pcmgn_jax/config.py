@@ -149,7 +149,16 @@ class TrainConfig:
 
     @classmethod
     def load(cls, path: str | Path) -> "TrainConfig":
-        return cls.from_json(json.loads(Path(path).read_text()))
+        """The config saved in ``path`` (a run's config.json); ValueError naming the file when it is missing,
+        empty or not JSON."""
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise ValueError(f"{path}: no such config file") from None
+        except (OSError, ValueError) as err:    # json.JSONDecodeError, UnicodeDecodeError are ValueErrors
+            raise ValueError(f"{path}: not a run config (empty, or not JSON: {err})") from None
+        return cls.from_json(data)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

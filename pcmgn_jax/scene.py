@@ -210,14 +210,22 @@ class Scene:
 
     @classmethod
     def load(cls, path: str | Path) -> "Scene":
-        """Load a scene from a ``.toml`` or ``.json`` file (SI units)."""
+        """Load a scene from a ``.toml`` or ``.json`` file (SI units). ValueError naming the file when it is
+        missing, not a file, empty (or whitespace / comments only: an empty file is never the default scene)
+        or not TOML / JSON."""
         path = Path(path)
-        if path.suffix == ".toml":
-            data = tomllib.loads(path.read_text())
-        elif path.suffix == ".json":
-            data = json.loads(path.read_text())
-        else:
+        if path.suffix not in (".toml", ".json"):
             raise ValueError(f"{path}: scene files must be .toml or .json")
+        if not path.is_file():
+            raise ValueError(f"{path}: no such scene file" if not path.exists() else f"{path}: not a file")
+        text = path.read_text()
+        try:
+            data = tomllib.loads(text) if path.suffix == ".toml" else json.loads(text) if text.strip() else {}
+        except ValueError as err:   # tomllib.TOMLDecodeError, json.JSONDecodeError
+            raise ValueError(f"{path}: not valid {path.suffix[1:].upper()}: {err}") from None
+        if not data:
+            raise ValueError(f"{path}: empty scene file (no fields); write the scene's fields (docs/design.md §2), or "
+                             "leave out --scene for the paper's scene")
         return cls.from_dict(data, where=str(path))
 
 

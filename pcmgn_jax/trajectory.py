@@ -30,7 +30,7 @@ class Trajectory:
     velocity:     (T, N, 2)       [m/s]
     von_mises:    (T, N)          nodal von Mises stress [Pa]
     meta:         JSON-able dict: units, analysis, scene (Scene.to_dict()), design (dict name->m),
-                  output_dt, source ('solver'|'ansys-text'|'d3plot'|'meshio'), solver settings,
+                  output_dt, source ('solver'|'ansys-text'|'d3plot'|'meshio'|'calculix'), solver settings,
                   energy summary, part_names, ...
     """
 

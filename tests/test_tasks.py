@@ -113,3 +113,30 @@ def test_learning_curve_crossings_table_plot_and_cli(tmp_path):
     assert (out / "learning_curve.png").stat().st_size > 1000 and (out / "learning_curve.md").exists()
     with pytest.raises(ValueError, match="whole number of solver runs"):
         cli_curve.main(["--point", f"many={tmp_path / 'm0_0.json'}", "--out", str(out)])
+
+
+def test_manifest_drives_the_tables_and_the_reading_is_kept(tmp_path):
+    from experiments import tasks_table
+    f = tmp_path / "m.json"
+    f.write_text(json.dumps(_m(0.3, 2.0, 0.1, 0.05)))
+    man = tmp_path / "tasks.toml"
+    man.write_text(f'[tasks]\na = ["{f}", "{f}"]\n"d.cg_thin" = ["{f}"]\n')
+    out = tmp_path / "t.md"
+    out.write_text(f"old tables\n{tasks_table.KEEP_MARKER}\n\n## Reading\nhand-written\n")
+    assert tasks_table.main(["--manifest", str(man), "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "old tables" not in text and text.count("Winner per metric") == 2 and "(2 seed(s) of the MGN)" in text
+    assert text.endswith(f"{tasks_table.KEEP_MARKER}\n\n## Reading\nhand-written\n")
+    assert "--manifest" in text.splitlines()[2]
+    assert tasks_table.main(["--manifest", str(man), "--out", str(out)]) == 0 and out.read_text() == text
+    man.write_text('[tasks]\na = "not a list"\n')
+    with pytest.raises(ValueError, match="tasks.a must be a non-empty list"):
+        tasks_table.main(["--manifest", str(man)])
+    man.write_text("[tasks\n")
+    with pytest.raises(ValueError, match="is not TOML"):
+        tasks_table.main(["--manifest", str(man)])
+    with pytest.raises(ValueError, match="does not exist"):
+        tasks_table.main(["--manifest", str(tmp_path / "none.toml")])
+    man.write_text(f'[tasks]\na = ["{f}"]\n')
+    with pytest.raises(ValueError, match="given twice"):
+        tasks_table.main(["--manifest", str(man), "--task", f"a={f}"])

@@ -7,13 +7,17 @@ element offsets into each ``.npy`` and its meta dict. Loading maps the files wit
 ``np.load(mmap_mode='r')`` and hands out zero-copy reshaped views, so a split loads in milliseconds
 regardless of size; pages are read on first touch.
 
-The cache is rebuilt exactly when the list of (trajectory name, sidecar sha256) of the split
-changes. Building reads every trajectory with hash verification (``read_trajectory(verify=True)``),
-writes into a temporary directory and swaps it in (:func:`pcmgn_jax.atomic.atomic_dir`; index.json
-last), so a killed build never leaves a cache that loads. Arrays keep their dtypes; if trajectories of one split have different dtypes for a
-field, the field is stored in their common (promoted) dtype. Note: the cache compares hashes from
-the sidecars only; an HDF5 file modified behind an unchanged sidecar is not noticed here (the cache
-still holds the verified data it was built from).
+The cache is keyed on the content it was built from: per trajectory its name, its sidecar's sha256 and
+the size and modification time (ns) of each of its files (``.json``, ``.h5``, ``.xdmf``). When any of them
+changes (a file truncated, rewritten or replaced behind an unchanged sidecar), the cache is rebuilt, and the
+build reads every trajectory with hash verification and finiteness checks (``read_trajectory(verify=True)``),
+so a damaged file is refused with its name (TrajectoryFileError), never trained on from an old cache. With a
+manifest, every entry is checked against its trajectory's sidecar first (content hash, design, scene
+parameters; :func:`pcmgn_jax.data.layout.check_entry`) at every load. A build writes into a temporary
+directory and swaps it in (:func:`pcmgn_jax.atomic.atomic_dir`; index.json last), so a killed build never
+leaves a cache that loads; concurrent builds of one split wait for each other (the lock
+``OUT/.cache/.lock-SPLIT``, :func:`pcmgn_jax.lock.hold`). Arrays keep their dtypes; if trajectories of one
+split have different dtypes for a field, the field is stored in their common (promoted) dtype.
 """
 from __future__ import annotations
 
@@ -25,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from pcmgn_jax.atomic import atomic_dir
-from pcmgn_jax.data.layout import split_stems
+from pcmgn_jax.data.layout import check_entry, load_manifest, split_stems
 from pcmgn_jax.data.trajectory_io import (
     ARRAY_FIELDS,
     RESERVED_KEYS,
@@ -33,7 +37,9 @@ from pcmgn_jax.data.trajectory_io import (
     atomic_write_json,
     read_sidecar,
     read_trajectory,
+    trajectory_paths,
 )
+from pcmgn_jax.lock import hold
 from pcmgn_jax.trajectory import Trajectory
 
 __all__ = ["CACHE_DIR", "cache_dir", "ensure_cache", "load_split"]
@@ -41,7 +47,7 @@ __all__ = ["CACHE_DIR", "cache_dir", "ensure_cache", "load_split"]
 CACHE_DIR = ".cache"
 INDEX = "index.json"
 CACHE_FORMAT = "pcmgn_jax.cache"
-CACHE_VERSION = 1
+CACHE_VERSION = 2                      # 2: sources keyed on file sizes and modification times too
 
 
 def cache_dir(dataset_dir: str | os.PathLike, split: str) -> Path:
@@ -49,13 +55,29 @@ def cache_dir(dataset_dir: str | os.PathLike, split: str) -> Path:
     return Path(dataset_dir) / CACHE_DIR / split
 
 
-def _sources(dataset_dir: Path, split: str) -> list[dict[str, Any]]:
+def _stat(stem: Path) -> list[list[int]]:
+    """[size, mtime_ns] of a trajectory's .json, .h5 and .xdmf ([-1, -1] for a missing one)."""
     out = []
-    for stem in split_stems(dataset_dir, split):
+    for p in trajectory_paths(stem)[::-1]:
+        try:
+            st = p.stat()
+            out.append([st.st_size, st.st_mtime_ns])
+        except FileNotFoundError:
+            out.append([-1, -1])
+    return out
+
+
+def _sources(dataset_dir: Path, split: str) -> list[dict[str, Any]]:
+    man = load_manifest(dataset_dir)
+    entries = man["splits"][split]["trajectories"] if man is not None and split in man.get("splits", {}) else None
+    out = []
+    for i, stem in enumerate(split_stems(dataset_dir, split)):
         side = read_sidecar(stem)
+        if entries is not None:
+            check_entry(dataset_dir, entries[i], side, man.get("design_layers", ()))
         out.append({"name": stem.name, "path": str(stem.relative_to(dataset_dir)), "sha256": side["sha256"],
-                    "n_nodes": side["n_nodes"], "n_cells": side["n_cells"], "n_frames": side["n_frames"],
-                    "dtypes": side["dtypes"]})
+                    "files": _stat(stem), "n_nodes": side["n_nodes"], "n_cells": side["n_cells"],
+                    "n_frames": side["n_frames"], "dtypes": side["dtypes"]})
     if not out:
         raise TrajectoryFileError(f"{dataset_dir}: split {split!r} has no trajectories")
     return out
@@ -100,21 +122,32 @@ def _build(dataset_dir: Path, split: str, sources: list[dict[str, Any]]) -> None
             del outs[f]
         atomic_write_json(tmp / INDEX, {
             "format": CACHE_FORMAT, "format_version": CACHE_VERSION, "split": split,
-            "sources": [{"name": s["name"], "sha256": s["sha256"]} for s in sources],
+            "sources": _key(sources),
             "fields": fields, "trajectories": entries})
 
 
 def ensure_cache(dataset_dir: str | os.PathLike, split: str, *, force: bool = False) -> tuple[Path, bool]:
     """Build the cache of ``split`` if missing or stale; return ``(cache path, rebuilt?)``."""
     root = Path(dataset_dir)
-    sources = _sources(root, split)
     path = cache_dir(root, split)
-    idx = _read_index(path)
-    key = [{"name": s["name"], "sha256": s["sha256"]} for s in sources]
-    if not force and idx is not None and idx.get("sources") == key:
+    sources = _sources(root, split)
+    if not force and _fresh(path, sources):
         return path, False
-    _build(root, split, sources)
+    with hold(root / CACHE_DIR, f"cache build of {split!r}", name=f".lock-{split}", wait=True):
+        sources = _sources(root, split)      # another process may have built it while this one waited
+        if not force and _fresh(path, sources):
+            return path, False
+        _build(root, split, sources)
     return path, True
+
+
+def _key(sources: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    return [{"name": s["name"], "sha256": s["sha256"], "files": s["files"]} for s in sources]
+
+
+def _fresh(path: Path, sources: list[dict[str, Any]]) -> bool:
+    idx = _read_index(path)
+    return idx is not None and idx.get("sources") == _key(sources)
 
 
 def load_split(dataset_dir: str | os.PathLike, split: str) -> list[Trajectory]:

@@ -34,6 +34,7 @@ import os
 import re
 import time
 from collections.abc import Callable, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -46,8 +47,10 @@ from pcmgn_jax.data.layout import (
     GENERATE,
     IMPORTED,
     MANIFEST,
+    SHARD_PARTS,
     DatasetError,
     dataset_source,
+    entry_mismatch,
     has_shard_parts,
     has_trajectory_files,
     load_manifest,
@@ -59,6 +62,7 @@ from pcmgn_jax.data.trajectory_io import (
     read_trajectory,
     write_trajectory,
 )
+from pcmgn_jax.lock import hold
 from pcmgn_jax.scene import Scene, default_scene, with_parameters
 from pcmgn_jax.sim.mesh import MESH_PRESETS
 from pcmgn_jax.trajectory import Trajectory
@@ -199,18 +203,6 @@ def _entry(split: str, i: int, design: np.ndarray, family: SceneFamily | None = 
     return out
 
 
-def _meta_design(traj: Trajectory, layers: Sequence[str]) -> list[float] | None:
-    d = traj.meta.get("design")
-    if isinstance(d, dict):
-        try:
-            return [float(d[k]) for k in layers]
-        except KeyError:
-            return None
-    if isinstance(d, (list, tuple)):
-        return [float(v) for v in d]
-    return None
-
-
 def _is_done(root: Path, entry: dict[str, Any], layers: Sequence[str]) -> bool:
     try:
         traj = read_trajectory(root / entry["path"], verify=True)
@@ -221,14 +213,8 @@ def _is_done(root: Path, entry: dict[str, Any], layers: Sequence[str]) -> bool:
     digest = content_hash(traj)
     if entry.get("sha256") not in (None, digest):
         return False
-    d = _meta_design(traj, layers)
-    if d is not None and not np.allclose(d, entry["design_m"], rtol=1e-9, atol=0):
+    if entry_mismatch(entry, traj.meta, layers) is not None:
         return False
-    want = entry.get("scene_params")
-    if want is not None:
-        got = traj.meta.get("scene_params") or {}
-        if set(got) != set(want) or not np.allclose([got[k] for k in want], list(want.values()), rtol=1e-9, atol=0):
-            return False
     entry["sha256"] = digest
     if entry.get("wall_time_s") is None and traj.meta.get("wall_time_s") is not None:
         entry["wall_time_s"] = float(traj.meta["wall_time_s"])
@@ -325,7 +311,21 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     for name in plan:
         if not _SPLIT_RE.match(name):
             raise DatasetError(f"split name {name!r} must match {_SPLIT_RE.pattern}")
+    # one writer per dataset (pcmgn_jax.lock): a shard holds the dataset's lock shared and its part's exclusively
+    with ExitStack() as locks:
+        if shard is None:
+            locks.enter_context(hold(root, "generate"))
+        else:
+            locks.enter_context(hold(root, "generate --shard", shared=True))
+            locks.enter_context(hold(root / SHARD_PARTS, f"generate --shard {shard[0]}/{shard[1]}",
+                                     name=f".lock-shard-{shard[0]}-of-{shard[1]}"))
+        return _generate(root, plan, scene=scene, family=family, preset=preset, batch=batch, progress=progress,
+                         solve_fn=solve_fn, shard=shard, merge=merge)
 
+
+def _generate(root: Path, plan: dict[str, tuple[np.ndarray, dict[str, Any]]], *, scene: Scene,
+              family: SceneFamily | None, preset: str, batch: int, progress: bool, solve_fn, shard, merge: bool) -> Path:
+    """:func:`ensure_dataset` once its arguments are checked and the dataset's lock is held."""
     man = load_manifest(root)
     manifest_path = root / MANIFEST
     if man is None:

@@ -29,12 +29,15 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 __all__ = ["DATASET_FORMAT", "GENERATE", "IMPORTED", "MANIFEST", "SHARD_PARTS", "SPLITS", "DatasetError",
-           "dataset_source", "has_shard_parts", "has_trajectory_files", "load_manifest", "read_format_json",
-           "split_stems"]
+           "check_entry", "dataset_source", "entry_mismatch", "has_shard_parts", "has_trajectory_files",
+           "load_manifest", "meta_design", "read_format_json", "split_stems"]
 
 MANIFEST = "manifest.json"
 SHARD_PARTS = ".shards"                # folder of the per-shard manifest parts (pcmgn_jax.data.shards)
@@ -123,3 +126,45 @@ def split_stems(dataset_dir: str | os.PathLike, split: str) -> list[Path]:
     if not folder.is_dir():
         raise DatasetError(f"{folder}: split {split!r} not found (and no {MANIFEST})")
     return [p.with_suffix("") for p in sorted(folder.glob("*.json"))]
+
+
+def meta_design(meta: dict[str, Any], layers: Sequence[str]) -> list[float] | None:
+    """The design-layer thicknesses [m] a trajectory's meta (or sidecar) records under 'design' ({layer: m}
+    or a list), in ``layers``' order; None when it records none (or not for these layers)."""
+    d = meta.get("design")
+    if isinstance(d, dict):
+        try:
+            return [float(d[k]) for k in layers]
+        except KeyError:
+            return None
+    if isinstance(d, (list, tuple)):
+        return [float(v) for v in d]
+    return None
+
+
+def entry_mismatch(entry: dict[str, Any], meta: dict[str, Any], layers: Sequence[str]) -> str | None:
+    """What a manifest entry records that its trajectory's meta (or sidecar) does not (the design [m], the
+    scene parameters), or None when they agree (relative tolerance 1e-9)."""
+    d = meta_design(meta, layers)
+    if d is not None and (len(d) != len(entry["design_m"])
+                          or not np.allclose(d, entry["design_m"], rtol=1e-9, atol=0)):
+        return f"design_m {entry['design_m']} in the manifest, {d} in the trajectory"
+    want = entry.get("scene_params")
+    if want is not None:
+        got = meta.get("scene_params") or {}
+        if set(got) != set(want) or not np.allclose([got[k] for k in want], list(want.values()), rtol=1e-9, atol=0):
+            return f"scene_params {want} in the manifest, {got} in the trajectory"
+    return None
+
+
+def check_entry(root: Path, entry: dict[str, Any], side: dict[str, Any], layers: Sequence[str]) -> None:
+    """DatasetError naming the manifest, the entry and the sidecar when a finished manifest entry disagrees
+    with its trajectory's sidecar (content hash, design, scene parameters): one of them was changed."""
+    why = None
+    if entry.get("sha256") and entry["sha256"] != side.get("sha256"):
+        why = f"sha256 {entry['sha256'][:12]}... in the manifest, {str(side.get('sha256'))[:12]}... in the sidecar"
+    why = why or entry_mismatch(entry, side, layers)
+    if why:
+        raise DatasetError(f"{root / MANIFEST}: entry {entry.get('name')!r} disagrees with {root / entry['path']}.json "
+                           f"({why}): the manifest or the trajectory was changed; regenerate it "
+                           f"(python -m experiments.generate --out {root} with its flags) or restore the file")

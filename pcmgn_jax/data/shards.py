@@ -134,10 +134,13 @@ def write_part(root: Path, man: Mapping[str, Any], splits: Sequence[str], own: S
 
 
 def remove_parts(parts: Sequence[Mapping[str, Any]]) -> None:
-    """Delete merged parts (and the ``.shards`` folder once it is empty)."""
+    """Delete merged parts (and the ``.shards`` folder once it is empty, the shards' lock files with it: the
+    caller holds the dataset's lock exclusively, so no shard runs)."""
     for part in parts:
         Path(part["_path"]).unlink(missing_ok=True)
     if parts:
+        for f in Path(parts[0]["_path"]).parent.glob(".lock-shard-*"):
+            f.unlink(missing_ok=True)
         try:
             Path(parts[0]["_path"]).parent.rmdir()
         except OSError:

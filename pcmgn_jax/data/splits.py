@@ -15,6 +15,7 @@ from pcmgn_jax.data.cache import load_split
 from pcmgn_jax.data.dataset import ensure_dataset
 from pcmgn_jax.data.layout import GENERATE, IMPORTED, DatasetError, dataset_source, load_manifest
 from pcmgn_jax.data.trajectory_io import TrajectoryFileError, read_sidecar, read_trajectory, write_trajectory
+from pcmgn_jax.lock import hold
 from pcmgn_jax.trajectory import Trajectory
 
 __all__ = ["load_directory", "load_splits", "pool_datasets", "prepare_dataset"]
@@ -134,15 +135,16 @@ def pool_datasets(sources, out_dir: str | os.PathLike, *, progress=None) -> Path
         if extra:
             raise DatasetError(f"{out / split}: holds trajectories the pool would not write ({extra[:3]}...): "
                                "pool into a new directory")
-    for done, (stem, target) in enumerate(plan):
-        want = read_sidecar(stem)["sha256"]
-        try:
-            have = read_sidecar(target)["sha256"]
-        except TrajectoryFileError:
-            have = None
-        if have != want:
-            target.parent.mkdir(parents=True, exist_ok=True)
-            write_trajectory(read_trajectory(stem), target)
-        if progress is not None:
-            progress(done + 1, len(plan))
+    with hold(out, "generate --pool"):      # one writer per dataset folder
+        for done, (stem, target) in enumerate(plan):
+            want = read_sidecar(stem)["sha256"]
+            try:
+                have = read_sidecar(target)["sha256"]
+            except TrajectoryFileError:
+                have = None
+            if have != want:
+                target.parent.mkdir(parents=True, exist_ok=True)
+                write_trajectory(read_trajectory(stem), target)
+            if progress is not None:
+                progress(done + 1, len(plan))
     return out

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from pcmgn_jax.lock import hold
+
 
 def output_name(data: str = "", name: str = "") -> str | None:
     """The evaluation's folder under RUN/eval: ``name``, else the ``data`` folder's name, else None
@@ -46,6 +48,8 @@ def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str =
     from pcmgn_jax.config import TrainConfig
     from pcmgn_jax.data.dataset import load_directory, load_splits
     from pcmgn_jax.eval import evaluate as evaluation
+    from pcmgn_jax.mgn.checkpoint import require_run
+    require_run(workdir)   # a missing run, a file, no config or no checkpoint: one line, nothing written
     cfg = TrainConfig.load(Path(workdir) / "config.json")
     if split not in ("test", "val"):
         raise ValueError(f"evaluate: split={split!r} must be test or val")
@@ -57,6 +61,8 @@ def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str =
         test = load_directory(data)
     if split == "val":  # what choices between rollout settings are made on, never the test split
         test, name = val, name or "val"
-    return evaluation.evaluate(workdir, test_trajs=test, train_trajs=train, which=which,
-                               name=output_name(data, name), contact_projection=contact_projection,
-                               mgn_spread=mgn_spread, residual_ball=residual_ball)
+    out = Path(workdir) / "eval" / (output_name(data, name) or "")
+    with hold(out, "evaluate"):   # one evaluation writes into RUN/eval[/NAME] at a time
+        return evaluation.evaluate(workdir, test_trajs=test, train_trajs=train, which=which,
+                                   name=output_name(data, name), contact_projection=contact_projection,
+                                   mgn_spread=mgn_spread, residual_ball=residual_ball)

@@ -259,6 +259,7 @@ class MGNSurrogate:
         if not (len(mesh.points) == self.ref.n_nodes and np.array_equal(mesh.cells, self.ref.cells)
                 and np.array_equal(mesh.node_type, self.ref.node_type)):
             topology, index, _ = graph_inputs(mesh, self.ref.meta["scene"], n_parts=s.topology.n_node_types - 1,
+                                              levels=s.spec.formulation.hierarchy_levels,
                                               radius=s.index.radius, capacity=s.index.capacity)
         topology = with_scene(topology, scene or self.ref.meta["scene"], s.spec.formulation.scene_features)
         return {"topology": topology, "index": index, "points": np.asarray(mesh.points, np.float32),

@@ -11,6 +11,7 @@ mesh or batch size. Layout of a :class:`GraphBatch` (G graph slots, N nodes, E m
     layout    Layout: n_node [G], n_edge [G] (jraph: real graphs first, then one graph holding the
               padding nodes and edges, then empty graphs), node_graph [N] (graph slot of each node),
               node_mask [N], edge_mask [E] (False on padding: jraph.get_node/edge_padding_mask)
+              hierarchy: the coarse levels of a multi-scale model, or None (pcmgn_jax.mgn.hierarchy)
     index     per-graph ContactIndex (contact.stack): candidates [G-1, Nb] x [G-1, Np], capacity per
               graph; each graph's contact search sees only its own nodes
     points    [N, 2] reference coordinates [m] (0 on padding)
@@ -35,6 +36,7 @@ from flax import struct
 
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.graphs import Topology
+from pcmgn_jax.mgn.hierarchy import level_sizes, union_levels
 
 BUCKET_STEPS = tuple(range(8, 16))  # sizes m * 2^k, m in 8..15: 8 sizes per octave, < 12.5 % padding
 
@@ -91,18 +93,23 @@ class GraphBatch:
     def bucket(self) -> tuple:
         """The static shape key of this batch (equal keys share one compilation)."""
         return (self.points.shape[0], self.topology.mesh_senders.shape[0], self.layout.n_node.shape[0],
-                self.index.allowed.shape, self.index.capacity, self.topology.n_node_types)
+                self.index.allowed.shape, self.index.capacity, self.topology.n_node_types,
+                tuple((lv.n_node, lv.senders.shape[0]) for lv in self.topology.hierarchy or ()))
 
 
 def batch_graphs(topologies: Sequence[Topology], indices: Sequence[contact_lib.ContactIndex],
                  points: Sequence[np.ndarray], *, min_nodes: int = 64, min_edges: int = 256,
-                 min_slots: int = 1, min_capacity: int = 16, min_ball: int = 8, min_panel: int = 8) -> GraphBatch:
+                 min_slots: int = 1, min_capacity: int = 16, min_ball: int = 8, min_panel: int = 8,
+                 min_levels: Sequence[tuple[int, int]] = ()) -> GraphBatch:
     """Host-side: the padded union of designs (their topology, contact index, reference points [m]).
 
     Sizes are bucketed: nodes (plus one padding node), mesh edges, contact candidates and capacity by
     :func:`bucket_size`; graph slots by :func:`design_slots` (at least ``min_slots``) plus one padding
     graph. ``min_capacity``: contact edges per graph at least (e.g. a buffer grown by an earlier batch);
     ``min_ball`` / ``min_panel``: contact candidates per graph at least (a fixed training bucket).
+    Coarse levels (the topologies' ``hierarchy``, all of one depth or none): each level's nodes (plus
+    one padding node) and edges bucketed like the mesh's, at least ``min_levels`` (nodes, edges) per level
+    (:func:`pcmgn_jax.mgn.hierarchy.union_levels`).
     Designs must share the node types (the model's one-hot width), the contact radius and whether they
     carry scene features (the topology's ``scene_features``, concatenated like the other node arrays).
     """
@@ -115,6 +122,9 @@ def batch_graphs(topologies: Sequence[Topology], indices: Sequence[contact_lib.C
     widths_sf = {None if t.scene_features is None else np.shape(t.scene_features)[1] for t in topologies}
     if len(widths_sf) != 1:
         raise ValueError(f"designs of one batch must carry the same scene features, got widths {widths_sf}")
+    if len({None if t.hierarchy is None else len(t.hierarchy) for t in topologies}) != 1:
+        raise ValueError("designs of one batch must carry the same number of coarse levels (topology.hierarchy), "
+                         f"got {sorted({0 if t.hierarchy is None else len(t.hierarchy) for t in topologies})}")
     if len({t.top_nodes is None for t in topologies}) != 1:
         raise ValueError("designs of one batch must all mark their contact layer's top_nodes, or none")
     graphs = []
@@ -148,7 +158,8 @@ def batch_graphs(topologies: Sequence[Topology], indices: Sequence[contact_lib.C
                         n_node_types=n_types, mesh_senders=np.asarray(padded.senders, np.int32),
                         mesh_receivers=np.asarray(padded.receivers, np.int32),
                         fixed=nodes["fixed"] | ~node_mask, axis=nodes["axis"] & node_mask,
-                        scene_features=nodes.get("scene_features"), top_nodes=nodes.get("top_nodes"))
+                        scene_features=nodes.get("scene_features"), top_nodes=nodes.get("top_nodes"),
+                        hierarchy=_union_hierarchy(topologies, node_mask.shape[0], min_levels))
     layout = Layout(n_node=n_node, n_edge=np.asarray(padded.n_edge, np.int32),
                     node_graph=np.repeat(np.arange(len(n_node), dtype=np.int32), n_node),
                     node_mask=node_mask, edge_mask=edge_mask)
@@ -160,6 +171,16 @@ def batch_graphs(topologies: Sequence[Topology], indices: Sequence[contact_lib.C
         capacity=bucket_size(max(max(i.capacity for i in indices), min_capacity), 16))
     return GraphBatch(topology=topology, layout=layout, index=index, points=nodes["points"],
                       n_designs=np.asarray(n_real, np.int32))
+
+
+def _union_hierarchy(topologies: Sequence[Topology], n_fine: int, min_levels) -> tuple | None:
+    """The union's coarse levels, bucketed (see :func:`batch_graphs`), or None."""
+    if topologies[0].hierarchy is None:
+        return None
+    real = np.sum([level_sizes(t.hierarchy) for t in topologies], axis=0)  # (levels, 2)
+    mins = list(min_levels) + [(0, 0)] * (len(real) - len(min_levels))
+    sizes = [(bucket_size(int(n) + 1, max(m[0], 16)), bucket_size(int(e), max(m[1], 16))) for (n, e), m in zip(real, mins)]
+    return union_levels([t.hierarchy for t in topologies], [t.n_node for t in topologies], n_fine, sizes)
 
 
 def to_union(batch: GraphBatch, arrays: Sequence[np.ndarray]) -> np.ndarray:

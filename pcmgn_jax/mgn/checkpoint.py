@@ -9,9 +9,17 @@ config, contact radius and capacity, frame interval, total steps, best validatio
     res = rollout(sim.spec, n, sim.params, sim.stats, sim.topology, sim.index, ...)
 
 No pickle anywhere: params and stats are orbax arrays, meta is JSON.
+
+Kills (docs/reliability.md): orbax writes a step into a temporary folder and renames it when complete;
+writing managers clean leftover temporary folders. :func:`latest_intact` reads every item of the newest
+step and falls back, naming the damaged one (a file missing inside); :func:`drop_after` removes the
+checkpoints a killed run wrote after the step it resumes from. Readers never create folders:
+:func:`require_run` answers a missing or incomplete run with one line (exit status 2 in the entry points).
 """
 from __future__ import annotations
 
+import shutil
+import sys
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -47,15 +55,90 @@ def make_spec(cfg: TrainConfig, dt: float) -> Spec:
     form = cfg.scan_formulation
     model = EncodeProcessDecode(output_size=form.output_size, latent_size=cfg.latent_size,
                                 mlp_layers=cfg.mlp_layers, message_passing_steps=cfg.message_passing_steps,
-                                decoder_condition=form.decoder_condition)
+                                decoder_condition=form.decoder_condition, reach=form.reach,
+                                reach_levels=form.reach_levels, reach_slices=form.reach_slices,
+                                reach_heads=form.reach_heads)
     return Spec(model=model, formulation=form, dt=float(dt))
 
 
-def manager(path: str | Path, max_to_keep: int | None = None) -> ocp.CheckpointManager:
+def manager(path: str | Path, max_to_keep: int | None = None, *, create: bool = False) -> ocp.CheckpointManager:
+    """The orbax manager of a checkpoint folder. ``create``: a writer's (makes the folder, removes orbax
+    temporary folders a killed save left); readers (default) create nothing."""
     return ocp.CheckpointManager(
-        Path(path).absolute(), options=ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True,
-                                                                    enable_async_checkpointing=False),
+        Path(path).absolute(), options=ocp.CheckpointManagerOptions(
+            max_to_keep=max_to_keep, create=create, cleanup_tmp_directories=create,
+            enable_async_checkpointing=False),
         item_names=ITEMS)
+
+
+class MissingRun(ValueError):
+    """A run folder that is missing, not a folder, or holds no config.json or no checkpoint (one line:
+    the path and the command that makes what is missing)."""
+
+
+def require_run(workdir: str | Path, *, checkpoint: bool = True) -> Path:
+    """``Path(workdir)`` when it is a training run folder with a config.json and (``checkpoint``) a
+    checkpoint; else :class:`MissingRun` naming the path and the training command. Reads only."""
+    run = Path(workdir)
+    make = f"python -m experiments.train --workdir {run}"
+    if not run.exists():
+        raise MissingRun(f"{run}: no such run folder; make it with `{make}`")
+    if not run.is_dir():
+        raise MissingRun(f"{run}: is a file, not a run folder (a training run's --workdir, made by `{make}`)")
+    if not (run / "config.json").is_file():
+        raise MissingRun(f"{run}: no config.json, not a training run folder; make one with `{make}`")
+    if checkpoint and not any(steps(run / "checkpoints" / w) for w in ("best", "periodic")):
+        raise MissingRun(f"{run}: holds no checkpoint in {run / 'checkpoints'}; train it with `{make} --resume`")
+    return run
+
+
+def steps(path: str | Path) -> list[int]:
+    """The checkpoint steps in ``path`` (ascending; orbax's finished steps), [] when there is no such folder."""
+    path = Path(path)
+    return sorted(manager(path).all_steps()) if path.is_dir() else []
+
+
+def damage(path: str | Path, step: int) -> str | None:
+    """Why checkpoint ``step`` in ``path`` cannot be read (every item read in full), or None when it can."""
+    try:
+        manager(path).restore(step, args=ocp.args.Composite(
+            state=ocp.args.StandardRestore(), stats=ocp.args.StandardRestore(), meta=ocp.args.JsonRestore()))
+    except Exception as err:   # orbax / tensorstore raise many kinds; each means "not readable"
+        return f"{type(err).__name__}: {str(err).splitlines()[0][:200] if str(err) else ''}"
+    return None
+
+
+def latest_intact(path: str | Path, *, set_aside: bool = False) -> int | None:
+    """The newest checkpoint step in ``path`` that reads back whole, None when there is none. A damaged
+    newer one is named on stderr and skipped; ``set_aside`` (a resuming writer) also moves it to
+    ``path/../damaged/<which>-<step>`` so the step can be written again (nothing is deleted)."""
+    path = Path(path)
+    for step in reversed(steps(path)):
+        why = damage(path, step)
+        if why is None:
+            return step
+        note = f"note: checkpoint {path / str(step)} is damaged ({why}); using the previous one"
+        if set_aside:
+            dest = path.parent / "damaged" / f"{path.name}-{step}"
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            shutil.rmtree(dest, ignore_errors=True)
+            (path / str(step)).rename(dest)
+            note += f" (moved to {dest})"
+        print(note, file=sys.stderr)
+    return None
+
+
+def drop_after(path: str | Path, step: int) -> list[int]:
+    """Remove the checkpoints of ``path`` after ``step`` (a run resumed at ``step`` writes them again, the
+    same: its data order is a function of the step); returns their steps, said on stderr."""
+    path = Path(path)
+    gone = [s for s in steps(path) if s > step]
+    for s in gone:
+        shutil.rmtree(path / str(s))
+    if gone:
+        print(f"note: {path}: removed checkpoint(s) {gone} written after step {step}, where the run resumes",
+              file=sys.stderr)
+    return gone
 
 
 def save(mgr: ocp.CheckpointManager, state: dict, stats: Stats, meta: dict) -> None:
@@ -100,7 +183,7 @@ def checkpoint_dir(workdir: str | Path, which: str = "best") -> Path:
     if which not in ("best", "periodic"):
         raise ValueError(f"which must be 'best' or 'periodic', got {which!r}")
     path = Path(workdir) / "checkpoints" / which
-    if which == "best" and manager(path).latest_step() is None:
+    if which == "best" and not steps(path):
         path = Path(workdir) / "checkpoints" / "periodic"
     return path
 
@@ -119,12 +202,16 @@ def load(workdir: str | Path, ref, *, which: str = "best", cfg: TrainConfig | No
     """
     from pcmgn_jax.scene import Scene
 
-    workdir = Path(workdir)
+    workdir = require_run(workdir) if cfg is None else Path(workdir)
     cfg = cfg or TrainConfig.load(workdir / "config.json")
     path = checkpoint_dir(workdir, which)
-    step, meta = read_meta(path)
+    step = latest_intact(path)
+    if step is None:
+        raise MissingRun(f"{path}: no readable checkpoint (every one is damaged or missing); train the run again "
+                         f"with `python -m experiments.train --workdir {workdir} --overwrite`")
+    step, meta = read_meta(path, step)
     spec = make_spec(cfg, meta["dt"])
-    topology = topology_from_trajectory(ref, spec.formulation.scene_features)
+    topology = topology_from_trajectory(ref, spec.formulation.scene_features, spec.formulation.hierarchy_levels)
     index = contact_index_for(ref, Scene.from_dict(ref.meta["scene"]), radius=meta["contact_radius"],
                               capacity=meta["contact_capacity"])
     mgr = manager(path)

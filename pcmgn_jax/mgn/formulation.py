@@ -76,9 +76,14 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
   a plate every training scene shares, the same features as ``mesh`` up to a constant, which the
   per-part normaliser removes (:func:`pcmgn_jax.mgn.graphs.origin_height`, docs/design.md §5).
   ``stack_thickness`` is ``layer_thickness`` on every node, the contact pair's included: with
-  ``contact_top`` the ball's height no longer tells it how thick the stack below is, so it is told. Node channels, not a graph-level global, because the processor has
+  ``contact_top`` the ball's height no longer tells it how thick the stack below is, so it is told. Node channels, not a graph-level global, because the local processor has
   no global block and every node of a scene carries the same value (a broadcast global); empty (the
   default) for single-scene datasets, where the channel would be constant.
+- ``reach``: how far a node sees within one processor pass (docs/design.md §5.3): ``local`` (the
+  paper: ``message_passing_steps`` mesh hops), ``multiscale`` (a bi-stride V-cycle over ``reach_levels``
+  coarse levels after every 4th local step and the last, :mod:`pcmgn_jax.mgn.multiscale`) or ``attention``
+  (a physics-attention block over ``reach_slices`` learned slices with ``reach_heads`` heads at the same
+  places, :mod:`pcmgn_jax.mgn.attention`). The hyper-parameters are ignored by ``local``.
 
 Noise (training): Gaussian n on the input displacement of the noised nodes (one shared sample for a
 rigid ball); the velocity input is derived from the noisy displacement (v~ = v + n/dt, as in a
@@ -102,6 +107,7 @@ PANEL_MODELS = ("dynamic", "quasi_static")
 PROCESSORS = ("per_frame", "per_design")
 PART_IDENTITIES = ("type", "material")
 ORIGINS = ("mesh", "contact_top", "support_top")
+REACHES = ("local", "multiscale", "attention")
 BALL_STATE_CHANNELS = 2  # quasi_static: [u_ball,y, v_ball,y] on every node (the ball moves along the axis)
 NOISE_PARTS = ("none", "ball", "panel", "all")
 SCENE_FEATURES = {"ball_radius": ("ball", "radius"), "ball_velocity": ("ball", "velocity"),  # -> scene dict keys
@@ -233,6 +239,10 @@ class Formulation:
     contact_projection: bool = False    # rollouts move cover-glass nodes inside the rigid ball onto its surface
     processor: str = "per_frame"        # per_frame (the ball state is a node input: the processor runs every frame) | per_design (quasi_static only: the processor runs once per design on the static graph, the ball state enters the decoder)
     part_identity: str = "type"         # type (a one-hot of every part) | material (the layers known only by their 'material' scene feature: a one-hot is kept for the ball and the fixed nodes)
+    reach: str = "local"                # local (message passing only: message_passing_steps hops) | multiscale (+ bi-stride coarse levels, BSMS-GNN) | attention (+ physics attention over learned slices, Transolver); design §5.3
+    reach_levels: int = 4               # multiscale: coarse levels of the V-cycle
+    reach_slices: int = 32              # attention: learned slices (tokens) per graph
+    reach_heads: int = 4                # attention: heads of the attention among the slices (divides latent_size)
     origin: str = "mesh"                # mesh (node positions in the mesh's coordinates, y from the plate's bottom) | contact_top (y from the contact layer's top surface: layers below it may change thickness without moving the nodes above in the features) | support_top (y from the bottom layer's top: the plate's thickness moves nothing above it)
 
     def __post_init__(self):
@@ -243,9 +253,12 @@ class Formulation:
                               ("normalization", NORMALIZATIONS), ("features", FEATURES),
                               ("loss_weighting", LOSS_WEIGHTINGS), ("panel_model", PANEL_MODELS),
                               ("processor", PROCESSORS), ("part_identity", PART_IDENTITIES),
-                              ("origin", ORIGINS)):
+                              ("origin", ORIGINS), ("reach", REACHES)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"formulation: {name}={getattr(self, name)!r} must be one of {allowed}")
+        for name in ("reach_levels", "reach_slices", "reach_heads"):
+            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
+                raise ValueError(f"formulation: {name}={getattr(self, name)!r} must be an integer >= 1")
         if self.panel_model == "quasi_static" and not (self.rigid_ball and self.panel_target == "total_displacement"):
             raise ValueError("formulation: panel_model='quasi_static' needs rigid_ball=True and "
                              f"panel_target='total_displacement' (got rigid_ball={self.rigid_ball}, "
@@ -263,6 +276,12 @@ class Formulation:
     def node_extra(self) -> int:
         """Node input channels beyond the features' own and the scene features (the ball state)."""
         return BALL_STATE_CHANNELS if self.panel_model == "quasi_static" else 0
+
+    @property
+    def hierarchy_levels(self) -> int:
+        """Coarse levels the graph inputs must carry (:func:`pcmgn_jax.mgn.inputs.design_topology`):
+        ``reach_levels`` for ``reach='multiscale'``, else 0."""
+        return self.reach_levels if self.reach == "multiscale" else 0
 
     @property
     def decoder_condition(self) -> int:

@@ -68,6 +68,8 @@ class Topology:
                                   or None: their highest reference point is the origin of
                                   ``Formulation.origin='contact_top'`` (taken from the points, so a
                                   morphed mesh moves it)
+    hierarchy:      tuple of :class:`pcmgn_jax.mgn.hierarchy.Level`, the mesh graph's bi-stride coarse
+                                  levels (``Formulation.reach='multiscale'``), or None (no levels)
     """
 
     node_type: np.ndarray
@@ -78,6 +80,7 @@ class Topology:
     axis: np.ndarray
     scene_features: np.ndarray | None = None
     top_nodes: np.ndarray | None = None
+    hierarchy: tuple | None = None
 
     @property
     def n_node(self) -> int:
@@ -129,12 +132,13 @@ def with_scene_features(topology: Topology, rows) -> Topology:
     return topology.replace(scene_features=rows.copy())
 
 
-def topology_from_trajectory(traj, scene_features: tuple = ()) -> Topology:
+def topology_from_trajectory(traj, scene_features: tuple = (), levels: int = 0) -> Topology:
     """Topology of a :class:`pcmgn_jax.trajectory.Trajectory` (n_parts from its scene/part names), with the
     scene features ``scene_features`` (names, :data:`pcmgn_jax.mgn.formulation.SCENE_FEATURES`) read from
-    its meta['scene'] (:func:`pcmgn_jax.mgn.inputs.design_topology`)."""
+    its meta['scene'] and ``levels`` coarse levels (:func:`pcmgn_jax.mgn.inputs.design_topology`)."""
     from pcmgn_jax.mgn.inputs import design_topology
-    return design_topology(traj, traj.meta["scene"] if scene_features else traj.meta.get("scene"), scene_features)
+    return design_topology(traj, traj.meta["scene"] if scene_features else traj.meta.get("scene"), scene_features,
+                           levels=levels)
 
 
 def n_parts_of(traj) -> int:
@@ -228,7 +232,13 @@ def mesh_edge_features(topology: Topology, points, displacement, features: str =
               relative displacement and stretch (dimensionless, ~1e-4..1e-2), the deformation on its own
               scale. The stretch is formed as (2 u_ij.d + |d|^2) / (L (|x_ij| + L)), free of cancellation.
     """
-    s, r = jnp.asarray(topology.mesh_senders), jnp.asarray(topology.mesh_receivers)
+    return edge_features(topology.mesh_senders, topology.mesh_receivers, points, displacement, features)
+
+
+def edge_features(senders, receivers, points, displacement, features: str = "paper") -> jnp.ndarray:
+    """(E, 6) :func:`mesh_edge_features` of the edges (senders, receivers) (node numbers of ``points``):
+    the mesh's, or a coarse level's (:func:`level_edges`)."""
+    s, r = jnp.asarray(senders), jnp.asarray(receivers)
     points = jnp.asarray(points, jnp.float32)
     displacement = jnp.asarray(displacement, jnp.float32)
     u_ij = points[s] - points[r]
@@ -277,11 +287,37 @@ def build_graph(topology: Topology, *, points, displacement, velocity, contact,
     cont = EdgeSet(features=contact_edge_features(points, displacement, contact.senders,
                                                   contact.receivers, contact.mask),
                    senders=contact.senders, receivers=contact.receivers, mask=contact.mask)
+    edges = {"mesh": mesh, "contact": cont}
+    if topology.hierarchy is not None:
+        edges.update(level_edges(topology.hierarchy, points, displacement, features))
     return jraph.GraphsTuple(
         nodes=node_features(topology, points, displacement, velocity, features, node_extra, identity, origin,
                             None if layout is None else layout.node_graph),
-        edges={"mesh": mesh, "contact": cont},
+        edges=edges,
         senders=mesh.senders, receivers=mesh.receivers,
         n_node=jnp.array([n], jnp.int32) if layout is None else jnp.asarray(layout.n_node),
         n_edge=jnp.array([mesh.senders.shape[0]], jnp.int32) if layout is None else jnp.asarray(layout.n_edge),
         globals=None)
+
+
+def level_edges(hierarchy, points, displacement, features: str = "paper") -> dict:
+    """The coarse levels (:mod:`pcmgn_jax.mgn.hierarchy`) as edge sets of the graph, for l = 1..L:
+
+    ``coarse{l}``  the level's edges (level-local numbers), features :func:`edge_features` of their
+                   mesh nodes (raw SI, normalised with the mesh-edge statistics)
+    ``pool{l}``    one featureless edge per level-(l-1) node: sender its number, receiver its cluster
+    ``nodes{l}``   one featureless self edge per level-l node, sender = receiver = its mesh node number
+    """
+    out = {}
+    for k, lv in enumerate(hierarchy, start=1):
+        nodes, s, r = jnp.asarray(lv.nodes), jnp.asarray(lv.senders), jnp.asarray(lv.receivers)
+        mask = jnp.asarray(lv.edge_mask)
+        feats = edge_features(nodes[s], nodes[r], points, displacement, features)
+        out[f"coarse{k}"] = EdgeSet(jnp.where(mask[:, None], feats, 0.0), s, r, mask)
+        parent = jnp.asarray(lv.parent)
+        prev_mask = jnp.ones(parent.shape, bool) if k == 1 else jnp.asarray(hierarchy[k - 2].node_mask)
+        out[f"pool{k}"] = EdgeSet(jnp.zeros(parent.shape + (0,), jnp.float32),
+                                  jnp.arange(parent.shape[0], dtype=jnp.int32), parent, prev_mask)
+        out[f"nodes{k}"] = EdgeSet(jnp.zeros(nodes.shape + (0,), jnp.float32), nodes, nodes,
+                                   jnp.asarray(lv.node_mask))
+    return out

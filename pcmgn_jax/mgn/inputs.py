@@ -26,6 +26,7 @@ from typing import NamedTuple
 import numpy as np
 
 from pcmgn_jax.mgn import contact as contact_lib
+from pcmgn_jax.mgn.hierarchy import build_levels
 from pcmgn_jax.mgn.graphs import (
     Topology,
     make_topology,
@@ -76,12 +77,15 @@ def with_scene(topology: Topology, scene, names, design=None) -> Topology:
     return with_scene_features(topology, rows)
 
 
-def design_topology(mesh, scene=None, scene_features=(), *, n_parts: int | None = None) -> Topology:
+def design_topology(mesh, scene=None, scene_features=(), *, n_parts: int | None = None, levels: int = 0) -> Topology:
     """The topology of ``mesh`` (n_parts: :func:`n_parts_for`) with the scene features ``scene_features``
-    (names, :data:`pcmgn_jax.mgn.formulation.SCENE_FEATURES`) of ``scene``, and (with a scene) its
-    contact layer's nodes (``top_nodes``, :func:`pcmgn_jax.mgn.graphs.origin_height`)."""
+    (names, :data:`pcmgn_jax.mgn.formulation.SCENE_FEATURES`) of ``scene``, (with a scene) its
+    contact layer's nodes (``top_nodes``, :func:`pcmgn_jax.mgn.graphs.origin_height`), and ``levels``
+    bi-stride coarse levels (``Formulation.hierarchy_levels``; :func:`pcmgn_jax.mgn.hierarchy.build_levels`)."""
     topo = make_topology(points=mesh.points, cells=mesh.cells, node_type=mesh.node_type,
                          n_parts=n_parts_for(mesh, scene) if n_parts is None else n_parts)
+    if levels:
+        topo = topo.replace(hierarchy=build_levels(topo.mesh_senders, topo.mesh_receivers, topo.n_node, levels))
     if scene is not None:
         _, panel_part = contact_lib.contact_parts(_scene_obj(scene))
         topo = topo.replace(top_nodes=np.asarray(mesh.node_type) == panel_part)
@@ -109,11 +113,11 @@ def contact_index(mesh, scene, *, radius: float | None = None, positions=(), cap
 
 def graph_inputs(mesh, scene, *, scene_features=(), radius: float | None = None, positions=(),
                  capacity_factor: float = 2.0, capacity: int | None = None,
-                 n_parts: int | None = None) -> GraphInputs:
+                 n_parts: int | None = None, levels: int = 0) -> GraphInputs:
     """A design's mesh + scene -> :class:`GraphInputs` (topology with its scene features, contact index,
     float32 reference points). See the module docstring for the rule; arguments as in
     :func:`design_topology` and :func:`contact_index`."""
-    return GraphInputs(topology=design_topology(mesh, scene, scene_features, n_parts=n_parts),
+    return GraphInputs(topology=design_topology(mesh, scene, scene_features, n_parts=n_parts, levels=levels),
                        index=contact_index(mesh, scene, radius=radius, positions=positions,
                                            capacity_factor=capacity_factor, capacity=capacity),
                        points=np.asarray(mesh.points, np.float32))

@@ -16,6 +16,12 @@
   W_s v_s + W_r v_r + W_e e; W_s v and W_r v are computed once per node and gathered by senders /
   receivers instead of projecting the concatenated (E, 3L) matrix.
 
+- ``reach`` (docs/design.md §5.3): ``local``, the processor above; ``multiscale`` / ``attention``, a
+  global block (:class:`pcmgn_jax.mgn.multiscale.VCycle` over the graph's bi-stride coarse levels /
+  :class:`pcmgn_jax.mgn.attention.PhysicsAttention` over learned slices) after every ``GLOBAL_EVERY``-th
+  message-passing step and after the last (:func:`global_block_steps`), its output added to the node
+  latents; the mesh and contact edge latents pass the blocks unchanged. ``local`` builds exactly the
+  paper's modules (the same parameters, the same outputs).
 - ``decoder_condition`` = k > 0 (formulation ``processor='per_design'``): the last k node channels (the
   ball's state) bypass the encoder and the processor and enter the decoder, whose first layer is
   W_v v + W_c c + b. The processor's latents and W_v v + b (:meth:`EncodeProcessDecode.decoder_base`)
@@ -35,43 +41,18 @@ import jax
 import jax.numpy as jnp
 import jraph
 
+from pcmgn_jax.mgn.attention import PhysicsAttention, node_graph_of
+from pcmgn_jax.mgn.layers import MLP, EdgeFunction
+from pcmgn_jax.mgn.multiscale import VCycle, level_count
+
 EDGE_SETS = ("mesh", "contact")
+GLOBAL_EVERY = 4  # reach != 'local': a global block after every 4th message-passing step and after the last
 
 
-class MLP(nn.Module):
-    """``hidden_layers`` x Dense(latent)+ReLU, Dense(out), optional LayerNorm."""
-
-    latent_size: int
-    output_size: int
-    hidden_layers: int = 2
-    layer_norm: bool = True
-
-    @nn.compact
-    def __call__(self, x):
-        for _ in range(self.hidden_layers):
-            x = nn.relu(nn.Dense(self.latent_size)(x))
-        x = nn.Dense(self.output_size)(x)
-        return nn.LayerNorm()(x) if self.layer_norm else x
-
-
-class EdgeFunction(nn.Module):
-    """Edge update MLP on [v_sender, v_receiver, e] with the concat trick in the first layer."""
-
-    latent_size: int
-    hidden_layers: int = 2
-
-    @nn.compact
-    def __call__(self, nodes, edges, senders, receivers):
-        if self.hidden_layers < 1:
-            raise ValueError(f"hidden_layers must be >= 1 for the concat trick, got {self.hidden_layers}")
-        proj_s = nn.Dense(self.latent_size, use_bias=False, name="sender_proj")(nodes)
-        proj_r = nn.Dense(self.latent_size, use_bias=False, name="receiver_proj")(nodes)
-        x = nn.Dense(self.latent_size, name="edge_proj")(edges) + proj_s[senders] + proj_r[receivers]
-        x = nn.relu(x)
-        for _ in range(self.hidden_layers - 1):
-            x = nn.relu(nn.Dense(self.latent_size)(x))
-        x = nn.Dense(self.latent_size)(x)
-        return nn.LayerNorm()(x)
+def global_block_steps(steps: int) -> tuple[int, ...]:
+    """The message-passing steps (1-based) after which a global block runs: every ``GLOBAL_EVERY``-th
+    and the last (so the decoder always reads latents that saw the whole graph)."""
+    return tuple(i for i in range(1, steps + 1) if i % GLOBAL_EVERY == 0 or i == steps)
 
 
 class ConditionedDecoder(nn.Module):
@@ -108,6 +89,10 @@ class EncodeProcessDecode(nn.Module):
     edge_sets: Sequence[str] = EDGE_SETS
     sorted_receivers: Sequence[str] = ("mesh",)
     decoder_condition: int = 0  # last node channels handed to the decoder, not the encoder (module docstring)
+    reach: str = "local"        # local | multiscale | attention: the global blocks (module docstring)
+    reach_levels: int = 4       # multiscale: coarse levels of each V-cycle
+    reach_slices: int = 32      # attention: learned slices
+    reach_heads: int = 4        # attention: heads
 
     def setup(self):
         if self.latent_size < 1 or self.message_passing_steps < 0 or self.mlp_layers < 1:
@@ -120,6 +105,18 @@ class EncodeProcessDecode(nn.Module):
         self.edge_fns = [{k: EdgeFunction(L, H, name=f"step{i}_{k}_edge") for k in self.edge_sets}
                          for i in range(self.message_passing_steps)]
         self.node_fns = [MLP(L, L, H, name=f"step{i}_node") for i in range(self.message_passing_steps)]
+        after = global_block_steps(self.message_passing_steps)
+        if self.reach == "multiscale":
+            self.level_encoders = {str(lv): MLP(L, L, H, name=f"coarse{lv}_edge_encoder")
+                                   for lv in range(1, self.reach_levels + 1)}
+            self.global_blocks = [VCycle(L, self.reach_levels, H, name=f"vcycle{i}") for i in after]
+        elif self.reach == "attention":
+            self.global_blocks = [PhysicsAttention(L, self.reach_slices, self.reach_heads, H, name=f"attention{i}")
+                                  for i in after]
+        elif self.reach != "local":
+            raise ValueError(f"reach must be 'local', 'multiscale' or 'attention', got {self.reach!r}")
+        if self.reach != "local" and self.message_passing_steps < 1:
+            raise ValueError(f"reach={self.reach!r} needs message_passing_steps >= 1 (its blocks follow them)")
         if self.decoder_condition:
             self.decoder = ConditionedDecoder(L, self.output_size, H, name="decoder")
         else:
@@ -136,9 +133,25 @@ class EncodeProcessDecode(nn.Module):
         nodes = graph.nodes[:, :-self.decoder_condition] if self.decoder_condition else graph.nodes
         v = self.node_encoder(nodes)
         e = {k: self.edge_encoders[k](graph.edges[k].features) for k in self.edge_sets}
+        block = self._global_block(graph, n)
+        after = global_block_steps(self.message_passing_steps)
         for i in range(self.message_passing_steps):
             v, e = self._process_step(i, v, e, graph, n)
+            if block is not None and i + 1 in after:
+                v = block(after.index(i + 1), v)
         return v
+
+    def _global_block(self, graph, n):
+        """``block(j, v) -> v``: the j-th global block of ``reach`` on this graph, or None (local)."""
+        if self.reach == "multiscale":
+            level_count(graph, self.reach_levels)
+            coarse = {lv: self.level_encoders[str(lv)](graph.edges[f"coarse{lv}"].features)
+                      for lv in range(1, self.reach_levels + 1)}
+            return lambda j, v: self.global_blocks[j](v, graph, coarse)
+        if self.reach == "attention":
+            node_graph = node_graph_of(graph.n_node, n)
+            return lambda j, v: self.global_blocks[j](v, node_graph, graph.n_node.shape[0])
+        return None
 
     def decoder_base(self, graph: jraph.GraphsTuple) -> jnp.ndarray:
         """(N, latent) the conditioned decoder's design-only part, W_v latents + b."""

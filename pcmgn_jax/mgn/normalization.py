@@ -4,7 +4,10 @@ Statistics are per channel *and per node type* (rows: node types, the last one t
 formulation can normalise each part on its own scale (``per_part``) or all parts on one scale
 (``global``, the paper: every row then holds the same all-node statistics). Node channels that are
 one number per part (a part's own material) use the all-node statistics in every row either way. Mesh-edge statistics are
-indexed by the edge's receiver type; contact edges have one row (they join two parts).
+indexed by the edge's receiver type; contact edges have one row (they join two parts). A multi-scale
+graph's coarse-level edges (:func:`pcmgn_jax.mgn.graphs.level_edges`) are normalised with the mesh-edge
+statistics of their receiver's mesh node (a coarse edge spans ~2^l mesh edges: its length channel reads
+O(2^l), which its level's own encoder takes in).
 
 Layout (T = node types, shapes of the float32 arrays)::
 
@@ -147,7 +150,13 @@ def normalize_graph(stats: Stats, graph: jraph.GraphsTuple, node_type) -> jraph.
     cont: EdgeSet = graph.edges["contact"]
     feats = (cont.features - stats.contact_mean) / stats.contact_std
     cont = cont._replace(features=jnp.where(cont.mask[..., None], feats, 0.0))
-    return graph._replace(nodes=nodes, edges={"mesh": mesh, "contact": cont})
+    edges = {**graph.edges, "mesh": mesh, "contact": cont}
+    for key, es in graph.edges.items():  # coarse levels (graphs.level_edges): the mesh-edge statistics
+        if key.startswith("coarse"):
+            rt = node_type[graph.edges["nodes" + key[len("coarse"):]].senders[es.receivers]]
+            feats = (es.features - stats.mesh_mean[rt]) / stats.mesh_std[rt]
+            edges[key] = es._replace(features=jnp.where(es.mask[:, None], feats, 0.0))
+    return graph._replace(nodes=nodes, edges=edges)
 
 
 def normalize_last_node_channels(stats: Stats, node_type, x):

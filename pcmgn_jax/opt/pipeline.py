@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from pcmgn_jax.lock import hold
+
 
 def result_tag(surrogate: str, method: str, objective: str) -> str:
     """The result's file stem under RUN/optimize: ``<surrogate>_<method>[_<objective>]`` (no suffix for
@@ -19,10 +21,7 @@ def result_tag(surrogate: str, method: str, objective: str) -> str:
     return f"{surrogate}_{method}" + ("" if objective == "area_mean" else f"_{objective}")
 
 
-def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", objective: str = "area_mean",
-        pop: int = 100, gens: int = 50, starts: int = 4, iters: int = 20, screen: int = 0, seed: int = 0,
-        grid: int = -1, which: str = "best", check: bool = True, progress: bool = True,
-        ensemble: str = "", command: str = "") -> dict:
+def run(workdir: str | Path, *, surrogate: str = "mgn", **kw) -> dict:
     """Optimise the OCA thicknesses of the run in ``workdir`` on ``surrogate`` (mgn | nearest | poly2 | rbf | kriging |
     mop | auto, auto = mop with its CoP table in the result)
     with ``method`` (ga | gradient | slsqp) for the OLED objective ``objective`` (area_mean | node_mean |
@@ -35,7 +34,20 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", obje
     run's for the spread of an mgn optimum (:mod:`pcmgn_jax.opt.spread`; without: a residual GP's);
     ``command``: recorded in the result. Designs in the result
     in µm, objectives in MPa. Raises ``ValueError`` for ``screen`` without slsqp or data without a solver
-    preset, ``FileNotFoundError`` when ``workdir`` holds no config.json."""
+    preset; :class:`pcmgn_jax.mgn.checkpoint.MissingRun` (one line, nothing written) when ``workdir`` is no run
+    folder, holds no config.json or (``mgn``) no checkpoint. RUN/optimize is locked while it runs
+    (:func:`pcmgn_jax.lock.hold`: one optimisation writes there at a time)."""
+    from pcmgn_jax.mgn.checkpoint import require_run
+    require_run(workdir, checkpoint=surrogate == "mgn")
+    with hold(Path(workdir) / "optimize", "optimize"):
+        return _optimize(workdir, surrogate=surrogate, **kw)
+
+
+def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", objective: str = "area_mean",
+        pop: int = 100, gens: int = 50, starts: int = 4, iters: int = 20, screen: int = 0, seed: int = 0,
+        grid: int = -1, which: str = "best", check: bool = True, progress: bool = True,
+        ensemble: str = "", command: str = "") -> dict:
+    """:func:`run` once the run is checked and RUN/optimize locked."""
     import numpy as np
 
     from pcmgn_jax.eval.pipeline import run_splits

@@ -17,6 +17,7 @@ import numpy as np
 
 from pcmgn_jax import compile_cache
 from pcmgn_jax.config import FORMULATION_FIELDS, TrainConfig
+from pcmgn_jax.lock import hold
 
 
 def use_compilation_cache(folder: str | Path, min_compile_seconds: float = 1.0) -> None:
@@ -65,14 +66,20 @@ def _resumed_config(saved: TrainConfig, settings: dict) -> TrainConfig:
 def run_cell(workdir: str | Path, settings: dict, *, extra_data: dict[str, str] | None = None) -> dict:
     """Train (unless finished) and evaluate; return the test metrics plus ``train_seconds``,
     ``checkpoint_step`` (:func:`checkpoint_step`) and, for each ``extra_data`` {name: directory}, the
-    metrics of the evaluation on that directory under ``eval_<name>``."""
+    metrics of the evaluation on that directory under ``eval_<name>``. The cell's folder is locked while it
+    runs (:func:`pcmgn_jax.lock.hold`)."""
+    workdir = Path(workdir)
+    check_settings(workdir, settings)
+    with hold(workdir, "study cell"):   # one writer per cell (another study on the same folder is refused)
+        return _run_cell(workdir, settings, extra_data)
+
+
+def _run_cell(workdir: Path, settings: dict, extra_data: dict[str, str] | None) -> dict:
     from pcmgn_jax import eval as evaluation
     from pcmgn_jax import train
     from pcmgn_jax.data.trajectory_io import atomic_write_json
     from pcmgn_jax.eval.evaluate import summary_table
     from pcmgn_jax.train.pipeline import fit_to_dataset
-    workdir = Path(workdir)
-    check_settings(workdir, settings)
     metrics = workdir / "eval" / "metrics.json"
     if not metrics.exists():
         resume = (workdir / "checkpoints" / "periodic").is_dir()

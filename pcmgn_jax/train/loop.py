@@ -12,7 +12,8 @@
   compete for best; if none did, the final state is kept as best and its meta says
   ``best_predates_penalty`` (the summary and a printed line too).
 - ``--resume`` continues from the latest periodic checkpoint with its statistics and buffer size; the
-  data order is a pure function of (seed, step), so the result equals an uninterrupted run.
+  data order is a pure function of (seed, step), so the result equals an uninterrupted run. A damaged
+  checkpoint, later ones and later log lines are dealt with first (:mod:`pcmgn_jax.train.resume`).
 - Batches: each step is one padded disjoint union of ``batch_graphs`` graphs per device
   (:func:`pcmgn_jax.train.sampling.gather_unions`), the meshes may differ; every union of the dataset
   has one static size (:class:`pcmgn_jax.train.setup.UnionSizes`), so ``train_chunk`` compiles once.
@@ -39,6 +40,7 @@ from pcmgn_jax.mgn import checkpoint
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.normalization import normalize_graph
 from pcmgn_jax.mgn.rollout import input_graph, rollout_designs
+from pcmgn_jax.train.resume import resume_point
 from pcmgn_jax.train.sampling import gather_unions, pair_table, sample_ids
 from pcmgn_jax.train.setup import Setup, graph_for, prepare
 from pcmgn_jax.train.sharding import DataParallel, data_parallel
@@ -120,17 +122,19 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
         check_resume(cfg, workdir)  # a resumed run keeps its config.json; a changed config is refused
     dp = data_parallel(cfg.devices, cfg.batch_graphs)  # None on one device; checks the batch split first
     periodic_dir = workdir / "checkpoints" / "periodic"
-    periodic = checkpoint.manager(periodic_dir, cfg.max_to_keep)
-    best_mgr = checkpoint.manager(workdir / "checkpoints" / "best", 1)
+    # damaged checkpoints set aside, later ones and log lines cut (by process 0 on several hosts)
+    at = resume_point(workdir, write=jax.process_index() == 0) if resume else None
+    periodic = checkpoint.manager(periodic_dir, cfg.max_to_keep, create=True)
+    best_mgr = checkpoint.manager(workdir / "checkpoints" / "best", 1, create=True)
 
-    if resume and periodic.latest_step() is not None:
-        _, meta = checkpoint.read_meta(periodic_dir)
+    if at is not None:
+        _, meta = checkpoint.read_meta(periodic_dir, at)
         setup = prepare(cfg, train_trajs, capacity=meta["contact_capacity"], radius=meta["contact_radius"],
-                        stats=checkpoint.restore_stats(periodic_dir))
+                        stats=checkpoint.restore_stats(periodic_dir, at))
         template = init_state(setup.spec, init_params(setup, train_trajs[0], cfg.seed))
-        saved, _, meta = checkpoint.restore(periodic_dir, template.to_dict())
+        saved, _, meta = checkpoint.restore(periodic_dir, template.to_dict(), at)
         state = TrainState.from_dict(saved)
-        best_val = meta.get("best_val") or float("inf")
+        best_val = (meta.get("best_val") or float("inf")) if best_mgr.latest_step() is not None else float("inf")
         mode = "a"
     else:
         if resume:

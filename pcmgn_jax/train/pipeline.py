@@ -7,14 +7,65 @@ Prepares the dataset (``cfg.resolved_dataset_dir``, generated with the solver wh
 """
 from __future__ import annotations
 
+import os
+import time
 from pathlib import Path
 
 from pcmgn_jax.config import TrainConfig
+from pcmgn_jax.lock import hold
 
 
-def run(cfg: TrainConfig, workdir: str | Path, *, resume: bool = False) -> dict:
+def run(cfg: TrainConfig, workdir: str | Path, *, resume: bool = False, overwrite: bool = False) -> dict:
     """Train ``cfg`` in ``workdir``; returns :func:`pcmgn_jax.train.loop.train`'s result dict
-    (``step``, ``seconds``, ``best_val_position_mae_um``, ...). ``resume``: continue from the last checkpoint."""
+    (``step``, ``seconds``, ``best_val_position_mae_um``, ...). ``resume``: continue from the last checkpoint.
+
+    A workdir that holds a run is never replaced silently (:func:`claim`): without ``resume`` it is refused
+    unless ``overwrite``, which moves the earlier run aside. The workdir is locked for the whole run
+    (:func:`pcmgn_jax.lock.hold`: one writer per workdir); nothing is written before every check passed."""
+    import jax
+
+    from pcmgn_jax.data.layout import dataset_source
+    workdir = Path(workdir)
+    if jax.process_index() != 0:     # several hosts: process 0 checks, locks and writes the run's files
+        return _run_locked(cfg, workdir, resume=resume)
+    claim(workdir, resume=resume, overwrite=overwrite, dry=True)   # refuse before the dataset is made
+    dataset_source(cfg.resolved_dataset_dir)                        # a folder that is no dataset: refused here
+    with hold(workdir, "train"):
+        claim(workdir, resume=resume, overwrite=overwrite)
+        return _run_locked(cfg, workdir, resume=resume)
+
+
+RUN_FILES = ("config.json", "metrics.jsonl", "checkpoints")   # what makes a folder hold a run worth keeping
+
+
+def claim(workdir: Path, *, resume: bool, overwrite: bool, dry: bool = False) -> None:
+    """Check that training may write into ``workdir``: ValueError naming the folder and the flags when it
+    holds a run (:data:`RUN_FILES`) and neither ``resume`` nor ``overwrite`` is given, or when both are;
+    with ``overwrite`` (and not ``dry``) the earlier run's files are moved to ``WORKDIR.old-<UTC time>``
+    (said on stdout); nothing is deleted. A file where the folder should be is refused."""
+    if resume and overwrite:
+        raise ValueError("--resume and --overwrite exclude each other: continue the run, or start it over")
+    if workdir.exists() and not workdir.is_dir():
+        raise ValueError(f"--workdir {workdir}: exists and is not a folder")
+    found = [n for n in RUN_FILES if (workdir / n).exists()]
+    if not found or resume:
+        return
+    if not overwrite:
+        raise ValueError(f"{workdir}: holds a run ({', '.join(found)}); continue it with --resume, or start over "
+                         "with --overwrite (moves it aside to WORKDIR.old-<time>)")
+    if dry:
+        return
+    old = workdir.with_name(f"{workdir.name}.old-{time.strftime('%Y%m%d-%H%M%S', time.gmtime())}")
+    if old.exists():
+        old = old.with_name(f"{old.name}-{os.getpid()}")
+    old.mkdir()
+    for p in sorted(workdir.iterdir()):
+        if p.name != ".lock":                  # the lock stays with the folder it guards
+            os.replace(p, old / p.name)
+    print(f"--overwrite: moved the earlier run in {workdir} to {old}")
+
+
+def _run_locked(cfg: TrainConfig, workdir: Path, *, resume: bool) -> dict:
     from pcmgn_jax.data.layout import IMPORTED, split_stems
     from pcmgn_jax.data.splits import load_splits, prepare_dataset
     from pcmgn_jax.train import loop as training

@@ -135,10 +135,10 @@ def union_batch(form: Formulation, trajs, graphs, pairs, *, dt: float, sizes, gr
     parts = [graphs[i] for i, _ in pairs]
     gb = batch_graphs([p.topology for p in parts], [p.index for p in parts], [trajs[i].points for i, _ in pairs],
                       min_nodes=sizes.nodes, min_edges=sizes.edges, min_slots=sizes.slots,
-                      min_capacity=sizes.capacity, min_ball=sizes.ball, min_panel=sizes.panel)
+                      min_capacity=sizes.capacity, min_ball=sizes.ball, min_panel=sizes.panel, min_levels=sizes.levels)
     got = (gb.points.shape[0], gb.topology.mesh_senders.shape[0], gb.layout.n_node.shape[0] - 1,
-           gb.index.capacity)
-    if got != (sizes.nodes, sizes.edges, design_slots(sizes.slots), sizes.capacity):
+           gb.index.capacity, tuple((lv.n_node, lv.senders.shape[0]) for lv in gb.topology.hierarchy or ()))
+    if got != (sizes.nodes, sizes.edges, design_slots(sizes.slots), sizes.capacity, tuple(sizes.levels)):
         raise ValueError(f"union of trajectories {[int(i) for i, _ in pairs]} does not fit the dataset's size "
                          f"bucket {sizes} (got nodes, edges, slots, capacity {got})")
     G = gb.layout.n_node.shape[0]

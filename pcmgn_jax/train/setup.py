@@ -34,6 +34,7 @@ from pcmgn_jax.mgn.batching import bucket_size
 from pcmgn_jax.mgn.checkpoint import make_spec
 from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, across_part_channels, is_ball, model_inputs
 from pcmgn_jax.mgn.graphs import Topology, topology_from_trajectory
+from pcmgn_jax.mgn.hierarchy import level_sizes
 from pcmgn_jax.mgn.inputs import contact_radius, graph_inputs, with_scene
 from pcmgn_jax.mgn.normalization import Accumulator, Stats, TypedAccumulator, make_stats
 from pcmgn_jax.mgn.rollout import Spec, input_graph
@@ -78,6 +79,7 @@ class UnionSizes(NamedTuple):
     capacity: int            # contact edges per graph
     pen_ball: int            # penetration boundary nodes per graph
     pen_panel: int
+    levels: tuple = ()       # (nodes, edges) of every coarse level (reach='multiscale'), padding included
 
 
 class Setup(NamedTuple):
@@ -233,7 +235,8 @@ def mesh_key(traj) -> tuple:
 def graph_for(setup: Setup, traj) -> dict:
     """A trajectory outside the training split as a design for :func:`pcmgn_jax.mgn.rollout.rollout_designs`
     (its topology with its scene features, a contact index of the training radius and buffer size)."""
-    inp = graph_inputs(traj, traj.meta["scene"], scene_features=setup.spec.sim.formulation.scene_features,
+    form = setup.spec.sim.formulation
+    inp = graph_inputs(traj, traj.meta["scene"], scene_features=form.scene_features, levels=form.hierarchy_levels,
                        radius=setup.radius, capacity=setup.sizes.capacity)
     return inp._asdict()
 
@@ -268,7 +271,7 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
     shared, intervals = {}, []
     for key, members in groups.items():
         g_ref = train_trajs[members[0]]
-        topo, index, _ = graph_inputs(g_ref, scene, radius=r_w,
+        topo, index, _ = graph_inputs(g_ref, scene, radius=r_w, levels=form.hierarchy_levels,
                                       positions=[contact_positions(form, train_trajs[i]) for i in members],
                                       capacity_factor=cfg.contact_capacity_factor, capacity=capacity)
         pen_ball, pen_panel = np.zeros(0, np.int32), np.zeros(0, np.int32)
@@ -317,4 +320,7 @@ def union_sizes(graphs: Sequence[GraphParts], *, per_union: int, capacity: int) 
                       panel=bucket_size(max(len(g.index.panel_nodes) for g in graphs), 8),
                       capacity=bucket_size(capacity, 16),
                       pen_ball=bucket_size(max(len(g.pen_ball) for g in graphs), 8),
-                      pen_panel=bucket_size(max(len(g.pen_panel) for g in graphs), 8))
+                      pen_panel=bucket_size(max(len(g.pen_panel) for g in graphs), 8),
+                      levels=tuple((bucket_size(per_union * int(n) + 1, 16), bucket_size(per_union * int(e), 16))
+                                   for n, e in np.max([level_sizes(g.topology.hierarchy) for g in graphs], axis=0))
+                      if graphs[0].topology.hierarchy else ())

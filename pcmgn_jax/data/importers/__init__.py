@@ -1,4 +1,5 @@
-"""Importers: ANSYS Mechanical text exports, meshio meshes/time series, LS-DYNA d3plot -> Trajectory.
+"""Importers: ANSYS Mechanical text exports, meshio meshes/time series, LS-DYNA d3plot -> Trajectory
+(CalculiX ``.frd`` results: :mod:`pcmgn_jax.data.importers.frd` and :mod:`pcmgn_jax.data.calculix`).
 
 Every importer returns a validated :class:`~pcmgn_jax.trajectory.Trajectory` in SI units and writes
 nothing (write it with ``trajectory_io.write_trajectory``, which is atomic). Bad input raises
