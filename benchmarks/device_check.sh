@@ -30,7 +30,7 @@ SITE=${SITE:-/tmp/site}
 WORK=${WORK:-/tmp/pcmgn-device-check}
 TRAIN_PRESET=cpu
 TRAIN_FLAGS=${TRAIN_FLAGS:-}            # e.g. --num_steps=2000 to shrink the main job (say so in the report)
-SOLVER_ARGS="--presets cpu,paper --sizes 1,16,256 --frames 2 --repeats 2"
+SOLVER_ARGS="--presets cpu,paper --sizes 1,256,16 --frames 2 --repeats 2"   # 256 right after 1: the goal's ratio
 GPU_CHECK_ARGS="--solver-frames 10"
 STARTUP_ARGS="--conditions cold,warm --no-prime"   # (a) trained on the data: read cache built
 INSTALL=${DEVICE_CHECK_INSTALL:-1}
