@@ -14,9 +14,9 @@ time at which the first call of each compiled computation returned):
 - ``solver``: ``python -m experiments.generate --preset P --n_train 1 --n_test 0`` into a new folder:
   **first solver call** = the end of the first solver call (one design, the scene's whole trajectory).
 
-Three conditions (``--conditions``), in this order, each a new process of each command: ``off``
-(``PCMGN_JAX_CACHE=0``), ``cold`` (an empty cache folder) and ``warm`` (the same folder, filled by the cold
-run). Before the first, one untimed training process (cache off; ``--no-prime``: none) builds the dataset's
+Three conditions (``--conditions``), in this order, each a new process, command by command (training first,
+then the solver; each command with a cache folder of its own): ``off`` (``PCMGN_JAX_CACHE=0``), ``cold`` (an
+empty cache folder) and ``warm`` (the same folder, filled by the cold run). Before the first, one untimed training process (cache off; ``--no-prime``: none) builds the dataset's
 read cache and warms the OS file cache. The XLA compile seconds of each first call
 are reported beside (``xla_s``; ~0 when the program came from the cache). ``--data``: a dataset folder of the
 preset (made with the solver when missing; default a temporary folder). The JSON is rewritten after every
@@ -145,16 +145,18 @@ def main(argv=None) -> dict:
             save()
             print(json.dumps(result["skipped"]))
             return result
-    cache = work / "jax-cache"
     conditions = [c for c in CONDITIONS if c in a.conditions.split(",")]
     result["config"]["conditions"] = conditions
-    for cond in conditions:
-        env = dict(base_env)
-        if cond == "off":
-            env["PCMGN_JAX_CACHE"] = "0"
-        else:
-            env["PCMGN_JAX_CACHE_DIR"] = str(cache)
-        for kind in ("train", "solver"):
+    # command by command (its cold run, then its warm one: on a GPU lent for minutes the warm figure comes
+    # right after the cold one); each command has its own cache folder, so its cold run starts empty
+    for kind in ("train", "solver"):
+        cache = work / f"jax-cache-{kind}"
+        for cond in conditions:
+            env = dict(base_env)
+            if cond == "off":
+                env["PCMGN_JAX_CACHE"] = "0"
+            else:
+                env["PCMGN_JAX_CACHE_DIR"] = str(cache)
             if a.prime and cond == conditions[0] and kind == "train":  # prime: the dataset's read cache, the OS file cache
                 measure(kind, a, data, work, {**env, "PCMGN_JAX_CACHE": "0"}, left())
             if left() < 5:
@@ -167,7 +169,8 @@ def main(argv=None) -> dict:
             print(f"{cond:5s} {kind:6s} " + ", ".join(
                 f"{k} {v['s']:.1f} s (XLA {v['xla_s']:.1f} s)" for k, v in r.items()
                 if isinstance(v, dict)) + (f" error: {r['error']}" if "error" in r else ""), flush=True)
-    result["cache_bytes"] = sum(p.stat().st_size for p in cache.rglob("*") if p.is_file()) if cache.exists() else 0
+        result.setdefault("cache_bytes", {})[kind] = (sum(p.stat().st_size for p in cache.rglob("*") if p.is_file())
+                                                      if cache.exists() else 0)
     save()
     print(table(result))
     print(f"wrote {path} and {md_path}")

@@ -26,8 +26,9 @@ class SolverSettings:
     ``jax.enable_x64``); designs_per_call: designs of a batch integrated together in one
     compiled call (0 = the device's default, :func:`pcmgn_jax.sim.solver.designs_per_call`:
     64 on an accelerator, one at a time on CPU, where the vectorised batch of 8 runs at 0.7-0.8x
-    the per-design throughput of single runs: benchmarks/README §3); a call with fewer designs is
-    padded to this size, so every call shares one compilation."""
+    the per-design throughput of single runs: benchmarks/README §3); the last call of a batch
+    that needs several is padded to this size, so every call shares one compilation
+    (:func:`pcmgn_jax.sim.solver.call_size`)."""
 
     safety: float = 0.9
     penalty_factor: float = 1.0
