@@ -26,7 +26,7 @@ import numpy as np
 
 from pcmgn_jax.eval.response_surfaces import ParameterBox, PodGP, not_applicable
 from pcmgn_jax.eval.scene_inputs import TrainingScenes, trajectory_labels
-from pcmgn_jax.eval.surrogates import transfer_fields
+from pcmgn_jax.eval.surrogates import part_names_of, transfer_fields
 
 POD_ENERGY = 0.9999   # fraction of the centred snapshots' energy (sum of squared singular values) kept
 
@@ -68,6 +68,10 @@ class Rom:
 
     def _check_frames(self, trajs):
         for label, t in zip(trajectory_labels(trajs), trajs):
+            if part_names_of(t) != part_names_of(self.ref):
+                raise ValueError(f"rom: the meshes do not map: {label} has the parts {list(part_names_of(t))}, the "
+                                 f"reference {trajectory_labels([self.ref])[0]} {list(part_names_of(self.ref))} (a "
+                                 "stack of other layers has no place on the reference mesh)")
             if t.n_frames != self.ref.n_frames:
                 raise ValueError(f"rom: {label} has {t.n_frames} frames, the reference "
                                  f"{trajectory_labels([self.ref])[0]} {self.ref.n_frames}")
