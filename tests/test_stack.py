@@ -66,6 +66,45 @@ def test_graph_inputs_have_one_width_for_every_layer_count():
     assert len(set(widths.values())) == 1, widths
 
 
+def _synthetic_stack(count: int, seed: int, n_frames: int = 6):
+    """A trajectory on a real ``stack_tiny`` ROI mesh of a ``count``-layer stack: the ball moves down, the
+    panel dips under it, a stress bump (no solver: the training path's shapes and rules only)."""
+    from pcmgn_jax.sim.mesh import build_mesh, roi
+    from pcmgn_jax.trajectory import Trajectory
+    row = FAM.sample(1, seed, layer_counts=(count,))[0]
+    scene = _scene(row)
+    mesh, _ = roi(build_mesh(scene, "stack_tiny"), "stack_tiny")
+    dt = scene.output_dt
+    times = dt * np.arange(n_frames)
+    ph = np.sin(np.pi * times / times[-1])
+    ball = mesh.node_part == 0
+    shape = np.exp(-(mesh.points[:, 0] / 3e-4) ** 2) * ~ball
+    u = np.zeros((n_frames, mesh.n_nodes, 2))
+    u[:, ball, 1] = -2e-6 * ph[:, None]
+    u[:, :, 1] += -1e-6 * ph[:, None] * shape[None]
+    u[:, mesh.fixed[:, 1]] = 0.0
+    v = np.gradient(u, dt, axis=0)
+    vm = 1e7 * ph[:, None] * np.exp(-mesh.points[:, 0] / 2e-4)[None]
+    meta = {"scene": scene.to_dict(), "output_dt": dt, "part_names": list(scene.part_names), "design": {},
+            "scene_params": dict(zip(FAM.names, map(float, row))), "family": "stack_tiny", "name": f"s{count}"}
+    return Trajectory(points=mesh.points, cells=mesh.cells, cell_part=mesh.cell_part, node_part=mesh.node_part,
+                      node_type=mesh.node_type, times=times, displacement=u, velocity=v, von_mises=vm, meta=meta)
+
+
+def test_training_setup_takes_stacks_of_different_layer_counts():
+    from pcmgn_jax.train.setup import graph_for, prepare
+    cfg = TrainConfig.from_preset("stack_tiny")
+    five, seven, six = (_synthetic_stack(c, c) for c in (5, 7, 6))
+    setup = prepare(cfg, [five, seven])
+    assert np.shape(setup.stats.node_mean)[0] == 6                      # six role types, any layer count
+    widths = {g.topology.n_node_types for g in setup.graphs} | {graph_for(setup, six)["topology"].n_node_types}
+    assert widths == {6}
+    noisy = prepare(cfg.replace(noise_rel=1.0, noise_parts="panel"), [five, seven])   # sigma per role type
+    assert all(np.isfinite(g.sigma).all() for g in noisy.graphs)
+    with pytest.raises(ValueError, match="one set of node types"):     # part ids, without the roles: refused
+        prepare(cfg.replace(formulation=cfg.formulation.replace(part_identity="material")), [five, seven])
+
+
 def test_role_identity_refuses_per_layer_features():
     with pytest.raises(ValueError, match="per-layer"):
         TrainConfig.from_preset("stack_tiny", scene_features=("material", "layer_thickness"))

@@ -268,7 +268,10 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
     for i, t in enumerate(train_trajs):
         groups.setdefault(mesh_key(t), []).append(i)
     n_types = topology_from_trajectory(ref, identity=form.part_identity).n_node_types
-    rms = motion_rms(train_trajs, n_types) if cfg.noise_rel > 0 else None
+    rms = None
+    if cfg.noise_rel > 0:
+        types = [topology_from_trajectory(t, identity=form.part_identity).node_type for t in train_trajs]
+        rms = motion_rms(train_trajs, n_types, types)
     shared, intervals = {}, []
     for key, members in groups.items():
         g_ref = train_trajs[members[0]]
