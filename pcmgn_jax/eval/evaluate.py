@@ -166,7 +166,8 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
                                            kinds=EVALUATE_KINDS)
     if mgn_spread and train_trajs and "OLED" in scene.part_names:
         from pcmgn_jax.eval.ensemble import ResidualSpread, residual_spread_record, rollout_objectives
-        part = scene.part_names.index("OLED")
+        stacks = {tuple(t.meta.get("part_names") or scene.part_names) for t in list(train_trajs) + list(test_trajs)}
+        part = scene.part_names.index("OLED") if len(stacks) == 1 else None   # None: by name, per trajectory
         _, tv = mgn.rollout_trajectories(train_trajs)
         spread = ResidualSpread(train_trajs, rollout_objectives(train_trajs, tv, part), part=part)
         # the test predictions' objective, as _scores computed it above

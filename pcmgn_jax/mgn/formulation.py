@@ -99,6 +99,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from pcmgn_jax.mgn.part_rows import geometry_rows
+
 TARGETS = ("velocity", "displacement", "position", "acceleration", "total_displacement")
 NORMALIZATIONS = ("global", "per_part")
 FEATURES = ("paper", "strain")
@@ -170,31 +172,6 @@ def material_rows(scene: dict, node_type) -> np.ndarray:
         raise ValueError(f"scene feature 'material': node types must lie in 0..{len(table) - 1} for a scene of "
                          f"{len(parts) - 1} layers, got {node_type.min()}..{node_type.max()}")
     return np.asarray(table, np.float32)[node_type]
-
-
-def geometry_rows(scene: dict, name: str, node_type) -> np.ndarray:
-    """(N, 1) float32 [m] per-node stack geometry of each node's own part (ids as in :func:`material_rows`):
-    ``own_thickness`` its layer's thickness (0 on the ball), ``layer_depth`` its layer's top surface below the
-    contact layer's top (the sum of the thicknesses above it; 0 on the ball and the contact layer),
-    ``total_thickness`` the stack's total thickness (every node). None depends on a layer's index, so a
-    stack of any layer count gives the same width."""
-    thick = [float(layer["thickness"]) for layer in scene.get("layers") or ()]
-    if not thick:
-        raise ValueError(f"scene feature {name!r}: the scene has no layers")
-    if name == "own_thickness":
-        table = [0.0] + thick
-    elif name == "layer_depth":
-        table = [0.0] + list(np.cumsum([0.0] + thick[:-1]))
-    elif name == "total_thickness":
-        table = [sum(thick)] * (len(thick) + 1)
-    else:
-        raise ValueError(f"geometry_rows: unknown feature {name!r}")
-    table.append(table[-1])  # fixed nodes (node_type == n_parts) lie on the plate's bottom
-    node_type = np.asarray(node_type)
-    if node_type.size and (node_type.min() < 0 or node_type.max() >= len(table)):
-        raise ValueError(f"scene feature {name!r}: node types must lie in 0..{len(table) - 1} for a scene of "
-                         f"{len(thick)} layers, got {node_type.min()}..{node_type.max()}")
-    return np.asarray(table, np.float32)[node_type][:, None]
 
 
 def scene_feature_values(scene: dict, names, design=None):
