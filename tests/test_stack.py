@@ -167,7 +167,7 @@ def test_train_on_5_and_7_layers_evaluate_on_6(tmp_path):
     # one more 6-layer scene with a ball outside the family's radius range
     row = dict(zip(FAM.names, FAM.sample(1, 9, layer_counts=(6,))[0]), **{"ball.radius": 7.0e-3})
     assert generate.main(["--preset", "stack_tiny", "--out", str(data), "--split", "extrap", "--no_progress",
-                          "--scene_params", ",".join(f"{k}={v!r}" for k, v in row.items())]) == 0
+                          "--scene_params", ",".join(f"{k}={float(v)!r}" for k, v in row.items())]) == 0
     assert train.main(["--preset", "stack_tiny", f"--dataset_dir={data}", f"--workdir={run}",
                        "--num_steps=20", "--val_every=20", "--progress=False"]) == 0
     assert evaluate.main(["--workdir", str(run)]) == 0

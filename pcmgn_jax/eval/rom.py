@@ -50,14 +50,14 @@ class Rom:
         if not trajs:
             raise ValueError("rom: needs training trajectories")
         t0 = time.perf_counter()
+        self.ref = trajs[0]
+        self._check_frames(trajs)                             # one layer list, one window: else no map
         self.scenes = TrainingScenes(trajs)
         self.names, x = self.scenes.names, self.scenes.x
         self.box = ParameterBox(x, self.names, model=self.name)
         self.warnings = self.box.warnings                     # queries outside the box (for metrics.json)
         if (why := not_applicable("kriging", len(trajs), self.box.n_inputs)) is not None:
             raise ValueError(f"rom: {why}")
-        self.ref = trajs[0]
-        self._check_frames(trajs)
         u, vm = zip(*(self._carry(t, self.ref, t.displacement, t.von_mises) for t in trajs))
         u, vm = np.stack(u), np.stack(vm)                     # (B, T, N_ref, 2) [m], (B, T, N_ref) [Pa]
         self.u_scale, self.vm_scale = _spread(u), _spread(vm)
