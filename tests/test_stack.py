@@ -69,10 +69,14 @@ def test_graph_inputs_have_one_width_for_every_layer_count():
 def _synthetic_stack(count: int, seed: int, n_frames: int = 6):
     """A trajectory on a real ``stack_tiny`` ROI mesh of a ``count``-layer stack: the ball moves down, the
     panel dips under it, a stress bump (no solver: the training path's shapes and rules only)."""
+    row = FAM.sample(1, seed, layer_counts=(count,))[0]
+    return _synthetic(_scene(row), {"scene_params": dict(zip(FAM.names, map(float, row))), "family": "stack_tiny",
+                                    "name": f"s{count}"}, n_frames)
+
+
+def _synthetic(scene, meta, n_frames: int = 6):
     from pcmgn_jax.sim.mesh import build_mesh, roi
     from pcmgn_jax.trajectory import Trajectory
-    row = FAM.sample(1, seed, layer_counts=(count,))[0]
-    scene = _scene(row)
     mesh, _ = roi(build_mesh(scene, "stack_tiny"), "stack_tiny")
     dt = scene.output_dt
     times = dt * np.arange(n_frames)
@@ -85,8 +89,7 @@ def _synthetic_stack(count: int, seed: int, n_frames: int = 6):
     u[:, mesh.fixed[:, 1]] = 0.0
     v = np.gradient(u, dt, axis=0)
     vm = 1e7 * ph[:, None] * np.exp(-mesh.points[:, 0] / 2e-4)[None]
-    meta = {"scene": scene.to_dict(), "output_dt": dt, "part_names": list(scene.part_names), "design": {},
-            "scene_params": dict(zip(FAM.names, map(float, row))), "family": "stack_tiny", "name": f"s{count}"}
+    meta = {"scene": scene.to_dict(), "output_dt": dt, "part_names": list(scene.part_names), "design": {}, **meta}
     return Trajectory(points=mesh.points, cells=mesh.cells, cell_part=mesh.cell_part, node_part=mesh.node_part,
                       node_type=mesh.node_type, times=times, displacement=u, velocity=v, von_mises=vm, meta=meta)
 
@@ -103,6 +106,29 @@ def test_training_setup_takes_stacks_of_different_layer_counts():
     assert all(np.isfinite(g.sigma).all() for g in noisy.graphs)
     with pytest.raises(ValueError, match="one set of node types"):     # part ids, without the roles: refused
         prepare(cfg.replace(formulation=cfg.formulation.replace(part_identity="material")), [five, seven])
+
+
+def test_generate_records_every_stack_and_shards_alike(tmp_path):
+    from pcmgn_jax.data.dataset import ensure_dataset, load_manifest
+
+    def solve(scene, designs, *, preset):   # the solver's contract, without the solver: one stack per call
+        assert np.shape(designs) == (1, 0) and preset == "stack_tiny"
+        return [_synthetic(scene, {"wall_time_s": 0.1}, n_frames=3)]
+    kw = dict(preset="stack_tiny", n_train=3, n_test=2, seed=0, stack_split="e2", solve_fn=solve, progress=False,
+              batch=1)
+    whole = load_manifest(ensure_dataset(tmp_path / "whole", **kw))
+    assert whole["splits"]["train"]["origin"]["plan"] == "e2"
+    for split, counts in (("train", {5, 7}), ("test", {6})):
+        entries = whole["splits"][split]["trajectories"]
+        assert {len(e["layers"]) for e in entries} <= counts and all("OLED" in e["layers"] for e in entries)
+        assert all(list(e["scene_params"]) == list(FAM.names) and e["sha256"] for e in entries)
+        assert [len(e["layers"]) for e in entries] == [stack_layer_count(e["scene_params"]) for e in entries]
+    for k in (0, 1):
+        ensure_dataset(tmp_path / "sharded", shard=(k, 2), **kw)
+    merged = load_manifest(ensure_dataset(tmp_path / "sharded", merge=True, **kw))
+    strip = lambda m: [(e["name"], e["layers"], e["scene_params"]) for s in m["splits"].values()  # noqa: E731
+                       for e in s["trajectories"]]
+    assert strip(merged) == strip(whole)
 
 
 def test_role_identity_refuses_per_layer_features():

@@ -200,7 +200,10 @@ def _entry(split: str, i: int, design: np.ndarray, family: SceneFamily | None = 
     if family is not None:
         params = {k: float(v) for k, v in zip(family.names, design)}
         out["scene_params"] = params
-        design = np.asarray(family.scene(base, params).design)
+        one = family.scene(base, params)
+        design = np.asarray(one.design)
+        if isinstance(family, StackFamily):
+            out["layers"] = [layer.name for layer in one.layers]     # the stack's layer list, top to bottom
     out.update({"design_m": [float(v) for v in design], "design_um": [round(float(v) * 1e6, 6) for v in design],
                 "sha256": None, "wall_time_s": None})
     return out
