@@ -57,7 +57,7 @@ class GenerateArgs:
     shard: str | None = None                   # K/N: only shard K (0-based, 0..N-1) of N; writes a manifest part, not the manifest
     merge: bool = False                        # solve nothing: verify every trajectory of the shards, write the manifest
     pool: str | None = None                    # A,B,...: solve nothing; pool A's and B's train splits and A's test split into OUT
-    stack_split: Literal["e1", "e2", "e3"] = "e1"  # stack presets: e1 train/test alike, e2 train 5 & 7 layers / test 6, e3 test balls of radius 6.5-7.5 mm (pcmgn_jax.data.stack.PLANS)
+    stack_split: Literal["e1", "e2", "e3"] | None = None  # stack presets: e1 train/test alike, e2 train 5 & 7 layers / test 6, e3 test balls of radius 6.5-7.5 mm (pcmgn_jax.data.stack.PLANS); None: OUT's manifest's plan, else e1
 
 
 def preset_sizes(preset: str) -> tuple[int, int, int]:

@@ -117,17 +117,19 @@ def test_generate_records_every_stack_and_shards_alike(tmp_path):
     kw = dict(preset="stack_tiny", n_train=3, n_test=2, seed=0, stack_split="e2", solve_fn=solve, progress=False,
               batch=1)
     whole = load_manifest(ensure_dataset(tmp_path / "whole", **kw))
+    strip = lambda m: [(e["name"], e["layers"], e["scene_params"]) for s in m["splits"].values()  # noqa: E731
+                       for e in s["trajectories"]]
     assert whole["splits"]["train"]["origin"]["plan"] == "e2"
     for split, counts in (("train", {5, 7}), ("test", {6})):
         entries = whole["splits"][split]["trajectories"]
         assert {len(e["layers"]) for e in entries} <= counts and all("OLED" in e["layers"] for e in entries)
         assert all(list(e["scene_params"]) == list(FAM.names) and e["sha256"] for e in entries)
         assert [len(e["layers"]) for e in entries] == [stack_layer_count(e["scene_params"]) for e in entries]
+    resumed = {k: v for k, v in kw.items() if k != "stack_split"}     # as training calls it: the manifest's plan
+    assert strip(load_manifest(ensure_dataset(tmp_path / "whole", **resumed))) == strip(whole)
     for k in (0, 1):
         ensure_dataset(tmp_path / "sharded", shard=(k, 2), **kw)
     merged = load_manifest(ensure_dataset(tmp_path / "sharded", merge=True, **kw))
-    strip = lambda m: [(e["name"], e["layers"], e["scene_params"]) for s in m["splits"].values()  # noqa: E731
-                       for e in s["trajectories"]]
     assert strip(merged) == strip(whole)
 
 

@@ -246,7 +246,7 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
                    split: str | None = None, scene: Scene | None = None, batch: int = 0,
                    progress: bool = True, low: float = DESIGN_LOW, high: float = DESIGN_HIGH,
                    solve_fn: Callable[..., list[Trajectory]] | None = None, shard: tuple[int, int] | None = None,
-                   merge: bool = False, stack_split: str = "e1") -> Path:
+                   merge: bool = False, stack_split: str | None = None) -> Path:
     """Generate the missing trajectories of a dataset with the solver; return ``Path(out_dir)``.
 
     designs=None: splits ``train``/``test`` from one seeded LHS of n_train + n_test designs [m].
@@ -267,7 +267,8 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     verify every trajectory, write the manifest and delete the parts, or raise a DatasetError naming each
     missing design and its shard (nothing written). An unsharded run also deletes the parts once complete.
     ``stack_split``: a stack family's split plan (e1 | e2 | e3, :data:`pcmgn_jax.data.stack.PLANS`): how its
-    train and test scenes are drawn (other presets ignore it).
+    train and test scenes are drawn (other presets ignore it); None: the plan in OUT's manifest (so training,
+    which generates what is missing, resumes a dataset of any plan), else e1.
     """
     root = Path(out_dir)
     scene = scene if scene is not None else default_scene()
@@ -299,6 +300,9 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
             lhs = lhs_designs(n_train + n_test, seed=seed, low=low, high=high, dim=n_design)
             origin = {"kind": "lhs", "seed": int(seed), "n_total": n_train + n_test, "low_m": low, "high_m": high}
         elif isinstance(family, StackFamily):
+            if stack_split is None:
+                origin = ((load_manifest(root) or {}).get("splits", {}).get("train") or {}).get("origin") or {}
+                stack_split = origin.get("plan", "e1")
             try:
                 lhs = np.concatenate(family.sample_splits(n_train, n_test, seed, stack_split))
             except ValueError as err:
