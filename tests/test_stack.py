@@ -173,25 +173,41 @@ def _fake(name, scene, n=12):
 
 
 def test_rom_refuses_stacks_of_other_layers_by_name():
-    from pcmgn_jax.eval.rom import Rom
+    from pcmgn_jax.eval.rom import Rom, StackRom, fit_rom
     rows = [FAM.sample(1, s, layer_counts=(c,))[0] for s, c in ((0, 5), (1, 7), (2, 5))]
     trajs = [_fake(f"t{i}", _scene(r)) for i, r in enumerate(rows)]
     with pytest.raises(ValueError, match="rom: the meshes do not map"):
         Rom(trajs)
+    rom = fit_rom(trajs)                 # one rom per layer list: a 6-layer stack has none
+    assert isinstance(rom, StackRom) and sorted(len(p) - 1 for p in rom.groups) == [5, 7]
+    with pytest.raises(ValueError, match="rom: the meshes do not map: no training scene has the parts"):
+        rom.predict_trajectories([_fake("six", _scene(FAM.sample(1, 3, layer_counts=(6,))[0]))])
+
+
+def test_the_rom_answers_a_stack_from_the_training_stacks_of_its_layer_list():
+    from pcmgn_jax.eval.rom import StackRom, fit_rom
+    train = [_synthetic_stack(5, s) for s in (11, 12, 13)] + [_synthetic_stack(7, s) for s in (14, 15)]
+    query = _synthetic_stack(5, 16)
+    rom = fit_rom(train)
+    assert isinstance(rom, StackRom)
+    (u,), (vm,) = rom.predict_trajectories([query])
+    assert u.shape == query.displacement.shape and vm.shape == query.von_mises.shape
+    assert np.all(np.isfinite(u)) and np.all(np.isfinite(vm)) and list(rom.pod_modes) == ["CG/OCA1/OCA2/OLED/PLATE"]
 
 
 # ---- solver and end to end (slow) --------------------------------------------------------------------
-@pytest.mark.slow   # the solver for 4 tiny stacks, 20 training steps, an evaluation
+@pytest.mark.slow   # ~60 s: the solver for 6 tiny stacks, 20 training steps, two evaluations
 def test_train_on_5_and_7_layers_evaluate_on_6(tmp_path):
     from experiments import evaluate, generate, train
     from pcmgn_jax.data.layout import load_manifest
     data, run = tmp_path / "stacks", tmp_path / "run"
-    assert generate.main(["--preset", "stack_tiny", "--out", str(data), "--stack_split", "e2", "--n_train", "2",
+    assert generate.main(["--preset", "stack_tiny", "--out", str(data), "--stack_split", "e2", "--n_train", "3",
                           "--n_val", "1", "--n_test", "1", "--no_progress"]) == 0
     man = load_manifest(data)
     count = lambda e: stack_layer_count(e["scene_params"])  # noqa: E731
     assert {count(e) for e in man["splits"]["train"]["trajectories"]} == {5, 7}
     assert [count(e) for e in man["splits"]["test"]["trajectories"]] == [6]
+    assert {count(e) for e in man["splits"]["train"]["trajectories"][:3]} == {5, 7}   # the 3 trained on (then 1 val)
     # one more 6-layer scene with a ball outside the family's radius range
     row = dict(zip(FAM.names, FAM.sample(1, 9, layer_counts=(6,))[0]), **{"ball.radius": 7.0e-3})
     assert generate.main(["--preset", "stack_tiny", "--out", str(data), "--split", "extrap", "--no_progress",

@@ -66,6 +66,10 @@ class Rom:
         self.pod = PodGP(self.box.scale(x), Y, energy=energy)
         self.fit_seconds = time.perf_counter() - t0
 
+    @property
+    def pod_modes(self) -> int:
+        return int(self.pod.n_modes)
+
     def _check_frames(self, trajs):
         for label, t in zip(trajectory_labels(trajs), trajs):
             if part_names_of(t) != part_names_of(self.ref):
@@ -106,3 +110,48 @@ class Rom:
             us.append(u)
             vms.append(vm)
         return us, vms
+
+
+class StackRom:
+    """The rom where meshes map: one :class:`Rom` per layer list of the training scenes (a stack family),
+    each fitted on the training scenes with that list when a query first needs it; a query whose layer list
+    no training scene has raises ValueError (``rom: the meshes do not map``). ``fit_seconds`` sums the fits,
+    ``warnings`` pools theirs, ``pod_modes`` {layer list: modes}."""
+
+    name = "rom"
+
+    def __init__(self, train_trajs: Sequence, *, energy: float = POD_ENERGY):
+        self.groups: dict[tuple, list] = {}
+        for t in train_trajs:
+            self.groups.setdefault(part_names_of(t), []).append(t)
+        self.energy, self.roms, self.fit_seconds, self.warnings = energy, {}, 0.0, []
+
+    def _rom(self, parts: tuple, label: str) -> Rom:
+        if parts not in self.roms:
+            if parts not in self.groups:
+                raise ValueError(f"rom: the meshes do not map: no training scene has the parts {list(parts)} of "
+                                 f"{label} (a stack of other layers has no place on a training mesh)")
+            self.roms[parts] = Rom(self.groups[parts], energy=self.energy)
+            self.fit_seconds += self.roms[parts].fit_seconds
+        return self.roms[parts]
+
+    @property
+    def pod_modes(self) -> dict[str, int]:
+        return {"/".join(parts[1:]): int(r.pod.n_modes) for parts, r in self.roms.items()}
+
+    def predict_trajectories(self, trajs: Sequence) -> tuple[list, list]:
+        """As :meth:`Rom.predict_trajectories`, each trajectory by the rom of its own layer list."""
+        us, vms = [], []
+        for label, t in zip(trajectory_labels(trajs), trajs):
+            rom = self._rom(part_names_of(t), label)
+            (u,), (vm,) = rom.predict_trajectories([t])
+            us.append(u)
+            vms.append(vm)
+            self.warnings += [w for w in rom.warnings if w not in self.warnings]
+        return us, vms
+
+
+def fit_rom(train_trajs: Sequence, *, energy: float = POD_ENERGY) -> Rom | StackRom:
+    """A :class:`Rom` over training scenes of one layer list, else a :class:`StackRom`."""
+    return Rom(train_trajs, energy=energy) if len({part_names_of(t) for t in train_trajs}) <= 1 \
+        else StackRom(train_trajs, energy=energy)
