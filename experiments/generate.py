@@ -8,6 +8,7 @@
   python -m experiments.generate --preset paper --out data/paper --shard 3/8     # one task of an array job
   python -m experiments.generate --preset paper --out data/paper --merge         # after all shards: the manifest
   python -m experiments.generate --out data/family48 --pool data/family,data/family_extra   # solve nothing: pool
+  python -m experiments.generate --preset stack --out data/stack_e2 --stack_split e2   # stacks: 5 & 7 layers / 6
 
 ``--n_train`` counts training trajectories, validation excluded, as in ``experiments.train``: the train
 split gets n_train + n_val designs (``experiments.train --dataset_dir OUT`` then trains on n_train and
@@ -33,6 +34,7 @@ from pcmgn_jax.config import PRESETS as TRAIN_PRESETS
 from pcmgn_jax.data.dataset import (DESIGN_HIGH, DESIGN_LOW, FAMILIES, PRESETS, DatasetError, ensure_dataset,
                                     parse_designs, parse_scene_params)
 from pcmgn_jax.data.shards import parse_shard
+from pcmgn_jax.data.stack import StackFamily
 from pcmgn_jax.scene import Scene, default_scene
 
 
@@ -55,6 +57,7 @@ class GenerateArgs:
     shard: str | None = None                   # K/N: only shard K (0-based, 0..N-1) of N; writes a manifest part, not the manifest
     merge: bool = False                        # solve nothing: verify every trajectory of the shards, write the manifest
     pool: str | None = None                    # A,B,...: solve nothing; pool A's and B's train splits and A's test split into OUT
+    stack_split: Literal["e1", "e2", "e3"] | None = None  # stack presets: e1 train/test alike, e2 train 5 & 7 layers / test 6, e3 test balls of radius 6.5-7.5 mm (pcmgn_jax.data.stack.PLANS); None: OUT's manifest's plan, else e1
 
 
 def preset_sizes(preset: str) -> tuple[int, int, int]:
@@ -79,7 +82,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.scene_params is not None:
             if args.preset not in FAMILIES or designs is not None:
                 raise ValueError(f"--scene_params needs a scene-family preset ({', '.join(FAMILIES)}) and no --designs")
-            designs = parse_scene_params(args.scene_params, FAMILIES[args.preset].names)
+            designs = parse_scene_params(args.scene_params, FAMILIES[args.preset].names,
+                                         zero_ok=isinstance(FAMILIES[args.preset], StackFamily))
         if args.split and designs is None:
             raise ValueError("--split needs --designs or --scene_params")
         n_train, n_val, n_test = preset_sizes(args.preset)
@@ -90,7 +94,8 @@ def main(argv: list[str] | None = None) -> int:
                              n_test=n_test if args.n_test is None else args.n_test,
                              seed=args.seed, designs=designs, split=args.split, scene=scene,
                              batch=args.batch, progress=args.progress,
-                             low=args.low_um * 1e-6, high=args.high_um * 1e-6, shard=shard, merge=args.merge)
+                             low=args.low_um * 1e-6, high=args.high_um * 1e-6, shard=shard, merge=args.merge,
+                             stack_split=args.stack_split)
     except (DatasetError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -32,7 +32,7 @@ RESIDUAL_BALLS = ("baseline", "network")  # residual_ball: who moves the rigid b
 @dataclass(frozen=True)
 class TrainConfig:
     # ---- data -------------------------------------------------------------------------------
-    preset: str = "cpu"              # which preset filled the defaults (tiny | cpu | paper | family | family_tiny)
+    preset: str = "cpu"              # which preset filled the defaults (tiny | cpu | paper | family | family_tiny | stack | stack_tiny)
     data_preset: str = "cpu"         # mesh/solver preset handed to dataset.ensure_dataset
     dataset_dir: str = ""            # dataset root; "" -> data/<data_preset>
     n_train: int = 12                # training trajectories, validation excluded (the train split holds n_train + n_val); with --dataset_dir of a generated dataset: its manifest's unless given
@@ -294,6 +294,7 @@ def check_batch_split(batch_graphs: int, devices: int) -> None:
                          f"{devices * max(1, round(batch_graphs / devices))})")
 
 
+STACK_FEATURES = ("ball_radius", "material", "own_thickness", "layer_depth", "total_thickness")  # the stack presets' inputs
 PRESETS: dict[str, dict[str, Any]] = {
     # tests and smoke checks: tiny mesh, small model, < 1 min
     "tiny": dict(data_preset="tiny", n_train=3, n_val=1, n_test=2, latent_size=32,
@@ -331,4 +332,19 @@ PRESETS: dict[str, dict[str, Any]] = {
                         log_every=20, ckpt_every=60, val_every=60, formulation="default", lambda_pen=10.0,
                         noise_rel=1.0, noise_parts="panel", scene_features=("ball_radius", "layer_thickness"),
                         origin="support_top"),
+    # panel stacks of 5-7 layers (issue 40; pcmgn_jax.data.stack): inputs that do not depend on a layer's index
+    # (docs/design.md §5): six role node types (ball, contact layer, film, OLED, support, fixed) whatever the
+    # layer count, each node's own material, layer thickness and depth below the contact layer's top, the
+    # stack's total thickness, heights from the contact layer's top; the family preset's model and loss
+    "stack": dict(data_preset="stack", n_train=100, n_val=4, n_test=20, latent_size=64,
+                  message_passing_steps=8, epochs=1, num_steps=4000, steps_per_dispatch=25, batch_graphs=2,
+                  log_every=100, ckpt_every=1000, val_every=500, formulation="default",
+                  lambda_pen=0.0, lambda_start=0.5, noise_std=0.0, noise_rel=0.0, noise_parts="none",
+                  scene_features=STACK_FEATURES, part_identity="role", ema_decay=0.998, origin="contact_top"),
+    # tests and smoke checks of the stack path: tiny stacks, a small model, seconds
+    "stack_tiny": dict(data_preset="stack_tiny", n_train=4, n_val=1, n_test=2, latent_size=32,
+                       message_passing_steps=3, epochs=1, num_steps=40, steps_per_dispatch=20, batch_graphs=2,
+                       log_every=20, ckpt_every=40, val_every=40, formulation="default", lambda_pen=0.0,
+                       noise_std=0.0, noise_rel=0.0, noise_parts="none", scene_features=STACK_FEATURES,
+                       part_identity="role", origin="contact_top"),
 }

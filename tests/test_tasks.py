@@ -20,11 +20,11 @@ def test_rows_average_seeds_and_name_winners():
                                   "oled_objective_area_rel_error_pct_mean": "kriging"}
     assert winners(rows["b"])["position_mae_um"] == "MGN"
     text = task_table(rows, seeds={"a": 2})
-    assert "(d) zero-shot" in text and text.count("Not measured yet.") == 2 and "(2 seed(s) of the MGN)" in text
+    assert "(d) zero-shot" in text and text.count("Not measured yet.") == 3 and "(2 seed(s) of the MGN)" in text
     text = task_table(task_rows({"d.cg_thin": [_m(0.3, 2.0, 0.1, 0.05)], "d.cg_thick": [_m(0.3, 2.0, 0.1, 0.05)]}))
     assert "zero-shot (a parameter training held fixed): cg_thin" in text and ": cg_thick" in text
     with pytest.raises(ValueError, match="task must be one of"):
-        task_rows({"e": []})
+        task_rows({"f": []})
 
 
 def test_cli_writes_the_table_and_names_a_missing_file(tmp_path):

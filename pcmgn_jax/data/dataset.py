@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from pcmgn_jax.data import shards
+from pcmgn_jax.data.stack import STACK_FAMILIES, StackFamily
 from pcmgn_jax.data.layout import (
     DATASET_FORMAT,
     GENERATE,
@@ -115,9 +116,10 @@ class SceneFamily:
 # 400 µs window (evaluation reports the phases each test scene reaches).
 FAMILY_PARAMETERS = (("ball.radius", 4.0e-3, 6.0e-3), ("ball.velocity", 0.5, 0.75),
                      ("OCA1", 50e-6, 150e-6), ("OCA2", 50e-6, 150e-6), ("POL", 30e-6, 70e-6))
-FAMILIES: dict[str, SceneFamily] = {
+FAMILIES: dict[str, SceneFamily | StackFamily] = {
     "family": SceneFamily(FAMILY_PARAMETERS, n_frames=100),
     "family_tiny": SceneFamily(FAMILY_PARAMETERS, n_frames=20),   # tests and smoke runs: 80 µs
+    **STACK_FAMILIES,   # panel stacks of 5-7 layers, a padded parameter vector (pcmgn_jax.data.stack)
 }
 
 
@@ -138,10 +140,11 @@ def lhs_designs(n: int, *, seed: int, low=DESIGN_LOW, high=DESIGN_HIGH, dim: int
     return qmc.scale(sampler.random(int(n)), lo, hi).astype(np.float64)
 
 
-def parse_scene_params(text: str, names: Sequence[str]) -> np.ndarray:
+def parse_scene_params(text: str, names: Sequence[str], *, zero_ok: bool = False) -> np.ndarray:
     """Parse ``"ball.radius=3.5e-3,ball.velocity=0.8,OCA1=40e-6,OCA2=160e-6,POL=25e-6;..."`` (SI, scenes
     separated by ';') into (B, len(names)) rows in ``names``' order. ValueError naming the scene and the
-    parameter for a missing, unknown, repeated or non-positive value."""
+    parameter for a missing, unknown, repeated or non-positive value (``zero_ok``: negative; a stack's padded
+    row holds 0 for an absent layer)."""
     rows = []
     for i, chunk in enumerate(t for t in text.strip().strip(";").split(";") if t.strip()):
         got: dict[str, float] = {}
@@ -155,7 +158,7 @@ def parse_scene_params(text: str, names: Sequence[str]) -> np.ndarray:
                 got[key] = float(val)
             except ValueError:
                 raise ValueError(f"--scene_params: scene {i + 1}: {key}={val!r} is not a number") from None
-            if not math.isfinite(got[key]) or got[key] <= 0:
+            if not math.isfinite(got[key]) or got[key] < 0 or (got[key] == 0 and not zero_ok):
                 raise ValueError(f"--scene_params: scene {i + 1}: {key} must be finite and > 0, got {val}")
         if set(got) != set(names):
             raise ValueError(f"--scene_params: scene {i + 1} misses {sorted(set(names) - set(got))}")
@@ -197,7 +200,10 @@ def _entry(split: str, i: int, design: np.ndarray, family: SceneFamily | None = 
     if family is not None:
         params = {k: float(v) for k, v in zip(family.names, design)}
         out["scene_params"] = params
-        design = np.asarray(family.scene(base, params).design)
+        one = family.scene(base, params)
+        design = np.asarray(one.design)
+        if isinstance(family, StackFamily):
+            out["layers"] = [layer.name for layer in one.layers]     # the stack's layer list, top to bottom
     out.update({"design_m": [float(v) for v in design], "design_um": [round(float(v) * 1e6, 6) for v in design],
                 "sha256": None, "wall_time_s": None})
     return out
@@ -240,7 +246,7 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
                    split: str | None = None, scene: Scene | None = None, batch: int = 0,
                    progress: bool = True, low: float = DESIGN_LOW, high: float = DESIGN_HIGH,
                    solve_fn: Callable[..., list[Trajectory]] | None = None, shard: tuple[int, int] | None = None,
-                   merge: bool = False) -> Path:
+                   merge: bool = False, stack_split: str | None = None) -> Path:
     """Generate the missing trajectories of a dataset with the solver; return ``Path(out_dir)``.
 
     designs=None: splits ``train``/``test`` from one seeded LHS of n_train + n_test designs [m].
@@ -260,6 +266,9 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     instead of the manifest, so N shards can run at once into one directory. ``merge=True``: solve nothing;
     verify every trajectory, write the manifest and delete the parts, or raise a DatasetError naming each
     missing design and its shard (nothing written). An unsharded run also deletes the parts once complete.
+    ``stack_split``: a stack family's split plan (e1 | e2 | e3, :data:`pcmgn_jax.data.stack.PLANS`): how its
+    train and test scenes are drawn (other presets ignore it); None: the plan in OUT's manifest (so training,
+    which generates what is missing, resumes a dataset of any plan), else e1.
     """
     root = Path(out_dir)
     scene = scene if scene is not None else default_scene()
@@ -290,6 +299,16 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
         if family is None:
             lhs = lhs_designs(n_train + n_test, seed=seed, low=low, high=high, dim=n_design)
             origin = {"kind": "lhs", "seed": int(seed), "n_total": n_train + n_test, "low_m": low, "high_m": high}
+        elif isinstance(family, StackFamily):
+            if stack_split is None:
+                origin = ((load_manifest(root) or {}).get("splits", {}).get("train") or {}).get("origin") or {}
+                stack_split = origin.get("plan", "e1")
+            try:
+                lhs = np.concatenate(family.sample_splits(n_train, n_test, seed, stack_split))
+            except ValueError as err:
+                raise DatasetError(str(err)) from None
+            origin = {"kind": "stack", "plan": stack_split, "seed": int(seed), "n_total": n_train + n_test,
+                      "parameters": [list(p) for p in family.parameters]}
         else:
             lows, highs = (np.array([p[i] for p in family.parameters]) for i in (1, 2))
             lhs = lhs_designs(n_train + n_test, seed=seed, low=lows, high=highs, dim=len(lows))
@@ -305,8 +324,8 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
             raise DatasetError(f"designs must have shape (B>0, {n_design}) for {what}, got {designs.shape}"
                                + ("" if family is None else f" (preset {preset!r} is a scene family: give its "
                                                             "scene parameters, --scene_params)"))
-        if not np.all(np.isfinite(designs)) or np.any(designs <= 0):
-            raise DatasetError(f"designs must be finite values > 0 (SI) for {what}")
+        if not np.all(np.isfinite(designs)) or np.any(designs < 0 if isinstance(family, StackFamily) else designs <= 0):
+            raise DatasetError(f"designs must be finite values > 0 (SI; >= 0 in a stack's padded row) for {what}")
         plan[split] = (designs, {"kind": "explicit"})
     for name in plan:
         if not _SPLIT_RE.match(name):

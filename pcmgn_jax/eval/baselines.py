@@ -14,7 +14,9 @@ MGN), so every predictor is measured by one definition (:mod:`pcmgn_jax.eval.met
   (:class:`response_surfaces.ObjectiveSurface`; any meshes), scored directly on the objective; on one
   shared mesh also of the fields (:class:`response_surfaces.FieldSurface`), whose objective is kept under
   ``fields_oled_objective*``; ``mop`` adds ``mop`` (the chosen candidate and every candidate's CoP per reading)
-- ``rom``: POD of the fields on a reference mesh + a GP on the coefficients (:class:`rom.Rom`; any meshes)
+- ``rom``: POD of the fields on a reference mesh + a GP on the coefficients (:class:`rom.Rom`; any meshes of
+  one layer list; training stacks of several: one rom per layer list, :class:`rom.StackRom`, refusing a query
+  whose layer list no training scene has)
 - ``rom_contact`` (evaluate's tables, :data:`EVALUATE_KINDS`): the rom with the MGN rollout's hard contact
   (a rigid ball, the cover glass projected out of it: :func:`residual.rigid_contact`), so a
   baseline-corrected MGN (``residual_of=rom``) is measured against what the constraint alone gives
@@ -32,7 +34,7 @@ import numpy as np
 
 from pcmgn_jax.eval import metrics
 from pcmgn_jax.eval.response_surfaces import ExtrapolationWarning, FieldSurface, ObjectiveSurface
-from pcmgn_jax.eval.rom import Rom
+from pcmgn_jax.eval.rom import fit_rom
 from pcmgn_jax.eval.surrogates import FieldRegression, NearestScene, design_of
 
 KINDS = ("none", "nearest", "poly2", "rbf", "kriging", "mop", "rom")
@@ -81,7 +83,7 @@ def _fields(kind: str, train_trajs, test_trajs, shared: bool, scores: Callable) 
     """none / nearest / poly2 / rbf / rom: a field prediction, scored like the model."""
     designs = np.stack([design_of(t) for t in test_trajs]) if shared else None
     if kind in ("rom", "rom_contact"):
-        model = Rom(train_trajs)
+        model = fit_rom(train_trajs)
         t0 = time.perf_counter()
         pu, ps = model.predict_trajectories(test_trajs)
         if kind == "rom_contact":
@@ -101,7 +103,7 @@ def _fields(kind: str, train_trajs, test_trajs, shared: bool, scores: Callable) 
     out = {**_summary(scores(list(pu), list(ps))), "fit_seconds": model.fit_seconds,
            "predict_seconds_per_trajectory": seconds / len(test_trajs)}
     if kind in ("rom", "rom_contact"):
-        out.update(pod_modes=int(model.pod.n_modes), warnings=list(model.warnings))
+        out.update(pod_modes=model.pod_modes, warnings=list(model.warnings))
     return out
 
 

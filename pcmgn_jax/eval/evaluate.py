@@ -17,6 +17,8 @@ Metrics (definitions in :mod:`pcmgn_jax.eval.metrics`; SI in, reports in µm and
                                        (whose first call on a mesh compiles: benchmarks time it warm)
   residual_of, residual_ball           the baseline the network corrects ("" = none) and who moved the ball
   phases                               per trajectory: frame ranges of drop / contact / rebound / separated
+  warnings                             "stack range: ..." per stack scene number outside the stack family's
+                                       ranges (pcmgn_jax.data.stack.range_warnings); [] otherwise
 
 Phases from ground truth: contact while the ball's lowest boundary node is at or below the CG top
 (the CG top surface interpolated at that node's x) + ``contact_tol`` [m]; rebound when the ball's mean
@@ -29,6 +31,7 @@ from typing import Sequence
 
 import numpy as np
 
+from pcmgn_jax.data.stack import stack_warnings
 from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.eval import metrics, plots
 from pcmgn_jax.eval.baselines import EVALUATE_KINDS, READING_KEYS, baseline_metrics, objective_scores
@@ -79,17 +82,20 @@ def _scores(scene: Scene, trajs, pred_u, pred_vm, bnodes, pnodes) -> dict:
     true_u = [np.asarray(t.displacement, np.float64) for t in trajs]
     true_vm = [np.asarray(t.von_mises, np.float64) for t in trajs]
     out = metrics.field_metrics(pred_u, pred_vm, true_u, true_vm)
-    out["per_part"] = metrics.per_part_metrics(pred_u, pred_vm, true_u, true_vm, [t.node_part for t in trajs],
-                                               scene.part_names)
+    names = [tuple(t.meta.get("part_names") or scene.part_names) for t in trajs]
+    pooled = tuple(dict.fromkeys(n for ns in names for n in ns))   # stacks of several layer lists: parts by name
+    node_parts = [np.array([pooled.index(n) for n in ns])[np.asarray(t.node_part)] for ns, t in zip(names, trajs)]
+    out["per_part"] = metrics.per_part_metrics(pred_u, pred_vm, true_u, true_vm, node_parts, pooled)
     pen = []
     for b, t in enumerate(trajs):
         xy = np.asarray(t.points)[None] + np.asarray(pred_u[b])
         pen.append(metrics.penetration_stats(xy[:, bnodes[b]], xy[:, pnodes[b]]))
     out.update(metrics.penetration_summary(pen))
-    if "OLED" in scene.part_names:
+    if all("OLED" in ns for ns in names):
         # the paper's reading (node average) under the historical keys; the optimiser's default
-        # (section area mean) under oled_objective_area_*; each trajectory on its own mesh
-        part = scene.part_names.index("OLED")
+        # (section area mean) under oled_objective_area_*; each trajectory on its own mesh, the OLED found by
+        # name in each (a stack's OLED is not always the same part id)
+        part = scene.part_names.index("OLED") if len(set(names)) == 1 else None
         pred = {r: np.array([float(metrics.oled_objective_of(t, np.asarray(v), part=part, reading=r))
                              for t, v in zip(trajs, pred_vm)]) for r in READING_KEYS}
         out.update(objective_scores(trajs, pred, part=part))
@@ -152,13 +158,16 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
              contact_capacity=int(mgn.sim.index.capacity), code=code_version(),
              phases=[{k: list(v) for k, v in p.items()} for p in phases],
              window_has_all_phases=all(v[0] is not None for p in phases for v in p.values()))
+    # a stack scene outside the stack family's ranges (the model is answered there all the same): named here
+    m["warnings"] = stack_warnings(test_trajs)
     if train_trajs:
         m["baselines"] = baseline_metrics(train_trajs, test_trajs,
                                            lambda u, vm: _scores(scene, test_trajs, u, vm, bnodes, pnodes),
                                            kinds=EVALUATE_KINDS)
     if mgn_spread and train_trajs and "OLED" in scene.part_names:
         from pcmgn_jax.eval.ensemble import ResidualSpread, residual_spread_record, rollout_objectives
-        part = scene.part_names.index("OLED")
+        stacks = {tuple(t.meta.get("part_names") or scene.part_names) for t in list(train_trajs) + list(test_trajs)}
+        part = scene.part_names.index("OLED") if len(stacks) == 1 else None   # None: by name, per trajectory
         _, tv = mgn.rollout_trajectories(train_trajs)
         spread = ResidualSpread(train_trajs, rollout_objectives(train_trajs, tv, part), part=part)
         # the test predictions' objective, as _scores computed it above

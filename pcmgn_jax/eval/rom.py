@@ -26,7 +26,7 @@ import numpy as np
 
 from pcmgn_jax.eval.response_surfaces import ParameterBox, PodGP, not_applicable
 from pcmgn_jax.eval.scene_inputs import TrainingScenes, trajectory_labels
-from pcmgn_jax.eval.surrogates import transfer_fields
+from pcmgn_jax.eval.surrogates import part_names_of, transfer_fields
 
 POD_ENERGY = 0.9999   # fraction of the centred snapshots' energy (sum of squared singular values) kept
 
@@ -50,14 +50,14 @@ class Rom:
         if not trajs:
             raise ValueError("rom: needs training trajectories")
         t0 = time.perf_counter()
+        self.ref = trajs[0]
+        self._check_frames(trajs)                             # one layer list, one window: else no map
         self.scenes = TrainingScenes(trajs)
         self.names, x = self.scenes.names, self.scenes.x
         self.box = ParameterBox(x, self.names, model=self.name)
         self.warnings = self.box.warnings                     # queries outside the box (for metrics.json)
         if (why := not_applicable("kriging", len(trajs), self.box.n_inputs)) is not None:
             raise ValueError(f"rom: {why}")
-        self.ref = trajs[0]
-        self._check_frames(trajs)
         u, vm = zip(*(self._carry(t, self.ref, t.displacement, t.von_mises) for t in trajs))
         u, vm = np.stack(u), np.stack(vm)                     # (B, T, N_ref, 2) [m], (B, T, N_ref) [Pa]
         self.u_scale, self.vm_scale = _spread(u), _spread(vm)
@@ -66,8 +66,16 @@ class Rom:
         self.pod = PodGP(self.box.scale(x), Y, energy=energy)
         self.fit_seconds = time.perf_counter() - t0
 
+    @property
+    def pod_modes(self) -> int:
+        return int(self.pod.n_modes)
+
     def _check_frames(self, trajs):
         for label, t in zip(trajectory_labels(trajs), trajs):
+            if part_names_of(t) != part_names_of(self.ref):
+                raise ValueError(f"rom: the meshes do not map: {label} has the parts {list(part_names_of(t))}, the "
+                                 f"reference {trajectory_labels([self.ref])[0]} {list(part_names_of(self.ref))} (a "
+                                 "stack of other layers has no place on the reference mesh)")
             if t.n_frames != self.ref.n_frames:
                 raise ValueError(f"rom: {label} has {t.n_frames} frames, the reference "
                                  f"{trajectory_labels([self.ref])[0]} {self.ref.n_frames}")
@@ -102,3 +110,48 @@ class Rom:
             us.append(u)
             vms.append(vm)
         return us, vms
+
+
+class StackRom:
+    """The rom where meshes map: one :class:`Rom` per layer list of the training scenes (a stack family),
+    each fitted on the training scenes with that list when a query first needs it; a query whose layer list
+    no training scene has raises ValueError (``rom: the meshes do not map``). ``fit_seconds`` sums the fits,
+    ``warnings`` pools theirs, ``pod_modes`` {layer list: modes}."""
+
+    name = "rom"
+
+    def __init__(self, train_trajs: Sequence, *, energy: float = POD_ENERGY):
+        self.groups: dict[tuple, list] = {}
+        for t in train_trajs:
+            self.groups.setdefault(part_names_of(t), []).append(t)
+        self.energy, self.roms, self.fit_seconds, self.warnings = energy, {}, 0.0, []
+
+    def _rom(self, parts: tuple, label: str) -> Rom:
+        if parts not in self.roms:
+            if parts not in self.groups:
+                raise ValueError(f"rom: the meshes do not map: no training scene has the parts {list(parts)} of "
+                                 f"{label} (a stack of other layers has no place on a training mesh)")
+            self.roms[parts] = Rom(self.groups[parts], energy=self.energy)
+            self.fit_seconds += self.roms[parts].fit_seconds
+        return self.roms[parts]
+
+    @property
+    def pod_modes(self) -> dict[str, int]:
+        return {"/".join(parts[1:]): int(r.pod.n_modes) for parts, r in self.roms.items()}
+
+    def predict_trajectories(self, trajs: Sequence) -> tuple[list, list]:
+        """As :meth:`Rom.predict_trajectories`, each trajectory by the rom of its own layer list."""
+        us, vms = [], []
+        for label, t in zip(trajectory_labels(trajs), trajs):
+            rom = self._rom(part_names_of(t), label)
+            (u,), (vm,) = rom.predict_trajectories([t])
+            us.append(u)
+            vms.append(vm)
+            self.warnings += [w for w in rom.warnings if w not in self.warnings]
+        return us, vms
+
+
+def fit_rom(train_trajs: Sequence, *, energy: float = POD_ENERGY) -> Rom | StackRom:
+    """A :class:`Rom` over training scenes of one layer list, else a :class:`StackRom`."""
+    return Rom(train_trajs, energy=energy) if len({part_names_of(t) for t in train_trajs}) <= 1 \
+        else StackRom(train_trajs, energy=energy)

@@ -117,10 +117,19 @@ def transfer_fields(src, dst_points, dst_node_part, dst_scene: dict) -> tuple[np
     return out[..., :2], out[..., 2]
 
 
+def part_names_of(traj) -> tuple[str, ...]:
+    """A trajectory's part names (0 the ball, then its layers from the top): meta['part_names'], else its scene's."""
+    names = traj.meta.get("part_names")
+    if names is None:
+        names = ["ball"] + [layer["name"] for layer in (traj.meta.get("scene") or {}).get("layers", ())]
+    return tuple(names)
+
+
 class NearestScene:
     """Baselines across meshes: the nearest training scene (scene parameters scaled to [-1, 1] over the
-    training box, Euclidean), its fields carried over to each test mesh (:func:`transfer_fields`), or with
-    ``zero`` nothing moves (zero fields on each test mesh)."""
+    training box, Euclidean) among those with the query's layers (:func:`part_names_of`; fields map part by
+    part, so a stack of other layers has none: ValueError naming it), its fields carried over to each test
+    mesh (:func:`transfer_fields`), or with ``zero`` nothing moves (zero fields on each test mesh)."""
 
     def __init__(self, train_trajs: Sequence, *, zero: bool = False):
         if not train_trajs:
@@ -143,7 +152,13 @@ class NearestScene:
         if names != self.names:
             raise ValueError(f"nearest scene: {traj.meta.get('name', '?')} has scene parameters {names}, the "
                              f"training scenes {self.names}")
-        return int(np.argmin(((self._scale(v)[None] - self._scale(self.x)) ** 2).sum(-1)))
+        parts = part_names_of(traj)
+        same = np.array([part_names_of(t) == parts for t in self.trajs])
+        if not same.any():
+            raise ValueError(f"nearest scene: no training scene has the parts {list(parts)} of "
+                             f"{traj.meta.get('name', '?')}: a field does not map onto a stack of other layers")
+        d = ((self._scale(v)[None] - self._scale(self.x)) ** 2).sum(-1)
+        return int(np.argmin(np.where(same, d, np.inf)))
 
     def predict_trajectories(self, trajs) -> tuple[list, list]:
         """Per test trajectory (on its own mesh): displacement (T, N, 2) [m] and von Mises (T, N) [Pa]."""
@@ -256,10 +271,14 @@ class MGNSurrogate:
         from pcmgn_jax.mgn.inputs import graph_inputs, with_scene
         s = self.sim
         topology, index = s.topology, s.index
+        identity = s.spec.formulation.part_identity
         if not (len(mesh.points) == self.ref.n_nodes and np.array_equal(mesh.cells, self.ref.cells)
                 and np.array_equal(mesh.node_type, self.ref.node_type)):
-            topology, index, _ = graph_inputs(mesh, self.ref.meta["scene"], n_parts=s.topology.n_node_types - 1,
-                                              levels=s.spec.formulation.hierarchy_levels,
+            # role node types: the mesh's own scene names its parts (a stack of another layer count)
+            role = identity == "role"
+            topology, index, _ = graph_inputs(mesh, (scene if role and scene else self.ref.meta["scene"]),
+                                              n_parts=None if role else s.topology.n_node_types - 1,
+                                              levels=s.spec.formulation.hierarchy_levels, identity=identity,
                                               radius=s.index.radius, capacity=s.index.capacity)
         topology = with_scene(topology, scene or self.ref.meta["scene"], s.spec.formulation.scene_features)
         return {"topology": topology, "index": index, "points": np.asarray(mesh.points, np.float32),

@@ -17,7 +17,9 @@ from typing import Mapping, Sequence
 import numpy as np
 
 TASKS = {"a": "the paper's box (cpu test split)", "b": "scene family (family test split)",
-         "c": "extrapolation (outside the training box)", "d": "zero-shot (a parameter training held fixed)"}
+         "c": "extrapolation (outside the training box)", "d": "zero-shot (a parameter training held fixed)",
+         "e": "new panel stacks (stack family: e.e1 in distribution, e.e2 a held-out layer count, e.e3 an impactor "
+              "outside the trained range)"}
 METRICS = (("position_mae_um", "position MAE [µm]"), ("stress_mae_mpa", "stress MAE [MPa]"),
            ("oled_objective_area_rel_error_pct_mean", "objective error, area mean [%]"),
            ("oled_objective_area_rel_error_pct_max", "worst design [%]"),

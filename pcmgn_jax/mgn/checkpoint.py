@@ -211,7 +211,8 @@ def load(workdir: str | Path, ref, *, which: str = "best", cfg: TrainConfig | No
                          f"with `python -m experiments.train --workdir {workdir} --overwrite`")
     step, meta = read_meta(path, step)
     spec = make_spec(cfg, meta["dt"])
-    topology = topology_from_trajectory(ref, spec.formulation.scene_features, spec.formulation.hierarchy_levels)
+    topology = topology_from_trajectory(ref, spec.formulation.scene_features, spec.formulation.hierarchy_levels,
+                                        spec.formulation.part_identity)
     index = contact_index_for(ref, Scene.from_dict(ref.meta["scene"]), radius=meta["contact_radius"],
                               capacity=meta["contact_capacity"])
     mgr = manager(path)

@@ -99,13 +99,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from pcmgn_jax.mgn.part_rows import geometry_rows
+
 TARGETS = ("velocity", "displacement", "position", "acceleration", "total_displacement")
 NORMALIZATIONS = ("global", "per_part")
 FEATURES = ("paper", "strain")
 LOSS_WEIGHTINGS = ("nodes", "parts")
 PANEL_MODELS = ("dynamic", "quasi_static")
 PROCESSORS = ("per_frame", "per_design")
-PART_IDENTITIES = ("type", "material")
+PART_IDENTITIES = ("type", "material", "role")
 ORIGINS = ("mesh", "contact_top", "support_top")
 REACHES = ("local", "multiscale", "attention")
 BALL_STATE_CHANNELS = 2  # quasi_static: [u_ball,y, v_ball,y] on every node (the ball moves along the axis)
@@ -113,17 +115,23 @@ NOISE_PARTS = ("none", "ball", "panel", "all")
 SCENE_FEATURES = {"ball_radius": ("ball", "radius"), "ball_velocity": ("ball", "velocity"),  # -> scene dict keys
                   "layer_thickness": ("layers", "thickness"),  # one channel per layer, in the scene's order
                   "stack_thickness": ("layers", "thickness"),  # the same on every node, the contact pair's too
-                  "material": ("parts", "material")}  # per node: its own part's material (material_rows)
+                  "material": ("parts", "material"),  # per node: its own part's material (material_rows)
+                  "own_thickness": ("parts", "own_thickness"),   # per node: its own layer's thickness [m] (0 on the ball)
+                  "layer_depth": ("parts", "layer_depth"),       # per node: its layer's top below the contact layer's top [m]
+                  "total_thickness": ("parts", "total_thickness")}  # per node: the stack's total thickness [m]
+PER_LAYER_FEATURES = ("layer_thickness", "stack_thickness")  # one channel per layer: width = the layer count
 LAYER_ONLY_FEATURES = ("layer_thickness",)  # 0 on the contact pair's nodes (scene_feature_rows)
 MATERIAL_CHANNELS = ("log10_youngs", "poisson", "log10_density")  # material_rows: log10(E / 1 Pa), nu, log10(rho / 1 kg m^-3)
-ACROSS_PART_FEATURES = ("material",)  # constant within a part: normalised over all nodes, never per part
+ACROSS_PART_FEATURES = ("material", "own_thickness", "layer_depth")  # constant within a part: normalised over all nodes, never per part
+PART_CHANNELS = {"material": len(MATERIAL_CHANNELS), "own_thickness": 1, "layer_depth": 1, "total_thickness": 1}
 
 
 def scene_feature_widths(scene: dict, names) -> list[int]:
     """Node channels of each scene feature in ``names``: one per layer (``layer_thickness``, ``stack_thickness``),
     ``len(MATERIAL_CHANNELS)`` (``material``), else 1."""
-    widths = {"layers": len(scene.get("layers") or ()), "parts": len(MATERIAL_CHANNELS)}
-    return [widths.get(SCENE_FEATURES[n][0], 1) for n in names]
+    widths = {"layers": len(scene.get("layers") or ())}
+    return [PART_CHANNELS[n] if SCENE_FEATURES[n][0] == "parts" else widths.get(SCENE_FEATURES[n][0], 1)
+            for n in names]
 
 
 def across_part_channels(scene: dict, names) -> list[int]:
@@ -208,7 +216,8 @@ def scene_feature_rows(scene: dict, names, node_type, design=None):
     blocks = []
     for name in names:
         if name in SCENE_FEATURES and SCENE_FEATURES[name][0] == "parts":
-            blocks.append(xp.asarray(material_rows(scene, node_type)))
+            rows = material_rows(scene, node_type) if name == "material" else geometry_rows(scene, name, node_type)
+            blocks.append(xp.asarray(rows))
             continue
         vals = scene_feature_values(scene, (name,), design)
         rows = xp.broadcast_to(vals, (n, vals.shape[0]))
@@ -238,7 +247,7 @@ class Formulation:
     panel_model: str = "dynamic"        # dynamic (the layers' state integrated) | quasi_static (their fields a map of the ball's state)
     contact_projection: bool = False    # rollouts move cover-glass nodes inside the rigid ball onto its surface
     processor: str = "per_frame"        # per_frame (the ball state is a node input: the processor runs every frame) | per_design (quasi_static only: the processor runs once per design on the static graph, the ball state enters the decoder)
-    part_identity: str = "type"         # type (a one-hot of every part) | material (the layers known only by their 'material' scene feature: a one-hot is kept for the ball and the fixed nodes)
+    part_identity: str = "type"         # type (a one-hot of every part) | material (the layers known only by their 'material' scene feature: a one-hot is kept for the ball and the fixed nodes) | role (six node types whatever the layer count: ball, contact layer, film, objective layer (OLED), support, fixed; graphs.ROLES)
     reach: str = "local"                # local (message passing only: message_passing_steps hops) | multiscale (+ bi-stride coarse levels, BSMS-GNN) | attention (+ physics attention over learned slices, Transolver); design §5.3
     reach_levels: int = 4               # multiscale: coarse levels of the V-cycle
     reach_slices: int = 32              # attention: learned slices (tokens) per graph
@@ -264,9 +273,14 @@ class Formulation:
                              f"panel_target='total_displacement' (got rigid_ball={self.rigid_ball}, "
                              f"panel_target={self.panel_target!r}): a layer whose state is not an input "
                              "can only predict where it is, not how it moves on")
-        if self.part_identity == "material" and "material" not in self.scene_features:
-            raise ValueError("formulation: part_identity='material' needs 'material' among scene_features (got "
-                             f"{self.scene_features}): without it the layers' nodes could not tell their part")
+        if self.part_identity in ("material", "role") and "material" not in self.scene_features:
+            raise ValueError(f"formulation: part_identity={self.part_identity!r} needs 'material' among scene_features "
+                             f"(got {self.scene_features}): without it the layers' nodes could not tell their part")
+        if self.part_identity == "role" and set(self.scene_features) & set(PER_LAYER_FEATURES):
+            raise ValueError(f"formulation: part_identity='role' takes no per-layer scene features "
+                             f"{sorted(set(self.scene_features) & set(PER_LAYER_FEATURES))} (one channel per layer: "
+                             "a 7-layer stack would need more inputs than a 5-layer one); use own_thickness, "
+                             "layer_depth, total_thickness")
         if self.processor == "per_design" and self.panel_model != "quasi_static":
             raise ValueError("formulation: processor='per_design' needs panel_model='quasi_static' (got "
                              f"{self.panel_model!r}): only a panel drawn at its reference has a graph that "

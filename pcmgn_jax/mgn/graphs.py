@@ -70,6 +70,9 @@ class Topology:
                                   morphed mesh moves it)
     hierarchy:      tuple of :class:`pcmgn_jax.mgn.hierarchy.Level`, the mesh graph's bi-stride coarse
                                   levels (``Formulation.reach='multiscale'``), or None (no levels)
+    node_part:      [N]   int32   with role node types (:func:`role_types`): each node's part id (n_parts
+                                  for fixed nodes), from which its per-node scene features are read; None
+                                  when ``node_type`` is the part id itself (and in a batch's union)
     """
 
     node_type: np.ndarray
@@ -81,6 +84,7 @@ class Topology:
     scene_features: np.ndarray | None = None
     top_nodes: np.ndarray | None = None
     hierarchy: tuple | None = None
+    node_part: np.ndarray | None = None
 
     @property
     def n_node(self) -> int:
@@ -121,6 +125,27 @@ def make_topology(*, points: np.ndarray, cells: np.ndarray, node_type: np.ndarra
     return topo if scene_features is None else with_scene_features(topo, scene_features)
 
 
+ROLES = ("ball", "contact", "film", "objective", "support", "fixed")
+"""Role node types (``Formulation.part_identity='role'``): the ball (part 0), the contact layer (part 1, the
+top), every other layer between it and the support (a 'film'), the objective's layer (the part named 'OLED'),
+the support (the bottom layer) and the fixed nodes: six types for a stack of any layer count."""
+
+
+def role_types(node_part, part_names) -> np.ndarray:
+    """(N,) int32 role ids (:data:`ROLES`) of nodes whose part ids are ``node_part`` (len(part_names) for
+    fixed nodes; ``part_names`` indexed by part id, 0 the ball). One layer that is both the contact layer and
+    the support is the contact layer."""
+    n_parts = len(part_names)
+    table = np.full(n_parts + 1, ROLES.index("film"), np.int32)
+    table[n_parts - 1] = ROLES.index("support")
+    if "OLED" in part_names:
+        table[list(part_names).index("OLED")] = ROLES.index("objective")
+    table[1] = ROLES.index("contact")
+    table[0] = ROLES.index("ball")
+    table[n_parts] = ROLES.index("fixed")
+    return table[np.asarray(node_part)]
+
+
 def with_scene_features(topology: Topology, rows) -> Topology:
     """``topology`` whose nodes carry the scene features ``rows`` (N, k) [SI]
     (:func:`pcmgn_jax.mgn.formulation.scene_feature_rows`; None or k = 0: none)."""
@@ -132,13 +157,13 @@ def with_scene_features(topology: Topology, rows) -> Topology:
     return topology.replace(scene_features=rows.copy())
 
 
-def topology_from_trajectory(traj, scene_features: tuple = (), levels: int = 0) -> Topology:
+def topology_from_trajectory(traj, scene_features: tuple = (), levels: int = 0, identity: str = "type") -> Topology:
     """Topology of a :class:`pcmgn_jax.trajectory.Trajectory` (n_parts from its scene/part names), with the
     scene features ``scene_features`` (names, :data:`pcmgn_jax.mgn.formulation.SCENE_FEATURES`) read from
     its meta['scene'] and ``levels`` coarse levels (:func:`pcmgn_jax.mgn.inputs.design_topology`)."""
     from pcmgn_jax.mgn.inputs import design_topology
     return design_topology(traj, traj.meta["scene"] if scene_features else traj.meta.get("scene"), scene_features,
-                           levels=levels)
+                           levels=levels, identity=identity)
 
 
 def n_parts_of(traj) -> int:
@@ -170,7 +195,8 @@ def node_features(topology: Topology, points, displacement, velocity, features: 
 
     ``identity``: ``type``, the one-hot of every node type; ``material``, only the ball's (type 0) and
     the fixed nodes' (the last type) columns are set: a layer's node is then known by its ``material``
-    scene feature and its geometry, not by which layer it is (the width is the same either way).
+    scene feature and its geometry, not by which layer it is (the width is the same either way); ``role``,
+    the one-hot of the topology's role types (:data:`ROLES`, six whatever the layer count).
 
     'paper':  [one_hot(type), x^w, xdot^w]          (k = 4; x^w = X + u, the paper's Table 1)
     'strain': [one_hot(type), X, u, xdot^w]         (k = 6; reference position and displacement apart,
@@ -184,8 +210,8 @@ def node_features(topology: Topology, points, displacement, velocity, features: 
         keep = np.zeros(topology.n_node_types, np.float32)
         keep[[0, -1]] = 1.0
         one_hot = one_hot * keep
-    elif identity != "type":
-        raise ValueError(f"identity must be 'type' or 'material', got {identity!r}")
+    elif identity not in ("type", "role"):   # role: the topology's node types are already the roles
+        raise ValueError(f"identity must be 'type', 'material' or 'role', got {identity!r}")
     points = jnp.asarray(points, jnp.float32)
     if origin != "mesh":
         points = points - jnp.stack([jnp.zeros_like(points[:, 0]),

@@ -9,7 +9,9 @@
 :class:`pcmgn_jax.scene.Scene`. The rule, written once here:
 
 - topology (:func:`pcmgn_jax.mgn.graphs.make_topology`) with n_parts = ball + layers
-  (:func:`n_parts_for`), and node types 0..n_parts (n_parts = fixed);
+  (:func:`n_parts_for`), and node types 0..n_parts (n_parts = fixed); with ``identity='role'`` the six role
+  types of :data:`pcmgn_jax.mgn.graphs.ROLES` instead, whatever the layer count (the part ids kept in the
+  topology's ``node_part`` for the per-node scene features);
 - scene features (:func:`with_scene`): the rows (N, k) float32 [SI] of
   :func:`pcmgn_jax.mgn.formulation.scene_feature_rows` of the design's scene, or none (k = 0);
 - contact index (:func:`contact_index`): candidates of the scene's contact pair
@@ -28,8 +30,10 @@ import numpy as np
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.hierarchy import build_levels
 from pcmgn_jax.mgn.graphs import (
+    ROLES,
     Topology,
     make_topology,
+    role_types,
     n_parts_of,
     with_scene_features,
 )
@@ -64,6 +68,16 @@ def n_parts_for(mesh, scene=None) -> int:
     return len(_scene_obj(scene).part_names)
 
 
+def _part_names(mesh, scene) -> tuple[str, ...]:
+    """Part names of ``mesh`` (0 the ball): its meta's or its own ``part_names``, else its scene's."""
+    names = (getattr(mesh, "meta", None) or {}).get("part_names") or getattr(mesh, "part_names", None)
+    if names is None:
+        if scene is None:
+            raise ValueError("role node types need the mesh's part names or its scene")
+        names = _scene_obj(scene).part_names
+    return tuple(names)
+
+
 def with_scene(topology: Topology, scene, names, design=None) -> Topology:
     """``topology`` with the scene features ``names`` of ``scene`` on its nodes ((N, k) float32 [SI];
     no names: unchanged). ``design`` (D,) [m], possibly traced: the design layers' thicknesses the
@@ -71,19 +85,29 @@ def with_scene(topology: Topology, scene, names, design=None) -> Topology:
     from pcmgn_jax.mgn.formulation import scene_feature_rows
     if not names:
         return topology
-    rows = scene_feature_rows(_scene_dict(scene), names, topology.node_type, design=design)
+    parts = topology.node_type if topology.node_part is None else topology.node_part
+    rows = scene_feature_rows(_scene_dict(scene), names, parts, design=design)
     if design is not None:  # traced rows stay JAX arrays (they carry the design's tangent)
         return topology.replace(scene_features=rows)
     return with_scene_features(topology, rows)
 
 
-def design_topology(mesh, scene=None, scene_features=(), *, n_parts: int | None = None, levels: int = 0) -> Topology:
+def design_topology(mesh, scene=None, scene_features=(), *, n_parts: int | None = None, levels: int = 0,
+                    identity: str = "type") -> Topology:
     """The topology of ``mesh`` (n_parts: :func:`n_parts_for`) with the scene features ``scene_features``
     (names, :data:`pcmgn_jax.mgn.formulation.SCENE_FEATURES`) of ``scene``, (with a scene) its
     contact layer's nodes (``top_nodes``, :func:`pcmgn_jax.mgn.graphs.origin_height`), and ``levels``
-    bi-stride coarse levels (``Formulation.hierarchy_levels``; :func:`pcmgn_jax.mgn.hierarchy.build_levels`)."""
-    topo = make_topology(points=mesh.points, cells=mesh.cells, node_type=mesh.node_type,
-                         n_parts=n_parts_for(mesh, scene) if n_parts is None else n_parts)
+    bi-stride coarse levels (``Formulation.hierarchy_levels``; :func:`pcmgn_jax.mgn.hierarchy.build_levels`).
+    ``identity``: the formulation's ``part_identity``; 'role' types the nodes by :data:`ROLES` (``n_parts``
+    is then the mesh's own, :func:`n_parts_for`)."""
+    if identity == "role":
+        names = _part_names(mesh, scene)
+        topo = make_topology(points=mesh.points, cells=mesh.cells, n_parts=len(ROLES) - 1,
+                             node_type=role_types(mesh.node_type, names))
+        topo = topo.replace(node_part=np.asarray(mesh.node_type, np.int32))
+    else:
+        topo = make_topology(points=mesh.points, cells=mesh.cells, node_type=mesh.node_type,
+                             n_parts=n_parts_for(mesh, scene) if n_parts is None else n_parts)
     if levels:
         topo = topo.replace(hierarchy=build_levels(topo.mesh_senders, topo.mesh_receivers, topo.n_node, levels))
     if scene is not None:
@@ -113,11 +137,12 @@ def contact_index(mesh, scene, *, radius: float | None = None, positions=(), cap
 
 def graph_inputs(mesh, scene, *, scene_features=(), radius: float | None = None, positions=(),
                  capacity_factor: float = 2.0, capacity: int | None = None,
-                 n_parts: int | None = None, levels: int = 0) -> GraphInputs:
+                 n_parts: int | None = None, levels: int = 0, identity: str = "type") -> GraphInputs:
     """A design's mesh + scene -> :class:`GraphInputs` (topology with its scene features, contact index,
     float32 reference points). See the module docstring for the rule; arguments as in
     :func:`design_topology` and :func:`contact_index`."""
-    return GraphInputs(topology=design_topology(mesh, scene, scene_features, n_parts=n_parts, levels=levels),
+    return GraphInputs(topology=design_topology(mesh, scene, scene_features, n_parts=n_parts, levels=levels,
+                                                identity=identity),
                        index=contact_index(mesh, scene, radius=radius, positions=positions,
                                            capacity_factor=capacity_factor, capacity=capacity),
                        points=np.asarray(mesh.points, np.float32))

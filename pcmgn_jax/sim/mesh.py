@@ -79,6 +79,10 @@ MESH_PRESETS: dict[str, MeshSpec] = {
                             layer_elems={"CG": 2, "OLED": 1, "PLATE": 3}, h_layer=50e-6, bottom_growth=1.6,
                             roi_x=1.0e-3, roi_ball_height=0.5e-3, thickness_elems=True),
 }
+# the stack family (pcmgn_jax.data.stack): the scene family's meshes; a layer that is not CG, OLED or the plate
+# (OCA1, POL, TSP, OCA2, BF) gets ceil(t / h_layer) elements
+MESH_PRESETS["stack"] = MESH_PRESETS["family"]
+MESH_PRESETS["stack_tiny"] = MESH_PRESETS["family_tiny"]
 
 
 def mesh_spec(preset: str | MeshSpec) -> MeshSpec:

@@ -29,13 +29,14 @@ def noise_parts_mask(node_part, parts: str, *, fixed) -> np.ndarray:
     return sel & ~np.asarray(fixed, bool)
 
 
-def motion_rms(trajs, n_types: int) -> np.ndarray:
+def motion_rms(trajs, n_types: int, types=None) -> np.ndarray:
     """(n_types,) RMS per-frame displacement increment |u_{t+1} - u_t| per component [m], per node type,
-    pooled over ``trajs`` (each on its own mesh, typed by its own ``node_type``)."""
+    pooled over ``trajs`` (each on its own mesh, typed by its own ``node_type``, or by ``types``: one (N,)
+    array per trajectory, e.g. role node types)."""
     s = np.zeros(n_types)
     n = np.zeros(n_types)
-    for tr in trajs:
-        node_type = np.asarray(tr.node_type)
+    for i, tr in enumerate(trajs):
+        node_type = np.asarray(tr.node_type if types is None else types[i])
         du = np.diff(np.asarray(tr.displacement, np.float64), axis=0)  # (T-1, N, 2)
         sq = (du ** 2).sum(axis=(0, 2))
         np.add.at(s, node_type, sq)

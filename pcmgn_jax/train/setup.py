@@ -237,7 +237,7 @@ def graph_for(setup: Setup, traj) -> dict:
     (its topology with its scene features, a contact index of the training radius and buffer size)."""
     form = setup.spec.sim.formulation
     inp = graph_inputs(traj, traj.meta["scene"], scene_features=form.scene_features, levels=form.hierarchy_levels,
-                       radius=setup.radius, capacity=setup.sizes.capacity)
+                       radius=setup.radius, capacity=setup.sizes.capacity, identity=form.part_identity)
     return inp._asdict()
 
 
@@ -246,7 +246,8 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
     """Per-trajectory graphs (topology, contact buffer sized on the training frames, noise levels, loss
     weights, penetration boundary), the union size bucket, and the normalisation statistics (computed
     unless ``stats`` is given, e.g. from a checkpoint on resume). Trajectories may have different meshes;
-    they must share the scene's parts (node types), the frame interval and the contact pair."""
+    they must share the scene's parts (node types; with ``part_identity='role'`` only the roles, so stacks of
+    different layer counts train together), the frame interval and the contact pair."""
     if not train_trajs:
         raise ValueError("no training trajectories")
     ref = train_trajs[0]
@@ -257,7 +258,7 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
         if not math.isclose(output_dt(t), dt, rel_tol=1e-9):
             raise ValueError(f"training trajectory {i} ({name}): output_dt {output_dt(t)} s differs from "
                              f"trajectory 0's {dt} s; one frame interval per dataset")
-        if scene_of(t).part_names != scene.part_names:
+        if scene_of(t).part_names != scene.part_names and cfg.formulation.part_identity != "role":
             raise ValueError(f"training trajectory {i} ({name}): parts {scene_of(t).part_names} differ from "
                              f"trajectory 0's {scene.part_names}; one set of node types per dataset")
     form = cfg.formulation
@@ -266,12 +267,16 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
     groups: dict[tuple, list[int]] = {}
     for i, t in enumerate(train_trajs):
         groups.setdefault(mesh_key(t), []).append(i)
-    n_types = topology_from_trajectory(ref).n_node_types
-    rms = motion_rms(train_trajs, n_types) if cfg.noise_rel > 0 else None
+    n_types = topology_from_trajectory(ref, identity=form.part_identity).n_node_types
+    rms = None
+    if cfg.noise_rel > 0:
+        types = [topology_from_trajectory(t, identity=form.part_identity).node_type for t in train_trajs]
+        rms = motion_rms(train_trajs, n_types, types)
     shared, intervals = {}, []
     for key, members in groups.items():
         g_ref = train_trajs[members[0]]
-        topo, index, _ = graph_inputs(g_ref, scene, radius=r_w, levels=form.hierarchy_levels,
+        topo, index, _ = graph_inputs(g_ref, scene_of(g_ref), radius=r_w, levels=form.hierarchy_levels,
+                                      identity=form.part_identity,
                                       positions=[contact_positions(form, train_trajs[i]) for i in members],
                                       capacity_factor=cfg.contact_capacity_factor, capacity=capacity)
         pen_ball, pen_panel = np.zeros(0, np.int32), np.zeros(0, np.int32)
@@ -280,7 +285,7 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
             intervals.append(bn.interval)
             pen_ball, pen_panel = np.asarray(bn.ball, np.int32), np.asarray(bn.panel, np.int32)
         w = loss_weights(form, topo)
-        w_obj = objective_loss_weights(g_ref, scene) if cfg.lambda_obj > 0 else None
+        w_obj = objective_loss_weights(g_ref, scene_of(g_ref)) if cfg.lambda_obj > 0 else None
         sigma = noise_sigma(topo.node_type, g_ref.node_part, topo.fixed, parts=cfg.noise_parts,
                             noise_std=cfg.noise_std, noise_rel=cfg.noise_rel, rms=rms)
         shared[key] = GraphParts(topo, index, sigma, w["motion"], w["stress"], float(w["ball"]),
