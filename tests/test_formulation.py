@@ -137,7 +137,7 @@ def test_quasi_static_inputs_are_a_function_of_the_ball_state_alone():
 def test_layer_thickness_scene_feature_follows_the_design_with_its_derivative():
     """``layer_thickness``: one channel per layer [m] in the scene's order; with ``design`` the design
     layers' entries are the (traced) design, so the optimiser's tangent flows through them."""
-    from pcmgn_jax.mgn.formulation import scene_feature_values
+    from pcmgn_jax.mgn.scene_features import scene_feature_values
     from pcmgn_jax.scene import default_scene
     scene = default_scene().with_design(80e-6, 120e-6).to_dict()
     names = [layer["name"] for layer in scene["layers"]]
@@ -163,7 +163,7 @@ def test_layer_thickness_scene_feature_follows_the_design_with_its_derivative():
 def test_scene_feature_rows_hide_the_design_from_the_ball():
     """Layer-only features are 0 on the contact pair's nodes (ball, cover glass: they learn the contact
     from the contact); the ball radius reaches every node."""
-    from pcmgn_jax.mgn.formulation import scene_feature_rows, scene_feature_values
+    from pcmgn_jax.mgn.scene_features import scene_feature_rows, scene_feature_values
     from pcmgn_jax.scene import default_scene
     scene = default_scene().to_dict()
     node_type = np.array([0, 0, 1, 3, 6])

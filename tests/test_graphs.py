@@ -231,7 +231,7 @@ def test_zero_shot_scenes_change_the_models_inputs_where_it_can_see_them():
 def test_material_rows_per_part_and_named_errors():
     """Each node carries its own part's [log10 E, nu, log10 rho]; fixed nodes the last layer's; a part
     without a property is named."""
-    from pcmgn_jax.mgn.formulation import across_part_channels, material_rows, scene_feature_rows
+    from pcmgn_jax.mgn.scene_features import across_part_channels, material_rows, scene_feature_rows
     from pcmgn_jax.scene import default_scene
 
     scene = default_scene().to_dict()
@@ -314,7 +314,7 @@ def test_contact_top_origin_measures_height_from_the_contact_layer_per_graph():
 def test_stack_thickness_is_layer_thickness_on_every_node():
     """``stack_thickness`` gives the contact pair (ball, cover glass) the layers' thicknesses that
     ``layer_thickness`` hides from them; elsewhere the two are the same."""
-    from pcmgn_jax.mgn.formulation import scene_feature_rows
+    from pcmgn_jax.mgn.scene_features import scene_feature_rows
     from pcmgn_jax.scene import default_scene
 
     scene = default_scene().to_dict()

@@ -148,7 +148,7 @@ def role_types(node_part, part_names) -> np.ndarray:
 
 def with_scene_features(topology: Topology, rows) -> Topology:
     """``topology`` whose nodes carry the scene features ``rows`` (N, k) [SI]
-    (:func:`pcmgn_jax.mgn.formulation.scene_feature_rows`; None or k = 0: none)."""
+    (:func:`pcmgn_jax.mgn.scene_features.scene_feature_rows`; None or k = 0: none)."""
     if rows is None or np.shape(rows)[-1] == 0:
         return topology.replace(scene_features=None)
     rows = np.asarray(rows, np.float32)
@@ -159,7 +159,7 @@ def with_scene_features(topology: Topology, rows) -> Topology:
 
 def topology_from_trajectory(traj, scene_features: tuple = (), levels: int = 0, identity: str = "type") -> Topology:
     """Topology of a :class:`pcmgn_jax.trajectory.Trajectory` (n_parts from its scene/part names), with the
-    scene features ``scene_features`` (names, :data:`pcmgn_jax.mgn.formulation.SCENE_FEATURES`) read from
+    scene features ``scene_features`` (names, :data:`pcmgn_jax.mgn.scene_features.SCENE_FEATURES`) read from
     its meta['scene'] and ``levels`` coarse levels (:func:`pcmgn_jax.mgn.inputs.design_topology`)."""
     from pcmgn_jax.mgn.inputs import design_topology
     return design_topology(traj, traj.meta["scene"] if scene_features else traj.meta.get("scene"), scene_features,

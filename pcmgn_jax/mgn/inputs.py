@@ -13,7 +13,7 @@
   types of :data:`pcmgn_jax.mgn.graphs.ROLES` instead, whatever the layer count (the part ids kept in the
   topology's ``node_part`` for the per-node scene features);
 - scene features (:func:`with_scene`): the rows (N, k) float32 [SI] of
-  :func:`pcmgn_jax.mgn.formulation.scene_feature_rows` of the design's scene, or none (k = 0);
+  :func:`pcmgn_jax.mgn.scene_features.scene_feature_rows` of the design's scene, or none (k = 0);
 - contact index (:func:`contact_index`): candidates of the scene's contact pair
   (:func:`pcmgn_jax.mgn.contact.contact_parts`) within r_w [m] (default
   :func:`pcmgn_jax.mgn.contact.auto_radius` of the contact layer, :func:`contact_radius`), a buffer of
@@ -81,8 +81,8 @@ def _part_names(mesh, scene) -> tuple[str, ...]:
 def with_scene(topology: Topology, scene, names, design=None) -> Topology:
     """``topology`` with the scene features ``names`` of ``scene`` on its nodes ((N, k) float32 [SI];
     no names: unchanged). ``design`` (D,) [m], possibly traced: the design layers' thicknesses the
-    features follow (:func:`pcmgn_jax.mgn.formulation.scene_feature_rows`)."""
-    from pcmgn_jax.mgn.formulation import scene_feature_rows
+    features follow (:func:`pcmgn_jax.mgn.scene_features.scene_feature_rows`)."""
+    from pcmgn_jax.mgn.scene_features import scene_feature_rows
     if not names:
         return topology
     parts = topology.node_type if topology.node_part is None else topology.node_part
@@ -95,7 +95,7 @@ def with_scene(topology: Topology, scene, names, design=None) -> Topology:
 def design_topology(mesh, scene=None, scene_features=(), *, n_parts: int | None = None, levels: int = 0,
                     identity: str = "type") -> Topology:
     """The topology of ``mesh`` (n_parts: :func:`n_parts_for`) with the scene features ``scene_features``
-    (names, :data:`pcmgn_jax.mgn.formulation.SCENE_FEATURES`) of ``scene``, (with a scene) its
+    (names, :data:`pcmgn_jax.mgn.scene_features.SCENE_FEATURES`) of ``scene``, (with a scene) its
     contact layer's nodes (``top_nodes``, :func:`pcmgn_jax.mgn.graphs.origin_height`), and ``levels``
     bi-stride coarse levels (``Formulation.hierarchy_levels``; :func:`pcmgn_jax.mgn.hierarchy.build_levels`).
     ``identity``: the formulation's ``part_identity``; 'role' types the nodes by :data:`ROLES` (``n_parts``

@@ -122,7 +122,7 @@ def make_stats(*, node: TypedAccumulator, mesh: TypedAccumulator, contact: Accum
                contact_default_std: float = 1.0, node_across=()) -> Stats:
     """Stats from accumulators; the per-node target rows join the motion (a_x, a_y) and stress channels.
     ``node_across``: node channels normalised over all nodes even when ``per_part`` (a part's own
-    material, :func:`pcmgn_jax.mgn.formulation.across_part_channels`)."""
+    material, :func:`pcmgn_jax.mgn.scene_features.across_part_channels`)."""
     f = lambda a: np.asarray(a, np.float32)  # noqa: E731
     nm, ns = node.result(per_part, node_across)
     mm, ms = mesh.result(per_part)

@@ -1,5 +1,5 @@
 """Per-node stack geometry of each node's own part: the scene features ``own_thickness``, ``layer_depth`` and
-``total_thickness`` (:data:`pcmgn_jax.mgn.formulation.SCENE_FEATURES`; docs/design.md §5, inputs that do not
+``total_thickness`` (:data:`pcmgn_jax.mgn.scene_features.SCENE_FEATURES`; docs/design.md §5, inputs that do not
 depend on a layer's index). Host side (NumPy); part ids as in a mesh's ``node_type``: 0 the ball, 1.. the
 layers from the top, ``n_parts`` the fixed nodes (the plate's bottom).
 """

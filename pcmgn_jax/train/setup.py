@@ -32,7 +32,8 @@ from pcmgn_jax.geometry import roi_boundary_nodes
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.batching import bucket_size
 from pcmgn_jax.mgn.checkpoint import make_spec
-from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, across_part_channels, is_ball, model_inputs
+from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, is_ball, model_inputs
+from pcmgn_jax.mgn.scene_features import across_part_channels
 from pcmgn_jax.mgn.graphs import Topology, topology_from_trajectory
 from pcmgn_jax.mgn.hierarchy import level_sizes
 from pcmgn_jax.mgn.inputs import contact_radius, graph_inputs, with_scene
