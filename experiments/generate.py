@@ -31,8 +31,8 @@ from typing import Literal
 
 from pcmgn_jax import cli
 from pcmgn_jax.config import PRESETS as TRAIN_PRESETS
-from pcmgn_jax.data.dataset import (DESIGN_HIGH, DESIGN_LOW, FAMILIES, PRESETS, DatasetError, ensure_dataset,
-                                    parse_designs, parse_scene_params)
+from pcmgn_jax.data.dataset import PRESETS, DatasetError, ensure_dataset
+from pcmgn_jax.data.designs import DESIGN_HIGH, DESIGN_LOW, FAMILIES, parse_designs, parse_scene_params
 from pcmgn_jax.data.shards import parse_shard
 from pcmgn_jax.data.stack import StackFamily
 from pcmgn_jax.scene import Scene, default_scene

@@ -316,7 +316,7 @@ PRESETS: dict[str, dict[str, Any]] = {
                   message_passing_steps=15, epochs=100, num_steps=0, steps_per_dispatch=50,
                   log_every=500, ckpt_every=10000, val_every=10000, formulation="paper",
                   lambda_pen=10.0, noise_std=3e-7, noise_parts="all"),  # the paper's best: B.6/P.5, λ=10
-    # scene family (issue 12; pcmgn_jax.data.dataset.FAMILIES): ball radius, drop speed, OCA1/OCA2/POL
+    # scene family (issue 12; pcmgn_jax.data.designs.FAMILIES): ball radius, drop speed, OCA1/OCA2/POL
     # thicknesses vary, every scene on its own mesh; the cpu preset's model and loss (no penetration
     # term: the default formulation's contact projection stands in for it), 2 graphs per step, the ball
     # radius as a node input (the speed is in the velocity state)

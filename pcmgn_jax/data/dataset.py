@@ -29,20 +29,20 @@ merge verifies every trajectory and writes the manifest.
 from __future__ import annotations
 
 import importlib
-import math
 import os
 import re
 import time
 from collections.abc import Callable, Sequence
 from contextlib import ExitStack
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from pcmgn_jax.data import shards
-from pcmgn_jax.data.stack import STACK_FAMILIES, StackFamily
+from pcmgn_jax.data.designs import (DESIGN_HIGH, DESIGN_LOW, FAMILIES, SceneFamily, lhs_designs,
+                                    parse_designs, parse_scene_params)
+from pcmgn_jax.data.stack import StackFamily
 from pcmgn_jax.data.layout import (
     DATASET_FORMAT,
     GENERATE,
@@ -64,7 +64,7 @@ from pcmgn_jax.data.trajectory_io import (
     write_trajectory,
 )
 from pcmgn_jax.lock import hold
-from pcmgn_jax.scene import Scene, default_scene, with_parameters
+from pcmgn_jax.scene import Scene, default_scene
 from pcmgn_jax.sim.mesh import MESH_PRESETS
 from pcmgn_jax.trajectory import Trajectory
 
@@ -74,121 +74,7 @@ __all__ = ["FAMILIES", "GENERATE", "IMPORTED", "MANIFEST", "PRESETS", "DatasetEr
            "parse_designs", "parse_scene_params", "prepare_dataset", "split_stems"]  # noqa: F822 (prepare_dataset: __getattr__)
 
 PRESETS = tuple(MESH_PRESETS)          # mesh resolution / frame count (names: sim.mesh.MESH_PRESETS)
-DESIGN_LOW = 50e-6                     # default design range [m] (paper: 50-150 µm)
-DESIGN_HIGH = 150e-6
 _SPLIT_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
-
-
-@dataclass(frozen=True)
-class SceneFamily:
-    """Scenes drawn around a base scene: ``parameters`` (name, low, high) in SI, names as in
-    :func:`pcmgn_jax.scene.with_parameters` ('ball.radius' [m], 'ball.velocity' [m/s], layer name ->
-    thickness [m]); ``n_frames`` overrides the base scene's window (frames of ``output_dt``)."""
-
-    parameters: tuple[tuple[str, float, float], ...]
-    n_frames: int = 100
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return tuple(p[0] for p in self.parameters)
-
-    def base(self, scene: Scene) -> Scene:
-        """The family's base scene: ``scene`` with the family's window and its layer parameters as the
-        design layers (so meta['design'] lists their thicknesses)."""
-        import dataclasses as dc
-        layers = tuple(n for n in self.names if n in scene.part_names)
-        return dc.replace(scene, n_frames=self.n_frames, design_layers=layers)
-
-    def scene(self, base: Scene, params: dict[str, float]) -> Scene:
-        return with_parameters(base, params)
-
-
-# The scene family (issue 12). Ranges around the paper's scene (docs/design.md §2), each chosen to stay in the
-# regime the solver is validated for (linear elastic, small strain, Hertz-checked ball sizes and speeds)
-# while changing the physics in ways a per-node regression over (T1, T2) cannot follow:
-#   ball radius 4-6 mm     the paper's 5 mm +-20 %: ball mass 2.1-7.1 g (x3.4), contact patch and ball
-#                          curvature change; the Hertz checks cover 2.5-6 mm
-#   drop speed 0.5-0.75 m/s the paper's 0.626 m/s (a 20 mm drop) +-20 %: drop heights 13-29 mm; with the
-#                          radius, the impact energy spans 0.26-2.0 mJ around the paper's 0.81 mJ
-#   OCA1, OCA2 50-150 µm   the paper's design box
-#   POL 30-70 µm           the paper's 50 µm +-40 %: common polarizer film thicknesses
-# Thicker OCAs and a heavier, slower ball lengthen the contact: some scenes do not separate inside the
-# 400 µs window (evaluation reports the phases each test scene reaches).
-FAMILY_PARAMETERS = (("ball.radius", 4.0e-3, 6.0e-3), ("ball.velocity", 0.5, 0.75),
-                     ("OCA1", 50e-6, 150e-6), ("OCA2", 50e-6, 150e-6), ("POL", 30e-6, 70e-6))
-FAMILIES: dict[str, SceneFamily | StackFamily] = {
-    "family": SceneFamily(FAMILY_PARAMETERS, n_frames=100),
-    "family_tiny": SceneFamily(FAMILY_PARAMETERS, n_frames=20),   # tests and smoke runs: 80 µs
-    **STACK_FAMILIES,   # panel stacks of 5-7 layers, a padded parameter vector (pcmgn_jax.data.stack)
-}
-
-
-# ---- designs ------------------------------------------------------------------------------------
-def lhs_designs(n: int, *, seed: int, low=DESIGN_LOW, high=DESIGN_HIGH, dim: int = 2) -> np.ndarray:
-    """(n, dim) float64 Latin-hypercube designs in [low, high]^dim (scipy.stats.qmc, seeded); ``low`` and
-    ``high`` are numbers (every dimension) or one bound per dimension (SI: m, or m/s for a speed)."""
-    from scipy.stats import qmc
-
-    if not isinstance(n, (int, np.integer)) or n < 0:
-        raise ValueError(f"lhs_designs: n must be an integer >= 0, got {n!r}")
-    lo, hi = (np.broadcast_to(np.asarray(b, np.float64), (dim,)) for b in (low, high))
-    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(0 < lo) and np.all(lo < hi)):
-        raise ValueError(f"lhs_designs: need 0 < low < high, got low={low!r}, high={high!r}")
-    if n == 0:
-        return np.zeros((0, dim))
-    sampler = qmc.LatinHypercube(d=dim, rng=np.random.default_rng(seed))
-    return qmc.scale(sampler.random(int(n)), lo, hi).astype(np.float64)
-
-
-def parse_scene_params(text: str, names: Sequence[str], *, zero_ok: bool = False) -> np.ndarray:
-    """Parse ``"ball.radius=3.5e-3,ball.velocity=0.8,OCA1=40e-6,OCA2=160e-6,POL=25e-6;..."`` (SI, scenes
-    separated by ';') into (B, len(names)) rows in ``names``' order. ValueError naming the scene and the
-    parameter for a missing, unknown, repeated or non-positive value (``zero_ok``: negative; a stack's padded
-    row holds 0 for an absent layer)."""
-    rows = []
-    for i, chunk in enumerate(t for t in text.strip().strip(";").split(";") if t.strip()):
-        got: dict[str, float] = {}
-        for item in chunk.split(","):
-            key, sep, val = (x.strip() for x in item.partition("="))
-            if not sep or key not in names or key in got:
-                why = "not NAME=VALUE" if not sep else "unknown" if key not in names else "repeated"
-                raise ValueError(f"--scene_params: scene {i + 1}: {item.strip()!r} is {why} "
-                                 f"(parameters: {', '.join(names)}, SI)")
-            try:
-                got[key] = float(val)
-            except ValueError:
-                raise ValueError(f"--scene_params: scene {i + 1}: {key}={val!r} is not a number") from None
-            if not math.isfinite(got[key]) or got[key] < 0 or (got[key] == 0 and not zero_ok):
-                raise ValueError(f"--scene_params: scene {i + 1}: {key} must be finite and > 0, got {val}")
-        if set(got) != set(names):
-            raise ValueError(f"--scene_params: scene {i + 1} misses {sorted(set(names) - set(got))}")
-        rows.append([got[n] for n in names])
-    if not rows:
-        raise ValueError("--scene_params: empty; expected NAME=VALUE,...;NAME=VALUE,... (SI)")
-    return np.asarray(rows, dtype=np.float64)
-
-
-def parse_designs(text: str, *, dim: int | None = 2) -> np.ndarray:
-    """Parse ``"40,40;40,160"`` (µm, designs separated by ';', values by ',') into (B, dim) [m]."""
-    if not isinstance(text, str) or not text.strip():
-        raise ValueError("--designs: empty; expected e.g. '40,40;40,160' (thicknesses in µm)")
-    rows = []
-    for i, chunk in enumerate(text.strip().strip(";").split(";")):
-        parts = [p.strip() for p in chunk.split(",")]
-        try:
-            vals = [float(p) for p in parts]
-        except ValueError:
-            raise ValueError(f"--designs: design {i + 1} ({chunk.strip()!r}) is not a list of numbers "
-                             "in µm, e.g. '40,160'") from None
-        if any(not math.isfinite(v) or v <= 0 for v in vals):
-            raise ValueError(f"--designs: design {i + 1} ({chunk.strip()!r}) must be finite thicknesses > 0 µm")
-        if dim is not None and len(vals) != dim:
-            raise ValueError(f"--designs: design {i + 1} ({chunk.strip()!r}) has {len(vals)} values, "
-                             f"expected {dim}")
-        if rows and len(vals) != len(rows[0]):
-            raise ValueError(f"--designs: design {i + 1} has {len(vals)} values, design 1 has {len(rows[0])}")
-        rows.append(vals)
-    return np.asarray(rows, dtype=np.float64) * 1e-6
 
 
 def _entry(split: str, i: int, design: np.ndarray, family: SceneFamily | None = None,

@@ -84,7 +84,7 @@ def robust_problem(workdir, cases: Sequence[dict] = ROBUST_CASES, *, reading: st
                    cache_dir=None) -> tuple[Problem, dict]:
     """OCA1, OCA2 (50-150 µm, sum 150-250 µm) and POL (30-70 µm) minimising the objective's mean over
     ``cases`` on a scene-family run's data: prior = its training scenes, holdout = its test scenes."""
-    from pcmgn_jax.data.dataset import FAMILIES
+    from pcmgn_jax.data.designs import FAMILIES
     from pcmgn_jax.eval.response_surfaces import objective_table
     from pcmgn_jax.eval.scene_inputs import TrainingScenes
     from pcmgn_jax.opt.problem import DesignBox

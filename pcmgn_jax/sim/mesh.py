@@ -69,7 +69,7 @@ MESH_PRESETS: dict[str, MeshSpec] = {
     "paper": MeshSpec(fine_radius=0.4e-3, fine_depth=0.08e-3, growth=1.2,
                       layer_elems={"CG": 10, "OCA1": 5, "POL": 4, "OCA2": 5, "OLED": 3, "PLATE": 8},
                       roi_x=3.0e-3, roi_ball_height=0.5e-3),
-    # scene families (pcmgn_jax.data.dataset.FAMILIES): OCA1, POL, OCA2 get ceil(t / h_layer) elements, so
+    # scene families (pcmgn_jax.data.designs.FAMILIES): OCA1, POL, OCA2 get ceil(t / h_layer) elements, so
     # meshes differ between scenes. 'family': between tiny and cpu (35 um at the contact), the objective's
     # 3 mm section in the ROI; 'family_tiny': the tiny mesh, for tests and smoke runs
     "family": MeshSpec(h_contact=35e-6, fine_radius=0.45e-3, fine_depth=0.1e-3, growth=1.3,

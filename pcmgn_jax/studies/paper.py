@@ -130,7 +130,8 @@ def run(name: str, *, formulations=("paper", "default"), seeds=(0, 1), num_steps
     kept_results, kept = _kept(name, out, forms, steps, seeds)
     extra = None
     if name == "extrapolation":
-        from pcmgn_jax.data.dataset import ensure_dataset, parse_designs
+        from pcmgn_jax.data.dataset import ensure_dataset
+        from pcmgn_jax.data.designs import parse_designs
         ensure_dataset(data, preset="cpu", designs=parse_designs(EXTRAP_DESIGNS_UM), split="extrap")
         extra = {"extrap": str(Path(data) / "extrap")}
     results: dict = {}
