@@ -37,6 +37,7 @@ from pcmgn_jax.data.exporters.calculix import (
     calculix_mesh,
     write_inp,
 )
+from pcmgn_jax.data.importers.d3plot import von_mises_from_tensor   # (s_rr, s_zz, s_tt, s_rz, s_rt, s_tz): normals, then shears
 from pcmgn_jax.data.importers.errors import InputFileError
 from pcmgn_jax.data.importers.frd import FrdResult, read_frd
 from pcmgn_jax.data.trajectory_io import SI_UNITS
@@ -163,14 +164,6 @@ def _recovered_vm(u: np.ndarray, scene: Scene, mesh: Mesh) -> np.ndarray:
     return np.stack([np.asarray(solver._frame_stress(ut, db, mesh.cells, slots, weight, rigid_x)) for ut in u])
 
 
-def _frd_vm(s: np.ndarray) -> np.ndarray:
-    """von Mises of CalculiX's nodal stress (s_rr, s_zz, s_tt, s_rz, s_rt, s_tz) (:func:`_full_fields`): the
-    project's definition (:func:`pcmgn_jax.sim.fem.von_mises`: in-plane + hoop) plus the two hoop shears
-    (zero in axisymmetry up to round-off)."""
-    vm4 = fem.von_mises(s[..., [0, 1, 3, 2]])
-    return np.sqrt(vm4**2 + 3.0 * (s[..., 4] ** 2 + s[..., 5] ** 2))
-
-
 def frd_trajectory(frd: str | os.PathLike, scene: Scene, preset: str | MeshSpec, *, stress: str = "recovered",
                    crop: bool = True, meta: dict[str, Any] | None = None) -> tuple[Trajectory, dict[str, Any]]:
     """The .frd of ``scene`` at ``preset`` -> (trajectory [SI], extra) where extra holds the full-mesh
@@ -193,7 +186,7 @@ def frd_trajectory(frd: str | os.PathLike, scene: Scene, preset: str | MeshSpec,
     u = np.concatenate([np.zeros((1, n, 2)), u])
     v = np.concatenate([v0, v])
     vms = {"recovered": _recovered_vm(u, scene, mesh),
-           "frd": np.concatenate([np.zeros((1, n)), _frd_vm(s)])}
+           "frd": np.concatenate([np.zeros((1, n)), von_mises_from_tensor(s)])}
     force = ball_force(v, ball_masses(scene, mesh), scene.output_dt)
     sub, node_map = roi(mesh, preset) if crop else (mesh, np.arange(n))
     info = {"units": dict(SI_UNITS), "analysis": scene.analysis, "scene": scene.to_dict(),
