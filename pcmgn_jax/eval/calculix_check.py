@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from pcmgn_jax.eval import metrics
+from pcmgn_jax.sim.output import contact_phases
 from pcmgn_jax.trajectory import Trajectory
 
 __all__ = ["CHECKED", "compare", "contact_window", "field_errors", "impact_figures"]
@@ -28,18 +29,11 @@ def contact_window(force: np.ndarray, dt: float, threshold: float = 1e-3) -> dic
     """Contact start / end [s] (start of the first, end of the last interval whose mean force exceeds
     ``threshold`` x peak), duration [s], peak force [N] and its interval's mid time [s] from a per-interval
     force (T-1,) [N]. The end is NaN when the force is still on at the last interval."""
-    f = np.asarray(force, np.float64)
-    peak = float(f.max())
-    on = np.flatnonzero(f > threshold * max(peak, 1e-30))
-    if peak <= 0 or not len(on):
-        nan = float("nan")
-        return {"contact_start_s": nan, "contact_end_s": nan, "contact_duration_s": nan, "peak_force_N": 0.0,
-                "peak_force_time_s": nan}
-    start, end = on[0] * dt, (on[-1] + 1) * dt
-    if on[-1] == len(f) - 1:
-        end = float("nan")
-    return {"contact_start_s": float(start), "contact_end_s": float(end), "contact_duration_s": float(end - start),
-            "peak_force_N": peak, "peak_force_time_s": float((np.argmax(f) + 0.5) * dt)}
+    ph = contact_phases(np.asarray(force, np.float64), dt, threshold)   # the solver's one rule, per interval
+    start = ph["contact_start_s"] - dt        # contact_phases times an interval by its end
+    end = ph["separation_s"]
+    return {"contact_start_s": start, "contact_end_s": end, "contact_duration_s": end - start,
+            "peak_force_N": ph["peak_force_N"], "peak_force_time_s": ph["peak_force_time_s"] - 0.5 * dt}
 
 
 def impact_figures(traj: Trajectory, force: np.ndarray, *, von_mises: np.ndarray | None = None) -> dict[str, Any]:
