@@ -29,7 +29,8 @@ import orbax.checkpoint as ocp
 
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.mgn import contact as contact_lib
-from pcmgn_jax.mgn.graphs import Topology, topology_from_trajectory
+from pcmgn_jax.mgn.graphs import Topology
+from pcmgn_jax.mgn.inputs import topology_from_trajectory
 from pcmgn_jax.mgn.model import EncodeProcessDecode
 from pcmgn_jax.mgn.normalization import Stats
 from pcmgn_jax.mgn.rollout import Spec
