@@ -8,15 +8,14 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from typing import Literal
 
 from pcmgn_jax import cli
-from pcmgn_jax.data.dataset import PRESETS
+from pcmgn_jax.presets import PresetName
 
 
 @dataclass(frozen=True)
 class PanelReportArgs:
-    preset: Literal[PRESETS] = "cpu"              # mesh preset
+    preset: PresetName = "cpu"                    # mesh preset (pcmgn_jax.presets.PRESETS)
     designs: str = "50,50;100,100;150,150"       # T_OCA1,T_OCA2 [µm]; designs separated by ';'
     frames: int = 150                            # frames of 4 µs to simulate
     out: str = "results/panel_report"            # output path stem: OUT.json, OUT.md, OUT.png

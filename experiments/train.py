@@ -1,7 +1,8 @@
 """Train the MeshGraphNet: ``python -m experiments.train [--preset cpu] [--workdir runs/cpu] [--lambda_pen=0]``.
 
-Every TrainConfig field is a flag (``--key=value``; ``--help`` lists them); ``--preset tiny|cpu|paper``
-fills the defaults (pcmgn_jax.config.PRESETS); plus ``--workdir DIR`` and ``--resume``, which continues the
+Every TrainConfig field is a flag (``--key=value``; ``--help`` lists them); ``--preset NAME``
+fills the defaults (the preset's training settings, pcmgn_jax.presets.PRESETS: tiny, cpu, paper, family, family_tiny,
+stack, stack_tiny); plus ``--workdir DIR`` and ``--resume``, which continues the
 run from its last checkpoint and refuses flags that change its saved config.json. A workdir that holds a run
 is refused without ``--resume`` unless ``--overwrite`` (the earlier run is moved to ``DIR.old-<time>``); a
 workdir another process trains in is refused (docs/reliability.md). ``--devices`` splits each

@@ -64,14 +64,14 @@ from pcmgn_jax.data.trajectory_io import (
     write_trajectory,
 )
 from pcmgn_jax.lock import hold
+from pcmgn_jax.presets import PRESET_NAMES
 from pcmgn_jax.scene import Scene, default_scene
-from pcmgn_jax.sim.mesh import MESH_PRESETS
 from pcmgn_jax.trajectory import Trajectory
 
 __all__ = ["FAMILIES", "GENERATE", "IMPORTED", "MANIFEST", "PRESETS", "DatasetError", "SceneFamily", "dataset_source",
            "ensure_dataset", "lhs_designs", "load_manifest", "parse_designs", "parse_scene_params", "split_stems"]
 
-PRESETS = tuple(MESH_PRESETS)          # mesh resolution / frame count (names: sim.mesh.MESH_PRESETS)
+PRESETS = PRESET_NAMES                 # mesh resolution / frame count / family (pcmgn_jax.presets.PRESETS)
 _SPLIT_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
 
 
