@@ -28,7 +28,7 @@ def main(argv=None) -> int:
     matplotlib.use("Agg")  # files only; set here, in the entry point, not in the library
     from pcmgn_jax.eval.panel_report import panel_report
     lines = panel_report(args.preset, args.designs, args.frames, args.out,
-                         command="python -m experiments.panel_report " + " ".join(argv))
+                         command=cli.command_line("experiments.panel_report", argv))
     print("\n".join(lines))
     return 0
 
