@@ -11,8 +11,8 @@ Flags are written ``--key=value`` or ``--key value`` with underscores (the paper
 raises ``ValueError`` naming it (entry points print it and exit with status 2).
 
 Training: :func:`parse_train` reads ``--preset NAME`` first (one of ``pcmgn_jax.presets.PRESETS``: tiny, cpu,
-paper, family, family_tiny, stack, stack_tiny), fills every default from that preset's training settings, then parses every :class:`TrainConfig` field as a flag, plus ``--workdir``,
-``--resume`` and ``--overwrite``. ``--formulation=paper|default|dynamic|realtime`` is read first too, wherever it
+paper, family, family_tiny, stack, stack_tiny), fills every default from that preset's training settings, then
+parses every :class:`TrainConfig` field as a flag, plus ``--workdir``, ``--resume`` and ``--overwrite``. ``--formulation=paper|default|dynamic|realtime`` is read first too, wherever it
 stands: it sets the nested formulation to ``FORMULATIONS[name]`` (with the preset's formulation overrides) before the
 formulation's field flags (``--panel_target=X``, ``--rigid_ball``, ``--contact_projection``,
 ``--scene_features=a,b|none``) apply. With ``--resume`` the defaults come from the run's ``config.json`` instead, and a flag

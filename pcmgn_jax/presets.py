@@ -21,15 +21,18 @@ FamilyKind = Literal["", "scene", "stack"]
 
 @dataclass(frozen=True)
 class Preset:
-    """One preset (module docstring)."""
+    """One preset (module docstring). ``family``: "" the paper's scene, whose designs are its design layers'
+    thicknesses; ``scene`` a :class:`pcmgn_jax.data.designs.SceneFamily` (ball radius and speed, OCA1, OCA2 and POL
+    thicknesses vary); ``stack`` a :class:`pcmgn_jax.data.stack.StackFamily` (stacks of 5-7 layers)."""
 
     train: Mapping[str, Any]   # TrainConfig fields (formulation fields by name), over TrainConfig's defaults
     mesh: Mapping[str, Any]    # pcmgn_jax.sim.mesh.MeshSpec fields [m], over MeshSpec's defaults
-    family: FamilyKind = ""    # "" the paper's scene, designs = its design layers' thicknesses | scene (pcmgn_jax.data.designs.SceneFamily: ball radius, speed, OCA1/OCA2/POL vary) | stack (pcmgn_jax.data.stack.StackFamily: stacks of 5-7 layers)
+    family: FamilyKind = ""    # the scene family: "" | scene | stack (above)
     n_frames: int = 0          # a family's window: frames of the base scene's output_dt (0: the scene's own)
 
 
-STACK_FEATURES = ("ball_radius", "material", "own_thickness", "layer_depth", "total_thickness")  # the stack presets' inputs
+# the stack presets' inputs
+STACK_FEATURES = ("ball_radius", "material", "own_thickness", "layer_depth", "total_thickness")
 
 # meshes: 'tiny' a few hundred nodes for tests; 'cpu' the 2-core default (~25 um at the contact); 'paper' the paper's
 # resolution (<= 10 um at the contact; ~7.7k solver nodes, ~3.2k graph nodes in the region of interest, like the
