@@ -12,10 +12,11 @@ raises ``ValueError`` naming it (entry points print it and exit with status 2).
 
 Training: :func:`parse_train` reads ``--preset NAME`` first (one of ``pcmgn_jax.presets.PRESETS``: tiny, cpu,
 paper, family, family_tiny, stack, stack_tiny), fills every default from that preset's training settings, then
-parses every :class:`TrainConfig` field as a flag, plus ``--workdir``, ``--resume`` and ``--overwrite``. ``--formulation=paper|default|dynamic|realtime`` is read first too, wherever it
-stands: it sets the nested formulation to ``FORMULATIONS[name]`` (with the preset's formulation overrides) before the
-formulation's field flags (``--panel_target=X``, ``--rigid_ball``, ``--contact_projection``,
-``--scene_features=a,b|none``) apply. With ``--resume`` the defaults come from the run's ``config.json`` instead, and a flag
+parses every :class:`TrainConfig` field as a flag, plus ``--workdir``, ``--resume`` and ``--overwrite``.
+``--formulation=paper|default|dynamic|realtime`` is read first too, wherever it stands: it sets the nested
+formulation to ``FORMULATIONS[name]`` (with the preset's formulation overrides) before the formulation's field flags
+(``--panel_target=X``, ``--rigid_ball``, ``--contact_projection``, ``--scene_features=a,b|none``) apply. With
+``--resume`` the defaults come from the run's ``config.json`` instead, and a flag
 that changes a saved value is refused (:func:`pcmgn_jax.config.check_resume`).
 """
 from __future__ import annotations
