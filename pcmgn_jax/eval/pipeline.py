@@ -1,6 +1,6 @@
 """The evaluation pipeline as a library call: ``pcmgn_jax.eval.run(workdir)``.
 
-Loads the run's splits from its config's dataset directory (:func:`pcmgn_jax.data.dataset.load_splits`,
+Loads the run's splits from its config's dataset directory (:func:`pcmgn_jax.data.splits.load_splits`,
 a generated or an imported dataset alike: test = the first ``n_test`` of DIR/test), or any directory of
 trajectory files (``data``), and scores the run's model beside the baselines fitted on its training split
 (:func:`pcmgn_jax.eval.evaluate.evaluate`). ``experiments/evaluate.py`` parses flags and calls :func:`run`.
@@ -23,10 +23,10 @@ def output_name(data: str = "", name: str = "") -> str | None:
 
 def run_splits(workdir: str | Path):
     """(cfg, train, val, test) of a training run directory: its ``config.json`` (a
-    :class:`~pcmgn_jax.config.TrainConfig`) and :func:`pcmgn_jax.data.dataset.load_splits` of its dataset at its sizes.
+    :class:`~pcmgn_jax.config.TrainConfig`) and :func:`pcmgn_jax.data.splits.load_splits` of its dataset at its sizes.
     ``FileNotFoundError`` when ``workdir`` holds no config.json."""
     from pcmgn_jax.config import TrainConfig
-    from pcmgn_jax.data.dataset import load_splits
+    from pcmgn_jax.data.splits import load_splits
     run = Path(workdir)
     if not (run / "config.json").exists():
         raise FileNotFoundError(f"{run}/config.json: not a training run directory")
@@ -46,7 +46,7 @@ def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str =
     the run's); ``split``: ``val`` scores the run's validation trajectories instead (RUN/eval/val unless
     ``name``), where a rollout setting is chosen without looking at the test split."""
     from pcmgn_jax.config import TrainConfig
-    from pcmgn_jax.data.dataset import load_directory, load_splits
+    from pcmgn_jax.data.splits import load_directory, load_splits
     from pcmgn_jax.eval import evaluate as evaluation
     from pcmgn_jax.mgn.checkpoint import require_run
     require_run(workdir)   # a missing run, a file, no config or no checkpoint: one line, nothing written
