@@ -5,7 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
-from conftest import drop_last_column, make_synthetic_trajectory
+from fixtures.helpers import drop_last_column, make_synthetic_trajectory
 from pcmgn_jax.eval import response_surfaces as rs
 from pcmgn_jax.eval.rom import POD_ENERGY, Rom
 from pcmgn_jax.eval.surrogates import FieldRegression
