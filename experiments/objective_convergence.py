@@ -5,7 +5,7 @@
 Runs the built-in solver at each mesh and design (cached under results/objective_convergence/solver/),
 and writes results/objective_convergence.{json,md}: every reading per mesh, and its change against the
 finest mesh. ``cpu_fine`` is the cpu preset with the contact size and the layer element counts halved /
-doubled (a mesh between cpu and paper).
+doubled (a mesh between cpu and paper); ``PRESET@F`` is the preset refined by F (``cpu@2``, ``paper@2``).
 """
 from __future__ import annotations
 
@@ -23,7 +23,15 @@ class ConvergenceArgs:
 
 
 def mesh_for(name: str):
-    from pcmgn_jax.sim.mesh import mesh_spec, with_spec
+    """A mesh by name: a preset, ``cpu_fine``, or ``PRESET@F``: the preset refined by the factor F
+    (:func:`pcmgn_jax.sim.mesh.refined`; ``cpu@0.5`` coarsens)."""
+    from pcmgn_jax.sim.mesh import mesh_spec, refined, with_spec
+    if "@" in name:
+        preset, _, factor = name.partition("@")
+        try:
+            return refined(preset, float(factor))
+        except ValueError as err:
+            raise ValueError(f"mesh {name!r}: {err}") from None
     if name == "cpu_fine":
         base = mesh_spec("cpu")
         return with_spec("cpu", h_contact=base.h_contact / 2, h_layer=base.h_layer / 2,
