@@ -39,6 +39,8 @@ class SeriesArgs:
     """the built-in solver's contact penalty factor in the series"""
     ccx_penalty_factor: float = 0.1
     """the contact penalty factor of the CalculiX rows, in both codes"""
+    ccx_elements: str = "C3D8"
+    """CalculiX's elements, each a row: C3D8 (full integration, the built-in Q4's counterpart), C3D8I (incompatible modes)"""
     increments_per_frame: int = 2
     """ccx's largest increment = output_dt / this"""
     timeout_s: float = 7200.0
@@ -47,8 +49,9 @@ class SeriesArgs:
     """output stem (.json, .md, .png) and row cache folder (OUT/rows/, ccx runs in OUT/runs/)"""
 
 
-def row(args, name: str, code: str) -> dict:
-    """One mesh's figures in one code ('builtin', 'builtin_ccx_penalty' or 'calculix'), cached as JSON."""
+def row(args, name: str, code: str, element: str = "C3D8") -> dict:
+    """One mesh's figures in one code ('builtin', 'builtin_ccx_penalty' or 'calculix' with ``element``), cached
+    as JSON."""
     from experiments.calculix_runs import _builtin, _ccx
     from experiments.objective_convergence import mesh_for
     from pcmgn_jax.data.exporters.calculix import CalculixSettings
@@ -60,14 +63,17 @@ def row(args, name: str, code: str) -> dict:
 
     design = [float(v) * 1e-6 for v in args.design.split(",")]
     penalty = args.penalty_factor if code == "builtin" else args.ccx_penalty_factor
-    cache = Path(args.out) / "rows" / f"{name}_{code}_{'_'.join(args.design.split(','))}_p{penalty:g}.json"
+    tag = f"{code}_{element}" if code == "calculix" else code
+    cache = Path(args.out) / "rows" / f"{name}_{tag}_{'_'.join(args.design.split(','))}_p{penalty:g}.json"
     if cache.is_file():
         return json.loads(cache.read_text())
     scene = default_scene().with_design(*design)
     spec = mesh_spec(mesh_for(name))
     if code == "calculix":
-        settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=penalty)
-        traj, extra, wall = _ccx(Path(args.out) / "runs" / name, scene, spec, settings, args.timeout_s)
+        settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=penalty,
+                                    element=element)
+        traj, extra, wall = _ccx(Path(args.out) / "runs" / f"{name}_{element}", scene, spec, settings,
+                                 args.timeout_s)
         force = extra["force_N"]
     else:
         traj, force, wall, _ = _builtin(scene, spec, penalty)
@@ -75,7 +81,7 @@ def row(args, name: str, code: str) -> dict:
     oled = list(traj.meta["part_names"]).index("OLED")
     w_area = metrics.objective_weights(traj.points, traj.cells, traj.cell_part, traj.node_part, part=oled)
     w_fixed = section_weights(traj.points, traj.cells, traj.cell_part, part=oled, x_end=args.section_x_mm * 1e-3)
-    rec = {"mesh": name, "code": code, "penalty_factor": penalty, "design_um": [d * 1e6 for d in design],
+    rec = {"mesh": name, "code": tag, "penalty_factor": penalty, "design_um": [d * 1e6 for d in design],
            "full_nodes": int(traj.meta["solver"]["full_mesh_nodes"]), "roi_nodes": int(traj.n_nodes),
            "oled_elements": int(spec.layer_elems["OLED"]), "h_contact_um": spec.h_contact * 1e6,
            "section_end_mm": float(traj.points[w_area > 0, 0].max() * 1e3),
@@ -120,7 +126,7 @@ def plot(rows: list[dict], png: str, section_x_mm: float) -> None:
             ("objective_fixed_section_mpa", f"area mean, x ≤ {section_x_mm:g} mm [MPa]"),
             ("objective_node_mean_mpa", "node mean [MPa]"))
     styles = {"builtin": ("o", "built-in (penalty 1)"), "builtin_ccx_penalty": ("s", "built-in (ccx penalty)"),
-              "calculix": ("x", "CalculiX")}
+              "calculix_C3D8": ("x", "CalculiX C3D8"), "calculix_C3D8I": ("+", "CalculiX C3D8I")}
     for code, (marker, label) in styles.items():
         sel = [r for r in rows if r["code"] == code]
         if not sel:
@@ -148,7 +154,7 @@ def main(argv=None) -> int:
     from pcmgn_jax.data.calculix import CalculixNotFoundError, find_ccx
 
     command = "python -m experiments.mesh_series " + " ".join(sys.argv[1:] if argv is None else argv)
-    todo = [(m.strip(), "builtin") for m in args.meshes.split(",") if m.strip()]
+    todo = [(m.strip(), "builtin", "") for m in args.meshes.split(",") if m.strip()]
     ccx = [m.strip() for m in args.ccx_meshes.split(",") if m.strip()]
     if ccx:
         try:
@@ -156,10 +162,11 @@ def main(argv=None) -> int:
         except CalculixNotFoundError as err:
             print(f"error: {err}", file=sys.stderr)
             return 2
-    todo += [(m, code) for m in ccx for code in ("builtin_ccx_penalty", "calculix")]
+    elements = [e.strip() for e in args.ccx_elements.split(",") if e.strip()]
+    todo += [(m, "builtin_ccx_penalty", "") for m in ccx] + [(m, "calculix", e) for m in ccx for e in elements]
     rows = []
-    for name, code in todo:
-        rows.append(row(args, name, code))
+    for name, code, element in todo:
+        rows.append(row(args, name, code, element or "C3D8"))
         r = rows[-1]
         print(f"{name:10s} {code:20s} area {r['objective_area_mean_mpa']:.4f} fixed {r['objective_fixed_section_mpa']:.4f} "
               f"node {r['objective_node_mean_mpa']:.4f} force {r['peak_force_N']:.3f} N", flush=True)

@@ -70,3 +70,15 @@ def test_section_weights_errors(roi_mesh):
         section_weights(sub.points, sub.cells, sub.cell_part, part=0, x_end=1e-4)   # the ball's cells
     with pytest.raises(ValueError, match="no cell of part"):
         section_weights(sub.points, sub.cells, sub.cell_part, part=99, x_end=1e-3)
+
+
+def test_calculix_element_choice():
+    import dataclasses
+
+    from pcmgn_jax.data.exporters.calculix import CalculixSettings, calculix_mesh, inp_text
+
+    scene = dataclasses.replace(default_scene(), n_frames=2)
+    deck = inp_text(scene, calculix_mesh(scene, "tiny"), CalculixSettings(element="C3D8I"))
+    assert deck.count("*ELEMENT, TYPE=C3D8I,") == len(scene.part_names) and "TYPE=C3D8," not in deck
+    with pytest.raises(ValueError, match="element must be one of"):
+        CalculixSettings(element="CAX4")
