@@ -35,6 +35,14 @@ def test_mesh_for_names():
     assert mesh_for("cpu_fine").layer_elems["OLED"] == 4
     with pytest.raises(ValueError, match="cpu@x"):
         mesh_for("cpu@x")
+    base, full = mesh_spec("cpu"), refined("cpu", 2)
+    far, layers, plate = (mesh_for(f"cpu@2:{z}") for z in ("far", "layers", "plate"))
+    assert far.growth == full.growth and dict(far.layer_elems) == dict(base.layer_elems)
+    assert layers.growth == base.growth and layers.layer_elems["OLED"] == 4 and layers.layer_elems["PLATE"] == 6
+    assert plate.layer_elems["PLATE"] == 12 and plate.layer_elems["OLED"] == 2
+    assert plate.bottom_growth == full.bottom_growth and plate.h_contact == base.h_contact
+    with pytest.raises(ValueError, match="zone must be one of"):
+        mesh_for("cpu@2:ball")
 
 
 @pytest.fixture(scope="module")
