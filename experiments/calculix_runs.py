@@ -54,7 +54,8 @@ def hertz_case(out: Path, args) -> dict[str, Any]:
                                growth=args.hertz_growth)
     window = scene.ball.gap / 0.62631 + 1.4 * theory["contact_time_s"]
     scene = dataclasses.replace(scene, output_dt=window / args.hertz_frames, n_frames=args.hertz_frames)
-    settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=args.hertz_penalty_factor)
+    settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=args.hertz_penalty_factor,
+                                min_increment_ratio=args.hertz_min_increment_ratio)
     tc, fc, wall_c = _ccx(out / "runs" / "hertz", scene, spec, settings, args.timeout_s)
     tb, fb, wall_b, _ = _builtin(scene, spec, args.hertz_penalty_factor)
     figs = {"calculix": impact_figures(tc, fc["force_N"]), "builtin": impact_figures(tb, fb)}
