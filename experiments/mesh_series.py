@@ -64,7 +64,7 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
     design = [float(v) * 1e-6 for v in args.design.split(",")]
     penalty = args.penalty_factor if code == "builtin" else args.ccx_penalty_factor
     tag = f"{code}_{element}" if code == "calculix" else code
-    cache = Path(args.out) / "rows" / f"{name}_{tag}_{'_'.join(args.design.split(','))}_p{penalty:g}.json"
+    cache = Path(args.out) / "rows" / f"{name.replace(':', '-')}_{tag}_{'_'.join(args.design.split(','))}_p{penalty:g}.json"
     if cache.is_file():
         return json.loads(cache.read_text())
     scene = default_scene().with_design(*design)
