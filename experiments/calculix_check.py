@@ -51,6 +51,12 @@ class CheckArgs:
     """per ccx run"""
     hertz_frames: int = 120
     """frames over the Hertz window (gap / v + 1.4 t_c)"""
+    hertz_elems_per_radius: float = 10.0
+    """Hertz mesh: elements across the contact radius (sim/hertz.py hertz_mesh_spec)"""
+    hertz_growth: float = 1.15
+    """Hertz mesh: growth ratio of the element sizes outside the fine zone (coarser far field: larger)"""
+    hertz_min_increment_ratio: float = 0.05
+    """Hertz: ccx's smallest increment / its largest (the contact's stiff springs need ~0.1 of a 0.6 µs frame)"""
 
 
 def main(argv=None) -> int:

@@ -50,10 +50,12 @@ def hertz_case(out: Path, args) -> dict[str, Any]:
     scene = hertz_scene(radius=5e-3, velocity=0.62631, target="glass")
     e, nu, _ = TARGETS["glass"]
     theory = hertz_impact(radius=5e-3, velocity=0.62631, ball=scene.ball, youngs=e, poisson=nu)
-    spec = hertz_mesh_spec(theory, elems_per_radius=10)
+    spec = dataclasses.replace(hertz_mesh_spec(theory, elems_per_radius=args.hertz_elems_per_radius),
+                               growth=args.hertz_growth)
     window = scene.ball.gap / 0.62631 + 1.4 * theory["contact_time_s"]
     scene = dataclasses.replace(scene, output_dt=window / args.hertz_frames, n_frames=args.hertz_frames)
-    settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=args.hertz_penalty_factor)
+    settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=args.hertz_penalty_factor,
+                                min_increment_ratio=args.hertz_min_increment_ratio)
     tc, fc, wall_c = _ccx(out / "runs" / "hertz", scene, spec, settings, args.timeout_s)
     tb, fb, wall_b, _ = _builtin(scene, spec, args.hertz_penalty_factor)
     figs = {"calculix": impact_figures(tc, fc["force_N"]), "builtin": impact_figures(tb, fb)}
@@ -62,7 +64,8 @@ def hertz_case(out: Path, args) -> dict[str, Any]:
     return {"case": "hertz", "label": "hertz_glass", "theory": ref, "figures": figs, "vs_theory": vs_theory,
             "compare": compare(figs["calculix"], figs["builtin"]), "n_nodes_2d": tc.meta["solver"]["full_mesh_nodes"],
             "ccx_wall_s": wall_c, "builtin_wall_s": wall_b, "output_dt_s": scene.output_dt,
-            "penalty_factor": args.hertz_penalty_factor,
+            "penalty_factor": args.hertz_penalty_factor, "elems_per_radius": args.hertz_elems_per_radius,
+            "growth": args.hertz_growth,
             "goal_met": all(abs(v) <= 0.05 for v in vs_theory["calculix"].values())}
 
 

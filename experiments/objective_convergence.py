@@ -5,7 +5,7 @@
 Runs the built-in solver at each mesh and design (cached under results/objective_convergence/solver/),
 and writes results/objective_convergence.{json,md}: every reading per mesh, and its change against the
 finest mesh. ``cpu_fine`` is the cpu preset with the contact size and the layer element counts halved /
-doubled (a mesh between cpu and paper).
+doubled (a mesh between cpu and paper); ``PRESET@F`` is the preset refined by F (``cpu@2``, ``paper@2``).
 """
 from __future__ import annotations
 
@@ -23,7 +23,31 @@ class ConvergenceArgs:
 
 
 def mesh_for(name: str):
-    from pcmgn_jax.sim.mesh import mesh_spec, with_spec
+    """A mesh by name: a preset, ``cpu_fine``, ``PRESET@F``: the preset refined by the factor F
+    (:func:`pcmgn_jax.sim.mesh.refined`; ``cpu@0.5`` coarsens), or ``PRESET@F:ZONE`` with only one zone refined:
+    ``far`` (the radial growth ratio to the power 1/F: the graded far field), ``layers`` (the element counts of
+    the layers above the bottom one, x F) or ``plate`` (the bottom layer's count x F, its growth to the power 1/F)."""
+    from pcmgn_jax.sim.mesh import mesh_spec, refined, with_spec
+    if "@" in name:
+        preset, _, rest = name.partition("@")
+        factor, _, zone = rest.partition(":")
+        try:
+            f = float(factor)
+            full = refined(preset, f)
+            base = mesh_spec(preset)
+        except ValueError as err:
+            raise ValueError(f"mesh {name!r}: {err}") from None
+        bottom = list(base.layer_elems)[-1] if base.layer_elems else None
+        zones = {"": full,
+                 "far": with_spec(base, growth=full.growth),
+                 "layers": with_spec(base, layer_elems={k: full.layer_elems[k] if k != bottom else v
+                                                        for k, v in base.layer_elems.items()}),
+                 "plate": with_spec(base, bottom_growth=full.bottom_growth,
+                                    layer_elems={k: full.layer_elems[k] if k == bottom else v
+                                                 for k, v in base.layer_elems.items()})}
+        if zone not in zones:
+            raise ValueError(f"mesh {name!r}: zone must be one of far, layers, plate, got {zone!r}")
+        return zones[zone]
     if name == "cpu_fine":
         base = mesh_spec("cpu")
         return with_spec("cpu", h_contact=base.h_contact / 2, h_layer=base.h_layer / 2,

@@ -6,7 +6,8 @@ built-in: the mean of its per-substep contact force over the frame, the same qua
 end (first and last interval with a force above 1e-3 of the peak, so both codes are read at one 4 us grid),
 the peak cover-glass von Mises, the OLED objective's readings (:mod:`pcmgn_jax.eval.metrics`) and the
 maximum approach. :func:`field_errors` compares the fields at given frames. :func:`compare` puts two
-runs side by side with relative differences.
+runs side by side with relative differences. :func:`section_weights` is the mesh-refinement series' fixed
+section: the area mean over exactly 0 <= x <= x_end, whatever the mesh's grading.
 """
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ from pcmgn_jax.eval import metrics
 from pcmgn_jax.sim.output import contact_phases
 from pcmgn_jax.trajectory import Trajectory
 
-__all__ = ["CHECKED", "compare", "contact_window", "field_errors", "impact_figures"]
+__all__ = ["CHECKED", "compare", "contact_window", "field_errors", "impact_figures", "section_weights"]
 
 #: the figures :func:`compare` checks against the issue's 5 % goal
 CHECKED = ("peak_force_N", "contact_duration_s", "objective_area_mean_mpa", "objective_node_mean_mpa")
@@ -79,3 +80,33 @@ def compare(ccx: Mapping[str, Any], builtin: Mapping[str, Any], keys: Sequence[s
         a, b = float(ccx[k]), float(builtin[k])
         out[k] = {"calculix": a, "builtin": b, "rel_diff": a / b - 1.0 if b else float("nan")}
     return out
+
+
+def section_weights(points, cells, cell_part, *, part: int, x_end: float) -> np.ndarray:
+    """(N,) nodal weights (summing to 1) of the area mean over the section of ``part`` at 0 <= x <= ``x_end`` [m]
+    exactly: a cell that straddles x_end counts with its part at x <= x_end, the bilinear shape functions
+    integrated exactly over the clipped rectangle. The objective's ``area_mean``
+    (:func:`pcmgn_jax.eval.metrics.objective_weights`) keeps the cells wholly at x <= 3 mm instead, so its section
+    ends at the mesh's last node under 3 mm, which moves with the grading; with ``x_end`` on a node the two agree.
+    Needs the part's cells to be axis-aligned rectangles (the panel's layers) reaching x_end; ValueError otherwise."""
+    pts = np.asarray(points, np.float64)
+    cells = np.asarray(cells)[np.asarray(cell_part) == part]
+    if not len(cells):
+        raise ValueError(f"section_weights: no cell of part {part}")
+    xy = pts[cells]                                                   # (E, 4, 2)
+    lo, hi = xy.min(axis=1), xy.max(axis=1)                           # (E, 2) corners
+    tol = 1e-9 * float(np.abs(pts).max())
+    at_lo = np.abs(xy - lo[:, None]) <= tol
+    at_hi = np.abs(xy - hi[:, None]) <= tol
+    if not np.all(at_lo ^ at_hi) or np.any(at_lo.sum(axis=1) != 2):
+        raise ValueError(f"section_weights: the cells of part {part} are not axis-aligned rectangles")
+    if hi[:, 0].max() < x_end - tol:
+        raise ValueError(f"section_weights: part {part} ends at x = {hi[:, 0].max():.4e} m, short of x_end = {x_end:.4e} m")
+    x0, x1 = lo[:, 0], hi[:, 0]
+    xc = np.clip(x_end, x0, x1)
+    left = (x1 * (xc - x0) - 0.5 * (xc ** 2 - x0 ** 2)) / (x1 - x0)   # int over [x0, xc] of (x1 - x) / (x1 - x0)
+    right = (0.5 * (xc ** 2 - x0 ** 2) - x0 * (xc - x0)) / (x1 - x0)  # ... of (x - x0) / (x1 - x0)
+    w = np.where(at_lo[..., 0], left[:, None], right[:, None]) * (0.5 * (hi[:, 1] - lo[:, 1]))[:, None]
+    out = np.zeros(len(pts))
+    np.add.at(out, cells.ravel(), w.ravel())
+    return out / out.sum()

@@ -323,3 +323,18 @@ def roi(mesh: Mesh, preset: str | MeshSpec) -> tuple[Mesh, np.ndarray]:
 def with_spec(preset: str | MeshSpec, **changes) -> MeshSpec:
     """A copy of a preset's MeshSpec with fields replaced."""
     return dataclasses.replace(mesh_spec(preset), **changes)
+
+
+def refined(preset: str | MeshSpec, factor: float) -> MeshSpec:
+    """A preset's MeshSpec refined by ``factor`` (2: every element about half as large; 0.5: coarsened): the
+    contact and layer sizes h_contact, h_layer [m] divided by it, every ``layer_elems`` count multiplied by it
+    (rounded up, at least 1), and the growth ratios taken to the power 1/factor, so the graded zones get
+    ``factor`` times as many elements of 1/factor the size at the same place. The fine zones, the region of
+    interest and the scene are unchanged (a mesh-refinement series of one preset)."""
+    if not (math.isfinite(factor) and factor > 0):
+        raise ValueError(f"mesh: refinement factor must be a finite number > 0, got {factor!r}")
+    spec = mesh_spec(preset)
+    return dataclasses.replace(
+        spec, h_contact=spec.h_contact / factor, h_layer=spec.h_layer / factor,
+        growth=spec.growth ** (1.0 / factor), bottom_growth=spec.bottom_growth ** (1.0 / factor),
+        layer_elems={k: max(1, math.ceil(v * factor - 1e-9)) for k, v in spec.layer_elems.items()})

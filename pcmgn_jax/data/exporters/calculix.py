@@ -46,11 +46,13 @@ from pcmgn_jax.data.exporters.common import ExportError, write_text_atomic
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.sim.mesh import Mesh, MeshSpec, build_mesh
 
-__all__ = ["CalculixSettings", "ELEMENT_TYPE", "calculix_mesh", "contact_penalty", "inp_text", "parse_inp",
+__all__ = ["CalculixSettings", "ELEMENT_TYPE", "ELEMENTS", "calculix_mesh", "contact_penalty", "inp_text", "parse_inp",
            "set_name", "write_inp"]
 
 #: the scene's analysis -> CalculiX element type (4-node, full integration)
 ELEMENT_TYPE = "C3D8"
+#: the element types a deck may use (CalculixSettings.element)
+ELEMENTS = ("C3D8", "C3D8I")
 _PER_LINE = 8
 
 
@@ -64,6 +66,8 @@ class CalculixSettings:
                      ``increments_per_frame`` so output_dt / it is below the stable step)
     penalty_factor:  contact penalty k_p = factor x E'/h [Pa/m] (the built-in solver's rule)
     wedge_deg:       the wedge's angle [deg] (ccx revolves its own axisymmetric elements by 2 deg)
+    element:         ``C3D8`` (full 2x2x2 integration, the built-in Q4's counterpart) or ``C3D8I`` (with
+                     incompatible bending modes: no shear locking in long, thin elements)
     min_increment_ratio: smallest increment / largest: ccx's impact control shrinks the increment at
                      contact changes and then grows it by 1 % per increment, so a floor keeps a rebound from
                      leaving it at 1e-10 s for thousands of increments
@@ -78,8 +82,11 @@ class CalculixSettings:
     tension: float = 1e4
     wedge_deg: float = 2.0
     min_increment_ratio: float = 0.05
+    element: str = ELEMENT_TYPE
 
     def __post_init__(self) -> None:
+        if self.element not in ELEMENTS:
+            raise ValueError(f"calculix: element must be one of {ELEMENTS}, got {self.element!r}")
         if int(self.increments_per_frame) < 1:
             raise ValueError(f"calculix: increments_per_frame must be >= 1, got {self.increments_per_frame!r}")
         if not -1.0 / 3.0 - 1e-12 <= self.alpha <= 0.0:
@@ -176,7 +183,7 @@ def inp_text(scene: Scene, mesh: Mesh, settings: CalculixSettings = CalculixSett
         cells = np.flatnonzero(mesh.cell_part == pid)
         if not len(cells):
             raise ExportError(f"calculix: part {name!r} has no cells in the mesh")
-        out.append(f"*ELEMENT, TYPE={ELEMENT_TYPE}, ELSET={set_name(name)}")
+        out.append(f"*ELEMENT, TYPE={settings.element}, ELSET={set_name(name)}")
         out += [f"{e + 1}, " + ", ".join(str(int(k) + 1) for k in bricks[e]) for e in cells]
     both = lambda ids: np.unique(np.concatenate([ids, minus[ids]]))   # noqa: E731
     ball_nodes = both(np.unique(mesh.cells[mesh.cell_part == 0]))
@@ -229,7 +236,7 @@ def write_inp(path: str | os.PathLike, scene: Scene, preset: str | MeshSpec,
     n_axis = int(np.count_nonzero(mesh.points[:, 0] <= 0.0))
     return {"inp": str(path), "n_nodes": mesh.n_nodes, "n_nodes_wedge": 2 * mesh.n_nodes - n_axis,
             "n_elements": int(len(mesh.cells)),
-            "part_names": list(scene.part_names), "element_type": ELEMENT_TYPE,
+            "part_names": list(scene.part_names), "element_type": settings.element,
             "penalty_Pa_per_m": contact_penalty(scene, mesh, settings.penalty_factor),
             "increment_s": scene.output_dt / settings.increments_per_frame,
             "n_frames": scene.n_frames, "output_dt": scene.output_dt}

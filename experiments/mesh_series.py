@@ -1,0 +1,180 @@
+"""Mesh-refinement series of one panel design, in the built-in solver and in CalculiX (issue 43).
+
+  python -m experiments.mesh_series                                   # built-in solver, 7 meshes (~10 min)
+  python -m experiments.mesh_series --ccx_meshes cpu@0.5,cpu          # also CalculiX on those (hours for the finer)
+
+One design (default: the paper's physics-constrained optimum, 145.207 / 99.322 µm) on meshes coarse to fine
+(``PRESET@F`` is the preset refined by F, experiments/objective_convergence.py's ``mesh_for``). Per mesh: the
+nodes (full mesh, region of interest), the elements through the OLED, the end of the objective's section (its
+last node under 3 mm), the objective's readings (pcmgn_jax/eval/metrics.py), the area mean over the fixed
+section 0 <= x <= --section_x_mm (pcmgn_jax/eval/calculix_check.py ``section_weights``), the peak contact
+force (mean over a 4 µs frame interval) and the contact duration. The built-in solver runs at its production
+penalty (--penalty_factor 1); a mesh in --ccx_meshes also runs in CalculiX and in the built-in solver at
+--ccx_penalty_factor (0.1, docs/results/calculix.md). Rows are cached as JSON under OUT/rows/ (a rerun skips
+them); writes OUT.json, OUT.md and OUT.png. Heavy: run it under ``flock /tmp/heavy.lock nice -n 5``.
+"""
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from pcmgn_jax import cli
+
+
+@dataclass(frozen=True)
+class SeriesArgs:
+    """Mesh-refinement series of one design in both codes."""
+
+    design: str = "145.207,99.322"
+    """the design [µm], 'T1,T2'"""
+    meshes: str = "cpu@0.5,cpu,cpu_fine,paper,cpu@2,paper@2,cpu@4"
+    """built-in solver meshes: presets, cpu_fine, or PRESET@F (refined by F)"""
+    ccx_meshes: str = ""
+    """meshes also run in CalculiX (and in the built-in solver at --ccx_penalty_factor)"""
+    section_x_mm: float = 2.4
+    """end of the fixed section [mm] (inside every mesh's region of interest)"""
+    penalty_factor: float = 1.0
+    """the built-in solver's contact penalty factor in the series"""
+    ccx_penalty_factor: float = 0.1
+    """the contact penalty factor of the CalculiX rows, in both codes"""
+    ccx_elements: str = "C3D8"
+    """CalculiX's elements, each a row: C3D8 (full integration, the built-in Q4's counterpart), C3D8I (incompatible modes)"""
+    increments_per_frame: int = 2
+    """ccx's largest increment = output_dt / this"""
+    timeout_s: float = 7200.0
+    """per ccx run"""
+    out: str = "results/calculix/mesh_series"
+    """output stem (.json, .md, .png) and row cache folder (OUT/rows/, ccx runs in OUT/runs/)"""
+
+
+def row(args, name: str, code: str, element: str = "C3D8") -> dict:
+    """One mesh's figures in one code ('builtin', 'builtin_ccx_penalty' or 'calculix' with ``element``), cached
+    as JSON."""
+    from experiments.calculix_runs import _builtin, _ccx
+    from experiments.objective_convergence import mesh_for
+    from pcmgn_jax.data.exporters.calculix import CalculixSettings
+    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.eval import metrics
+    from pcmgn_jax.eval.calculix_check import impact_figures, section_weights
+    from pcmgn_jax.scene import default_scene
+    from pcmgn_jax.sim.mesh import mesh_spec
+
+    design = [float(v) * 1e-6 for v in args.design.split(",")]
+    penalty = args.penalty_factor if code == "builtin" else args.ccx_penalty_factor
+    tag = f"{code}_{element}" if code == "calculix" else code
+    cache = Path(args.out) / "rows" / f"{name.replace(':', '-')}_{tag}_{'_'.join(args.design.split(','))}_p{penalty:g}.json"
+    if cache.is_file():
+        return json.loads(cache.read_text())
+    scene = default_scene().with_design(*design)
+    spec = mesh_spec(mesh_for(name))
+    if code == "calculix":
+        settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=penalty,
+                                    element=element)
+        traj, extra, wall = _ccx(Path(args.out) / "runs" / f"{name}_{element}", scene, spec, settings,
+                                 args.timeout_s)
+        force = extra["force_N"]
+    else:
+        traj, force, wall, _ = _builtin(scene, spec, penalty)
+    figs = impact_figures(traj, force)
+    oled = list(traj.meta["part_names"]).index("OLED")
+    w_area = metrics.objective_weights(traj.points, traj.cells, traj.cell_part, traj.node_part, part=oled)
+    w_fixed = section_weights(traj.points, traj.cells, traj.cell_part, part=oled, x_end=args.section_x_mm * 1e-3)
+    rec = {"mesh": name, "code": tag, "penalty_factor": penalty, "design_um": [d * 1e6 for d in design],
+           "full_nodes": int(traj.meta["solver"]["full_mesh_nodes"]), "roi_nodes": int(traj.n_nodes),
+           "oled_elements": int(spec.layer_elems["OLED"]), "h_contact_um": spec.h_contact * 1e6,
+           "section_end_mm": float(traj.points[w_area > 0, 0].max() * 1e3),
+           "objective_fixed_section_mpa": float(metrics.oled_objective(traj.von_mises, w_fixed)),
+           "section_x_mm": args.section_x_mm, "wall_s": wall, **figs}
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(cache, rec)
+    return rec
+
+
+def report(args, rows: list[dict], command: str) -> list[str]:
+    """OUT.json and OUT.md; returns the markdown lines."""
+    from pcmgn_jax.data.exporters.common import write_text_atomic
+    from pcmgn_jax.data.trajectory_io import atomic_write_json
+
+    x = args.section_x_mm
+    lines = [f"Command: `{command}`", "", f"Design {args.design} µm. Fixed section: OLED at 0 <= x <= {x:g} mm.", "",
+             "| mesh | code | penalty | nodes (full / ROI) | OLED elements | h_contact [µm] | section end [mm] | "
+             f"area mean [MPa] | area mean, x <= {x:g} mm [MPa] | node mean [MPa] | disc mean [MPa] | "
+             "peak force [N] | contact [µs] | wall [s] |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        wall = f"{r['wall_s']:.0f}" if r["wall_s"] is not None else "–"
+        lines.append(
+            f"| {r['mesh']} | {r['code']} | {r['penalty_factor']:g} | {r['full_nodes']:,} / {r['roi_nodes']:,} | "
+            f"{r['oled_elements']} | {r['h_contact_um']:.2f} | {r['section_end_mm']:.3f} | "
+            f"{r['objective_area_mean_mpa']:.4f} | {r['objective_fixed_section_mpa']:.4f} | "
+            f"{r['objective_node_mean_mpa']:.4f} | {r['objective_disc_mean_mpa']:.4f} | {r['peak_force_N']:.3f} | "
+            f"{r['contact_duration_s'] * 1e6:.0f} | {wall} |")
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(f"{args.out}.json", {"command": command, "design_um": args.design, "section_x_mm": x,
+                                           "rows": rows})
+    write_text_atomic(f"{args.out}.md", "\n".join(lines) + "\n")
+    return lines
+
+
+def plot(rows: list[dict], png: str, section_x_mm: float) -> None:
+    """The readings and the peak force against the region's node count, one marker per code."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.4))
+    keys = (("objective_area_mean_mpa", "area mean [MPa]"),
+            ("objective_fixed_section_mpa", f"area mean, x ≤ {section_x_mm:g} mm [MPa]"),
+            ("objective_node_mean_mpa", "node mean [MPa]"))
+    styles = {"builtin": ("o", "built-in (penalty 1)"), "builtin_ccx_penalty": ("s", "built-in (ccx penalty)"),
+              "calculix_C3D8": ("x", "CalculiX C3D8"), "calculix_C3D8I": ("+", "CalculiX C3D8I")}
+    for code, (marker, label) in styles.items():
+        sel = [r for r in rows if r["code"] == code]
+        if not sel:
+            continue
+        for ax, (k, title) in zip(axes, keys):
+            ax.plot([r["roi_nodes"] for r in sel], [r[k] for r in sel], marker, label=label)
+            if code == "builtin":
+                for r in sel:
+                    ax.annotate(r["mesh"], (r["roi_nodes"], r[k]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+            ax.set_title(title, fontsize=9)
+    for ax in axes:
+        ax.set_xscale("log")
+        ax.set_xlabel("nodes in the region of interest")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    args = cli.parse(SeriesArgs, argv, description=__doc__, prog="python -m experiments.mesh_series")
+    import matplotlib
+    matplotlib.use("Agg")   # files only; set here, in the entry point
+
+    from pcmgn_jax.data.calculix import CalculixNotFoundError, find_ccx
+
+    command = "python -m experiments.mesh_series " + " ".join(sys.argv[1:] if argv is None else argv)
+    todo = [(m.strip(), "builtin", "") for m in args.meshes.split(",") if m.strip()]
+    ccx = [m.strip() for m in args.ccx_meshes.split(",") if m.strip()]
+    if ccx:
+        try:
+            find_ccx()
+        except CalculixNotFoundError as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
+    elements = [e.strip() for e in args.ccx_elements.split(",") if e.strip()]
+    todo += [(m, "builtin_ccx_penalty", "") for m in ccx] + [(m, "calculix", e) for m in ccx for e in elements]
+    rows = []
+    for name, code, element in todo:
+        rows.append(row(args, name, code, element or "C3D8"))
+        r = rows[-1]
+        print(f"{name:10s} {code:20s} area {r['objective_area_mean_mpa']:.4f} fixed {r['objective_fixed_section_mpa']:.4f} "
+              f"node {r['objective_node_mean_mpa']:.4f} force {r['peak_force_N']:.3f} N", flush=True)
+        report(args, rows, command)   # after every row: a long run keeps what it has
+    print("\n".join(report(args, rows, command)))
+    plot(rows, f"{args.out}.png", args.section_x_mm)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(cli.run(main))

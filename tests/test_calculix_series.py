@@ -1,0 +1,113 @@
+"""The mesh-refinement series' pieces (issue 43): sim.mesh.refined, experiments.objective_convergence.mesh_for's
+PRESET@F names, and eval.calculix_check.section_weights (the area mean over a fixed section)."""
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from experiments.objective_convergence import mesh_for
+from pcmgn_jax.eval import metrics
+from pcmgn_jax.eval.calculix_check import section_weights
+from pcmgn_jax.scene import default_scene
+from pcmgn_jax.sim.mesh import build_mesh, graded_coords, mesh_spec, refined, roi
+
+
+def test_refined_halves_sizes_and_doubles_counts():
+    base, fine = mesh_spec("cpu"), refined("cpu", 2)
+    assert fine.h_contact == pytest.approx(base.h_contact / 2) and fine.h_layer == pytest.approx(base.h_layer / 2)
+    assert {k: 2 * v for k, v in base.layer_elems.items()} == dict(fine.layer_elems)
+    assert fine.roi_x == base.roi_x and fine.fine_radius == base.fine_radius
+    # the graded zone too: about twice the elements between 0.5 and 2.5 mm, each about half as large
+    xs, xf = (graded_coords(8e-3, s.h_contact, s.fine_radius, s.growth) for s in (base, fine))
+    n_base, n_fine = (np.count_nonzero((x > 0.5e-3) & (x < 2.5e-3)) for x in (xs, xf))
+    assert 1.8 <= n_fine / n_base <= 2.2
+    coarse = refined("cpu", 0.5)
+    assert coarse.layer_elems["OLED"] == 1 and coarse.layer_elems["OCA1"] == 2   # rounded up, at least 1
+    assert refined("cpu", 1) == base
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="refinement factor"):
+            refined("cpu", bad)
+
+
+def test_mesh_for_names():
+    assert mesh_for("cpu") == "cpu"
+    assert mesh_for("paper@2") == refined("paper", 2)
+    assert mesh_for("cpu_fine").layer_elems["OLED"] == 4
+    with pytest.raises(ValueError, match="cpu@x"):
+        mesh_for("cpu@x")
+    base, full = mesh_spec("cpu"), refined("cpu", 2)
+    far, layers, plate = (mesh_for(f"cpu@2:{z}") for z in ("far", "layers", "plate"))
+    assert far.growth == full.growth and dict(far.layer_elems) == dict(base.layer_elems)
+    assert layers.growth == base.growth and layers.layer_elems["OLED"] == 4 and layers.layer_elems["PLATE"] == 6
+    assert plate.layer_elems["PLATE"] == 12 and plate.layer_elems["OLED"] == 2
+    assert plate.bottom_growth == full.bottom_growth and plate.h_contact == base.h_contact
+    with pytest.raises(ValueError, match="zone must be one of"):
+        mesh_for("cpu@2:ball")
+
+
+@pytest.fixture(scope="module")
+def roi_mesh():
+    scene = default_scene()
+    sub, _ = roi(build_mesh(scene, "cpu"), "cpu")
+    return sub, scene.part_names.index("OLED")
+
+
+def test_section_weights_on_a_node_equal_the_area_mean(roi_mesh):
+    sub, oled = roi_mesh
+    w = metrics.objective_weights(sub.points, sub.cells, sub.cell_part, sub.node_part, part=oled)
+    x_end = sub.points[w > 0, 0].max()
+    assert np.allclose(section_weights(sub.points, sub.cells, sub.cell_part, part=oled, x_end=x_end), w,
+                       rtol=0, atol=1e-14)
+
+
+def test_section_weights_integrate_a_linear_field_exactly(roi_mesh):
+    sub, oled = roi_mesh
+    cut = sub.points[:, 0][(sub.points[:, 0] > 1.8e-3) & (sub.points[:, 0] < 2.2e-3)]
+    x_end = 0.5 * (np.unique(cut)[0] + np.unique(cut)[1])     # inside a cell, not on a node
+    w = section_weights(sub.points, sub.cells, sub.cell_part, part=oled, x_end=x_end)
+    assert w.sum() == pytest.approx(1.0) and np.all(w >= 0)
+    assert w @ sub.points[:, 0] == pytest.approx(x_end / 2, rel=1e-12)   # mean of x over [0, x_end]
+    assert np.all(w[sub.points[:, 0] > x_end + 1e-3] == 0)
+
+
+def test_section_weights_errors(roi_mesh):
+    sub, oled = roi_mesh
+    with pytest.raises(ValueError, match="short of x_end"):
+        section_weights(sub.points, sub.cells, sub.cell_part, part=oled, x_end=10e-3)
+    with pytest.raises(ValueError, match="not axis-aligned rectangles"):
+        section_weights(sub.points, sub.cells, sub.cell_part, part=0, x_end=1e-4)   # the ball's cells
+    with pytest.raises(ValueError, match="no cell of part"):
+        section_weights(sub.points, sub.cells, sub.cell_part, part=99, x_end=1e-3)
+
+
+def test_calculix_element_choice():
+    import dataclasses
+
+    from pcmgn_jax.data.exporters.calculix import CalculixSettings, calculix_mesh, inp_text
+
+    scene = dataclasses.replace(default_scene(), n_frames=2)
+    deck = inp_text(scene, calculix_mesh(scene, "tiny"), CalculixSettings(element="C3D8I"))
+    assert deck.count("*ELEMENT, TYPE=C3D8I,") == len(scene.part_names) and "TYPE=C3D8," not in deck
+    with pytest.raises(ValueError, match="element must be one of"):
+        CalculixSettings(element="CAX4")
+
+
+@pytest.mark.skipif(shutil.which("ccx") is None, reason="CalculiX 'ccx' not installed (apt install calculix-ccx)")
+def test_c3d8i_deck_runs_and_reads_back(tmp_path):
+    """ccx accepts the C3D8I wedge (collapsed axis bricks included) and its .frd reads back as a trajectory."""
+    import dataclasses
+
+    from pcmgn_jax.data.calculix import frd_trajectory, run_ccx
+    from pcmgn_jax.data.exporters.calculix import CalculixSettings, write_inp
+
+    scene = dataclasses.replace(default_scene(), n_frames=2)
+    write_inp(tmp_path / "job.inp", scene, "tiny", CalculixSettings(element="C3D8I", increments_per_frame=2))
+    run_ccx(tmp_path / "job.inp", timeout=120)
+    traj, extra = frd_trajectory(tmp_path / "job.frd", scene, "tiny")
+    assert traj.displacement.shape[0] == 3 and np.isfinite(traj.displacement).all()
+    ball = traj.node_part == 0
+    # free flight before contact: the ball moved down by v t, the panel is at rest
+    assert traj.displacement[-1, ball, 1].mean() == pytest.approx(-scene.ball.velocity * 2 * scene.output_dt, rel=1e-3)
+    assert np.abs(traj.displacement[-1, ~ball]).max() < 1e-12
