@@ -5,7 +5,7 @@
   python -m experiments.optimize --workdir runs/cpu --surrogate mgn --method slsqp --starts 2
   python -m experiments.optimize --workdir runs/cpu --surrogate rbf --method ga --objective node_mean
 
-Objective (docs/design.md §8, pcmgn_jax.eval.metrics): time-mean over the window of the OLED von Mises stress
+Objective (docs/design.md §8, pcmgn_jax.metrics): time-mean over the window of the OLED von Mises stress
 at x < 3 mm, the section's area-weighted mean by default (node_mean: the paper's node average;
 disc_mean; peak). Bounds 50-150 µm per OCA, 150 <= T1 + T2 <= 250 µm. The baselines (nearest, poly2,
 rbf) are fitted on the run's training split; mgn is the run's model. The optimum is re-simulated by the

@@ -10,7 +10,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from pcmgn_jax.config import TrainConfig
+from pcmgn_jax.data.splits import load_directory, load_splits
+from pcmgn_jax.eval import evaluate as evaluation
 from pcmgn_jax.lock import hold
+from pcmgn_jax.mgn.checkpoint import require_run
 
 
 def output_name(data: str = "", name: str = "") -> str | None:
@@ -19,19 +23,6 @@ def output_name(data: str = "", name: str = "") -> str | None:
     if name:
         return name
     return Path(data).resolve().name if data else None
-
-
-def run_splits(workdir: str | Path):
-    """(cfg, train, val, test) of a training run directory: its ``config.json`` (a
-    :class:`~pcmgn_jax.config.TrainConfig`) and :func:`pcmgn_jax.data.dataset.load_splits` of its dataset at its sizes.
-    ``FileNotFoundError`` when ``workdir`` holds no config.json."""
-    from pcmgn_jax.config import TrainConfig
-    from pcmgn_jax.data.dataset import load_splits
-    run = Path(workdir)
-    if not (run / "config.json").exists():
-        raise FileNotFoundError(f"{run}/config.json: not a training run directory")
-    cfg = TrainConfig.load(run / "config.json")
-    return (cfg, *load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train, n_val=cfg.n_val, n_test=cfg.n_test))
 
 
 def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str = "",
@@ -45,10 +36,6 @@ def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str =
     run's rollout contact projection ("" = the run's); ``residual_ball``: a residual run's ball override ("" =
     the run's); ``split``: ``val`` scores the run's validation trajectories instead (RUN/eval/val unless
     ``name``), where a rollout setting is chosen without looking at the test split."""
-    from pcmgn_jax.config import TrainConfig
-    from pcmgn_jax.data.dataset import load_directory, load_splits
-    from pcmgn_jax.eval import evaluate as evaluation
-    from pcmgn_jax.mgn.checkpoint import require_run
     require_run(workdir)   # a missing run, a file, no config or no checkpoint: one line, nothing written
     cfg = TrainConfig.load(Path(workdir) / "config.json")
     if split not in ("test", "val"):

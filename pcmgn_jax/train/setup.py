@@ -29,6 +29,7 @@ import numpy as np
 
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.geometry import roi_boundary_nodes
+from pcmgn_jax.metrics import objective_weights
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.batching import bucket_size
 from pcmgn_jax.mgn.checkpoint import make_spec
@@ -150,10 +151,9 @@ def loss_weights(form: Formulation, topology: Topology) -> dict:
 
 def objective_loss_weights(traj, scene: Scene) -> np.ndarray:
     """(N,) float32 nodal weights (sum 1) of the design objective's reading (the default, area mean over
-    the OLED's section under the ball: :func:`pcmgn_jax.eval.metrics.objective_weights`, the same rule
+    the OLED's section under the ball: :func:`pcmgn_jax.metrics.objective_weights`, the same rule
     the evaluation scores) on one trajectory's mesh, for the ``lambda_obj`` term. ValueError when the
     scene has no part named 'OLED'."""
-    from pcmgn_jax.eval.metrics import objective_weights
     if "OLED" not in scene.part_names:
         raise ValueError(f"lambda_obj > 0 needs a part named 'OLED' (the objective's layer); the scene has {list(scene.part_names)}")
     w = objective_weights(traj.points, traj.cells, traj.cell_part, traj.node_part, part=scene.part_names.index("OLED"))
