@@ -23,12 +23,13 @@ from pathlib import Path
 from typing import Literal
 
 from pcmgn_jax import cli
+from pcmgn_jax.surrogates.kinds import choices
 
 
 @dataclass(frozen=True)
 class OptimizeArgs:
     workdir: str                                            # training run (config.json; checkpoints for mgn)
-    surrogate: Literal["mgn", "nearest", "poly2", "rbf", "kriging", "mop", "auto"] = "mgn"  # what predicts the objective (kriging/mop: a response surface of the objective itself; auto: mop, its CoP table in the result)
+    surrogate: Literal[choices("optimise")] = "mgn"  # what predicts the objective (kriging/mop: a response surface of the objective itself; auto: mop, its CoP table in the result)
     method: Literal["ga", "gradient", "slsqp"] = "ga"       # pymoo GA, multi-start projected gradient, or scipy SLSQP
     objective: Literal["area_mean", "node_mean", "disc_mean", "peak"] = "area_mean"  # reading (docs/design.md §8)
     pop: int = 100                                          # GA population (paper: 100)

@@ -40,9 +40,20 @@ from pcmgn_jax.eval.baselines import READING_KEYS
 from pcmgn_jax.eval.ensemble import ResidualSpread, rollout_objectives
 from pcmgn_jax.explore.page import Page
 from pcmgn_jax.explore.predictors import fit_predictor, has_fields, predict_one
-from pcmgn_jax.explore.types import (CACHE_DESIGNS, DEFAULT_LIVE_SECONDS, LABELS, OTHER_LIVE_SECONDS, PREDICTORS,
-                                     Cache, Prediction, RunError, Truth, by_rank, design_key,
-                                     has_checkpoint, parameter)
+from pcmgn_jax.explore.types import (
+    CACHE_DESIGNS,
+    DEFAULT_LIVE_SECONDS,
+    LABELS,
+    OTHER_LIVE_SECONDS,
+    PREDICTORS,
+    Cache,
+    Prediction,
+    RunError,
+    Truth,
+    design_key,
+    has_checkpoint,
+    parameter,
+)
 from pcmgn_jax.opt.problem import DesignBox
 from pcmgn_jax.scene import Scene, with_parameters
 from pcmgn_jax.sim.initial import initial_velocity
@@ -50,7 +61,7 @@ from pcmgn_jax.sim.mesh import build_mesh, roi
 from pcmgn_jax.sim.output import to_trajectories
 from pcmgn_jax.sim.solver import simulate
 from pcmgn_jax.surrogates.inputs import TrainingScenes, shared_mesh
-from pcmgn_jax.surrogates.kinds import KINDS
+from pcmgn_jax.surrogates.kinds import KINDS, by_rank
 from pcmgn_jax.surrogates.registry import fit
 from pcmgn_jax.trajectory import Trajectory
 

@@ -1,7 +1,7 @@
 """The explorer's vocabulary: its predictors and their labels, a slider, a prediction, a solver check, a view.
 
 The predictors are the registry's kinds with ``explore`` (:data:`pcmgn_jax.surrogates.kinds.KINDS`), in its
-order, labelled by it; the page prefers them by their ``rank``.
+order, labelled by it; the page prefers them by their ``rank`` (:func:`pcmgn_jax.surrogates.kinds.by_rank`).
 """
 from __future__ import annotations
 
@@ -22,11 +22,6 @@ DEFAULT_LIVE_SECONDS = 0.6  # the default predictor runs at once on a slider mov
 OTHER_LIVE_SECONDS = 0.1    # any other predictor too when it takes at most this [s]; slower ones follow the page
 WIDEN = 0.25         # the sliders reach this fraction of the training box's span beyond each side
 CACHE_DESIGNS = 8    # designs whose predictions (full fields) are kept
-
-
-def by_rank(kinds) -> list[str]:
-    """``kinds`` in the page's order of preference (the registry's ``rank``: the default first)."""
-    return sorted(kinds, key=lambda k: KINDS[k].rank)
 
 
 class RunError(ValueError):
@@ -130,8 +125,10 @@ class Cache:
 
 
 def has_checkpoint(run: Path) -> bool:
+    """Whether the run directory holds a saved model (RUN/checkpoints/best or /periodic)."""
     return any(p.name.isdigit() for sub in ("best", "periodic") for p in (run / "checkpoints" / sub).glob("*"))
 
 
 def design_key(x) -> tuple:
+    """The cache key of a design x (P,) [SI]: its values to 9 significant digits."""
     return tuple(float(f"{v:.9g}") for v in np.asarray(x, float))

@@ -42,12 +42,12 @@ import numpy as np
 from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.opt import acquisition as acq
 from pcmgn_jax.opt.problem import DesignBox
-from pcmgn_jax.surrogates.kinds import names
+from pcmgn_jax.surrogates.kinds import choices
 from pcmgn_jax.surrogates.response_surfaces import MOP, ExtrapolationWarning, Kriging
 
 # the loop's surrogates: the kinds with ``active`` (pcmgn_jax/surrogates/kinds.py), fitted here over parameter
 # rows (the solver's answers), and ``auto`` (MOP's mean, kriging's spread)
-SURROGATES = names(active=True) + ("auto",)
+SURROGATES = choices("active")
 FORMAT = "pcmgn_jax.active"
 GRID_N = 41          # candidate grid per axis for two design variables (2.5 µm steps over 50-150 µm)
 N_CANDIDATES = 4000  # seeded LHS candidates for more variables

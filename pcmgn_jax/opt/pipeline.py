@@ -27,13 +27,13 @@ from pcmgn_jax.opt.spread import optimum_spread
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.sim.design_map import DesignMap
 from pcmgn_jax.surrogates.inputs import design_of
-from pcmgn_jax.surrogates.kinds import KINDS, names
+from pcmgn_jax.surrogates.kinds import AUTO, KINDS, choices
 from pcmgn_jax.surrogates.mgn import run_splits
 from pcmgn_jax.surrogates.registry import fit
 
 # what the optimiser can search on: the kinds with ``optimise`` (pcmgn_jax/surrogates/kinds.py), and
 # ``auto`` (mop, its CoP table in the result)
-SURROGATES = names(optimise=True) + ("auto",)
+SURROGATES = choices("optimise")
 
 
 def result_tag(surrogate: str, method: str, objective: str) -> str:
@@ -84,7 +84,7 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
     box = DesignBox(dim=len(scene.design_layers))
     dmap = DesignMap.build(scene, preset)
     kw = {"part": part, "reading": objective}
-    kind = "mop" if surrogate == "auto" else surrogate   # auto: MOP's choice by leave-one-out CoP (issue 26)
+    kind = "mop" if surrogate == AUTO else surrogate   # auto: MOP's choice by leave-one-out CoP (issue 26)
     if KINDS[kind].family == "mgn":
         obj = MGNObjective(fit(kind, train, workdir=run_dir, ref=ref, which=which), dmap, **kw)
     elif KINDS[kind].objective_surface:

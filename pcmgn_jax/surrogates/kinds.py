@@ -36,6 +36,7 @@ class Kind:
     std: bool = False
     baseline: bool = True       # fitted on the training split and scored beside the model by evaluate
     explore: bool = True        # offered by the explorer
+    curve: bool = False         # drawn beside the MGN in a learning curve (eval/learning_curve.py)
     optimise: bool = False      # a surrogate of the design optimiser (opt/pipeline.py)
     active: bool = False        # a surrogate of the active loop (opt/active.py)
     residual_base: bool = False  # a baseline a residual_of run can learn the correction of
@@ -46,13 +47,13 @@ class Kind:
 KINDS: dict[str, Kind] = {k.name: k for k in (
     Kind("mgn", "MGN (the run's model)", "mgn", baseline=False, optimise=True, active=True, rank=0),
     Kind("none", "nothing moves", "regression", rank=7, floor=True),
-    Kind("nearest", "nearest training design", "regression", optimise=True, rank=6),
+    Kind("nearest", "nearest training design", "regression", optimise=True, rank=6, curve=True),
     Kind("poly2", "per-node quadratic", "regression", fields="shared", optimise=True, rank=4),
     Kind("rbf", "per-node RBF", "regression", fields="shared", optimise=True, rank=5),
     Kind("kriging", "kriging", "surface", fields="shared", objective_surface=True, std=True, optimise=True,
-         active=True, rank=1),
-    Kind("mop", "MOP", "surface", fields="shared", objective_surface=True, optimise=True, rank=2),
-    Kind("rom", "POD reduced-order model", "rom", residual_base=True, rank=3),
+         active=True, rank=1, curve=True),
+    Kind("mop", "MOP", "surface", fields="shared", objective_surface=True, optimise=True, rank=2, curve=True),
+    Kind("rom", "POD reduced-order model", "rom", residual_base=True, rank=3, curve=True),
     # the rom with the MGN rollout's hard contact (surrogates.correction.rigid_contact): what the constraint
     # alone gives, beside a baseline-corrected MGN (residual_of=rom); scored by evaluate only
     Kind("rom_contact", "POD reduced-order model + the rollout's contact", "rom", explore=False, rank=8),
@@ -65,6 +66,21 @@ def names(**where) -> tuple[str, ...]:
         if key not in Kind.__dataclass_fields__:
             raise ValueError(f"kinds: no field {key!r} (fields: {list(Kind.__dataclass_fields__)})")
     return tuple(n for n, k in KINDS.items() if all(getattr(k, f) == v for f, v in where.items()))
+
+
+def by_rank(kinds) -> list[str]:
+    """``kinds`` (names) in the order of preference of their ``rank`` (the explorer's default first)."""
+    return sorted(kinds, key=lambda k: KINDS[k].rank)
+
+
+AUTO = "auto"   # the optimiser's and the active loop's extra choice: MOP's pick by CoP (the loop: with kriging's std)
+
+
+def choices(use: str) -> tuple[str, ...]:
+    """What a user may name for ``use`` ('optimise' | 'active'): its kinds, then :data:`AUTO`."""
+    if use not in ("optimise", "active"):
+        raise ValueError(f"choices: use must be 'optimise' or 'active', got {use!r}")
+    return names(**{use: True}) + (AUTO,)
 
 
 def kind(name: str) -> Kind:
