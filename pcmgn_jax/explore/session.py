@@ -65,7 +65,7 @@ from pcmgn_jax.surrogates.kinds import KINDS, by_rank
 from pcmgn_jax.surrogates.registry import fit
 from pcmgn_jax.trajectory import Trajectory
 
-BASELINES = tuple(k for k in PREDICTORS if KINDS[k].baseline)   # what an Explorer fits by default
+DEFAULT_KINDS = tuple(k for k in PREDICTORS if KINDS[k].baseline)   # the baselines an Explorer fits by default
 
 
 class Explorer(Page):
@@ -76,7 +76,7 @@ class Explorer(Page):
     carries the std of a GP of its objective residuals there (:class:`pcmgn_jax.eval.ensemble.ResidualSpread`)."""
 
     def __init__(self, workdir, *, which: str = "best", mgn: bool = True, reading: str = metrics.DEFAULT_OBJECTIVE,
-                 kinds: Sequence[str] = BASELINES, log: Callable[[str], None] = print, mgn_spread: bool = False):
+                 kinds: Sequence[str] = DEFAULT_KINDS, log: Callable[[str], None] = print, mgn_spread: bool = False):
         if reading not in metrics.OBJECTIVES:
             raise RunError(f"objective must be one of {metrics.OBJECTIVES}, got {reading!r}")
         self.run = Path(workdir)
