@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from pcmgn_jax import cli
-from pcmgn_jax.eval.export import export_comparison
 from pcmgn_jax.data.trajectory_io import read_trajectory
+from pcmgn_jax.eval.export import export_comparison
 
 
 @dataclass(frozen=True)

@@ -31,9 +31,10 @@ from typing import Sequence
 
 import numpy as np
 
+from pcmgn_jax import metrics
+from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.data.stack import stack_warnings
 from pcmgn_jax.data.trajectory_io import atomic_write_json
-from pcmgn_jax import metrics
 from pcmgn_jax.eval import plots
 from pcmgn_jax.eval.baselines import BASELINES, READING_KEYS, baseline_metrics, objective_scores
 from pcmgn_jax.eval.ensemble import ResidualSpread, residual_spread_record, rollout_objectives
@@ -137,7 +138,6 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
     scene = Scene.from_dict(ref.meta["scene"])
     cfg = None
     if contact_projection or residual_ball:  # rollout-only fields: the same checkpoint serves both
-        from pcmgn_jax.config import TrainConfig
         cfg = TrainConfig.load(workdir / "config.json")
         if contact_projection:
             cfg = cfg.replace(formulation=cfg.formulation.replace(contact_projection=contact_projection == "on"))

@@ -21,6 +21,7 @@ stopped at 12 runs is the first 12 runs of the loop to 24.
 from __future__ import annotations
 
 import functools
+import json
 from pathlib import Path
 from typing import Sequence
 
@@ -28,13 +29,13 @@ import numpy as np
 
 from pcmgn_jax.data.designs import FAMILIES
 from pcmgn_jax.data.trajectory_io import atomic_write_json
-from pcmgn_jax.opt.active import best_at, LoopConfig, Problem, run_loop, SolverOracle
+from pcmgn_jax.opt.active import LoopConfig, Problem, SolverOracle, best_at, run_loop
 from pcmgn_jax.opt.check import solver_preset
 from pcmgn_jax.opt.objectives import MGNObjective
 from pcmgn_jax.opt.problem import DesignBox
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.sim.design_map import DesignMap
-from pcmgn_jax.surrogates.inputs import design_of, TrainingScenes
+from pcmgn_jax.surrogates.inputs import TrainingScenes, design_of
 from pcmgn_jax.surrogates.mgn import run_splits
 from pcmgn_jax.surrogates.registry import fit
 from pcmgn_jax.surrogates.response_surfaces import objective_table
@@ -117,9 +118,6 @@ def mgn_base(workdir, problem: Problem, cache_path, *, reading: str = "area_mean
     """rows (n, P) -> (n,) the run's MGN objective [MPa] at each row's design (the box problem: one case),
     memoised in a JSON file at ``cache_path`` (one entry per design, nm keys) so the loop and a resume pay
     each rollout once."""
-    import json
-
-
     if len(problem.cases) != 1 or problem.cases[0]:
         raise ValueError("mgn surrogate in the loop: only for the box problem (one drop case)")
     _, (train, _, _) = _splits(workdir)
