@@ -12,24 +12,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
-from pcmgn_jax import metrics
-from pcmgn_jax.data.trajectory_io import atomic_write_json
-from pcmgn_jax.eval import plots
 from pcmgn_jax.lock import hold
-from pcmgn_jax.mgn.checkpoint import require_run
-from pcmgn_jax.opt import search
-from pcmgn_jax.opt.check import solver_objectives, solver_preset
-from pcmgn_jax.opt.objectives import FieldObjective, MGNObjective, SurfaceObjective
-from pcmgn_jax.opt.problem import DesignBox
-from pcmgn_jax.opt.spread import optimum_spread
-from pcmgn_jax.scene import Scene
-from pcmgn_jax.sim.design_map import DesignMap
-from pcmgn_jax.surrogates.inputs import design_of
 from pcmgn_jax.surrogates.kinds import AUTO, KINDS, choices
-from pcmgn_jax.surrogates.mgn import run_splits
-from pcmgn_jax.surrogates.registry import fit
 
 # what the optimiser can search on: the kinds with ``optimise`` (pcmgn_jax/surrogates/kinds.py), and
 # ``auto`` (mop, its CoP table in the result)
@@ -58,6 +42,7 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", **kw) -> dict:
     preset; :class:`pcmgn_jax.mgn.checkpoint.MissingRun` (one line, nothing written) when ``workdir`` is no run
     folder, holds no config.json or (``mgn``) no checkpoint. RUN/optimize is locked while it runs
     (:func:`pcmgn_jax.lock.hold`: one optimisation writes there at a time)."""
+    from pcmgn_jax.mgn.checkpoint import require_run   # here, not at the top: `import pcmgn_jax.opt` stays light
     if surrogate not in SURROGATES:
         raise ValueError(f"surrogate must be one of {SURROGATES}, got {surrogate!r}")
     require_run(workdir, checkpoint=surrogate == "mgn")
@@ -70,6 +55,22 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
         grid: int = -1, which: str = "best", check: bool = True, progress: bool = True,
         ensemble: str = "", command: str = "") -> dict:
     """:func:`run` once the run is checked and RUN/optimize locked."""
+    import numpy as np
+
+    from pcmgn_jax import metrics
+    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.eval import plots
+    from pcmgn_jax.opt import search
+    from pcmgn_jax.opt.check import solver_objectives, solver_preset
+    from pcmgn_jax.opt.objectives import FieldObjective, MGNObjective, SurfaceObjective
+    from pcmgn_jax.opt.problem import DesignBox
+    from pcmgn_jax.opt.spread import optimum_spread
+    from pcmgn_jax.scene import Scene
+    from pcmgn_jax.sim.design_map import DesignMap
+    from pcmgn_jax.surrogates.inputs import design_of
+    from pcmgn_jax.surrogates.mgn import run_splits
+    from pcmgn_jax.surrogates.registry import fit
+
     record = {"workdir": str(workdir), "surrogate": surrogate, "method": method, "objective": objective,
               "pop": pop, "gens": gens, "starts": starts, "iters": iters, "screen": screen, "seed": seed,
               "grid": grid, "which": which, "check": check, "progress": progress, "ensemble": ensemble}
