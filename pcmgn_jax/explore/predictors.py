@@ -29,7 +29,10 @@ def fit_predictor(kind: str, train, *, reading: str, part: int, shared: bool):
     options = {"fields": shared and spec.std} if spec.objective_surface else {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return fit(kind, train, readings=(reading,), part=part, **options)
+        model = fit(kind, train, readings=(reading,), part=part, **options)
+    if spec.objective_surface and model.objective is None:   # the page's row is the objective: no surface, no row
+        raise ValueError(model.objective_not_applicable)
+    return model
 
 
 def has_fields(kind: str, model) -> bool:
