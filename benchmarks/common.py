@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-RESULTS = Path(__file__).resolve().parent / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "benchmarks"
 
 
 # ---- output ----------------------------------------------------------------------------------
