@@ -1,29 +1,34 @@
 """Time from nothing to the trainer's first batch: load a split from the packed cache and gather batch 1.
 
-python -m benchmarks.cache_load --dataset data/cpu --split train --json benchmarks/results/cache_load.json
+python -m benchmarks.cache_load --dataset data/cpu --split train --json results/benchmarks/cache_load.json
 (issue 3's target: < 2 s for the default training split.) Builds the cache first if it is missing or stale,
 outside the timing, and reports that build time separately.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
+from benchmarks import common
+from pcmgn_jax import cli
 from pcmgn_jax.data.cache import ensure_cache, load_split
 from pcmgn_jax.mgn.formulation import FORMULATIONS
 from pcmgn_jax.train.sampling import gather, pair_table, sample_ids
 from pcmgn_jax.data.trajectory_io import atomic_write_json
 
 
+@dataclass(frozen=True)
+class CacheLoadArgs:
+    dataset: str = "data/cpu"    # dataset directory
+    split: str = "train"         # its split to load
+    json: str | None = None      # result JSON (default: printed only)
+
+
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--dataset", default="data/cpu")
-    p.add_argument("--split", default="train")
-    p.add_argument("--json", default=None)
-    args = p.parse_args(argv)
+    args = cli.parse(CacheLoadArgs, argv, description=__doc__, prog="python -m benchmarks.cache_load")
     t0 = time.perf_counter()
     _, rebuilt = ensure_cache(args.dataset, args.split)
     build_s = time.perf_counter() - t0
@@ -48,4 +53,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    common.run(main)

@@ -5,13 +5,37 @@ import json
 import os
 import platform
 import statistics
+import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from pcmgn_jax import cli
+
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "benchmarks"
+
+
+# ---- command line: the experiments' (pcmgn_jax.cli: tyro dataclasses, --key=value, underscores) ---------
+
+@dataclass(frozen=True, kw_only=True)
+class Outputs:
+    """The output flags every benchmark shares. A benchmark's flags: a frozen dataclass over this one, parsed by
+    ``pcmgn_jax.cli.parse(Args, argv, description=__doc__, prog="python -m benchmarks.NAME")``."""
+
+    json: str | None = None   # result JSON (default results/benchmarks/<benchmark>.json)
+    md: str | None = None     # Markdown table (default: the JSON's path with .md)
+
+
+def run(main: Callable[[Sequence[str] | None], object]) -> None:
+    """``python -m benchmarks.NAME``: ``main(None)`` (flags from ``sys.argv``); a ``ValueError`` (an unknown flag,
+    a bad value) is one ``error: ...`` line and exit status 2, as in the experiments (:func:`pcmgn_jax.cli.run`)."""
+    def call(argv):
+        out = main(argv)
+        return out if isinstance(out, int) else 0
+    sys.exit(cli.run(call))
 
 
 # ---- output ----------------------------------------------------------------------------------

@@ -20,7 +20,7 @@ BUDGET_SETUP=${BUDGET_SETUP:-40}        # (0) wheels, nvidia-smi, jax.devices()
 BUDGET_TRAIN=${BUDGET_TRAIN:-230}       # (a) data generation + training (cpu preset)
 BUDGET_EVAL=${BUDGET_EVAL:-70}          # (a) evaluation of the run (the issue's goal: (a) in 300 s)
 BUDGET_SOLVER=${BUDGET_SOLVER:-80}      # (b) solver throughput curve
-BUDGET_GPU_CHECK=${BUDGET_GPU_CHECK:-70}  # (c) gpu_check --budget-s (its process gets 10 s more)
+BUDGET_GPU_CHECK=${BUDGET_GPU_CHECK:-70}  # (c) gpu_check --budget_s (its process gets 10 s more)
 BUDGET_STARTUP=${BUDGET_STARTUP:-0}     # (d) start-up, cold and warm cache (0: all that is left of TOTAL_S)
 
 SMOKE=${DEVICE_CHECK_SMOKE:-0}
@@ -31,14 +31,14 @@ WORK=${WORK:-/tmp/pcmgn-device-check}
 TRAIN_PRESET=cpu
 TRAIN_FLAGS=${TRAIN_FLAGS:-}            # e.g. --num_steps=2000 to shrink the main job (say so in the report)
 SOLVER_ARGS="--presets cpu,paper --sizes 1,256,16 --frames 2 --repeats 2"   # 256 right after 1: the goal's ratio
-GPU_CHECK_ARGS="--solver-frames 10"
-STARTUP_ARGS="--conditions cold,warm --no-prime"   # (a) trained on the data: read cache built
+GPU_CHECK_ARGS="--solver_frames 10"
+STARTUP_ARGS="--conditions cold,warm --no_prime"   # (a) trained on the data: read cache built
 INSTALL=${DEVICE_CHECK_INSTALL:-1}
 if [ "$SMOKE" = 1 ]; then               # the same steps, tiny, to prove the script before a GPU shot
   TOTAL_S=${SMOKE_TOTAL_S:-420}; BUDGET_TRAIN=150; BUDGET_EVAL=60; BUDGET_SOLVER=40; BUDGET_GPU_CHECK=60
   BUDGET_STARTUP=0; TRAIN_PRESET=tiny; TRAIN_FLAGS="--num_steps=40 $TRAIN_FLAGS"
   SOLVER_ARGS="--presets tiny --sizes 1,2 --frames 1 --repeats 1"; GPU_CHECK_ARGS="--smoke"
-  STARTUP_ARGS="--conditions cold,warm --no-prime --preset tiny"
+  STARTUP_ARGS="--conditions cold,warm --no_prime --preset tiny"
   INSTALL=${DEVICE_CHECK_INSTALL:-0}    # the wheels are for the GPU image's Python (3.12)
 fi
 
@@ -102,16 +102,16 @@ cp "$RUN"/eval/metrics.json "$OUT/main/eval_metrics.json" 2>/dev/null
 
 # ---- (b) solver throughput against designs per call ----
 run solver_throughput "$BUDGET_SOLVER" "$PY" -m benchmarks.solver_throughput $SOLVER_ARGS \
-    --budget-s $((BUDGET_SOLVER - 10)) --json "$OUT/solver_throughput.json"
+    --budget_s $((BUDGET_SOLVER - 10)) --json "$OUT/solver_throughput.json"
 
 # ---- (c) gpu_check inside its budget ----
 run gpu_check $((BUDGET_GPU_CHECK + 10)) "$PY" -m benchmarks.gpu_check $GPU_CHECK_ARGS \
-    --budget-s "$BUDGET_GPU_CHECK" --json "$OUT/gpu_check.json"
+    --budget_s "$BUDGET_GPU_CHECK" --json "$OUT/gpu_check.json"
 
 # ---- (d) start-up: first training step, rollout and solver call, cold and warm cache ----
 SU=$BUDGET_STARTUP; [ "$SU" -le 0 ] && SU=$(left)
 run startup "$SU" "$PY" -m benchmarks.startup $STARTUP_ARGS --data "$WORK/data-$TRAIN_PRESET" \
-    --budget-s $((SU > 15 ? SU - 10 : 5)) --json "$OUT/startup.json"
+    --budget_s $((SU > 15 ? SU - 10 : 5)) --json "$OUT/startup.json"
 
 echo "== total $("$PY" -c "import time; print(round(time.time() - $START, 1))") s; figures in $OUT" \
   | tee "$OUT/total.log"

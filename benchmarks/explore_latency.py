@@ -1,6 +1,6 @@
 """Response time of the explorer per slider move (issue 27; goal <= 1 s with the run's default surrogate).
 
-    python -m benchmarks.explore_latency --workdir runs/cpu [--moves 10] [--no-mgn] [--json PATH] [--md PATH]
+    python -m benchmarks.explore_latency --workdir runs/cpu [--moves 10] [--no_mgn] [--json PATH] [--md PATH]
 
 The page's work for one move, warm (the run loaded, baselines fitted, the MGN compiled, two untimed moves
 first), over ``--moves`` new designs spread over the sliders' range (seeded, none repeated, so nothing is
@@ -18,25 +18,24 @@ Browser rendering is not included (the browser test prints the round trip it see
 """
 from __future__ import annotations
 
-import argparse
 import json
 import statistics
-import sys
 import time
+from dataclasses import dataclass
 
 import numpy as np
+
+from benchmarks import common
+from pcmgn_jax import cli
 
 GOAL_S = 1.0
 
 
-def _args(argv):
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--workdir", required=True, help="run directory (config.json, training data, checkpoints)")
-    p.add_argument("--moves", type=int, default=10, help="timed slider moves")
-    p.add_argument("--no-mgn", action="store_true", help="leave the run's MGN out (its default is then kriging)")
-    p.add_argument("--json", default=None)
-    p.add_argument("--md", default=None)
-    return p.parse_args(argv)
+@dataclass(frozen=True)
+class ExploreLatencyArgs(common.Outputs):
+    workdir: str                 # run directory (config.json, training data, checkpoints)
+    moves: int = 10              # timed slider moves
+    mgn: bool = True             # the run's MGN among the predictors (--no_mgn: left out; the default is then kriging)
 
 
 def designs(explorer, n: int, seed: int = 0) -> np.ndarray:
@@ -64,12 +63,11 @@ def _stats(v: list[float]) -> dict:
 
 
 def main(argv=None) -> int:
-    from benchmarks.common import default_paths, machine_info, md_table, write_outputs
     from pcmgn_jax.explore import Explorer
 
-    args = _args(argv)
+    args = cli.parse(ExploreLatencyArgs, argv, description=__doc__, prog="python -m benchmarks.explore_latency")
     t0 = time.perf_counter()
-    ex = Explorer(args.workdir, mgn=not args.no_mgn)
+    ex = Explorer(args.workdir, mgn=args.mgn)
     load_s = time.perf_counter() - t0
     xs = designs(ex, args.moves + 2)
     time_moves(ex, xs[:2], default=True)                      # warm-up (untimed)
@@ -86,8 +84,7 @@ def main(argv=None) -> int:
               "n_frames": first.n_frames, "load_s": load_s, "kriging_load_s": kriging_load_s,
               "default_move": _stats(default), "page_move": _stats(page), "kriging_move": _stats(kriging),
               "goal_s": GOAL_S, "goal_met_default": max(default) <= GOAL_S, "goal_met_kriging": max(kriging) <= GOAL_S,
-              "command": "python -m benchmarks.explore_latency " + " ".join(argv if argv is not None else sys.argv[1:]),
-              "machine": machine_info()}
+              "command": cli.command_line("benchmarks.explore_latency", argv), "machine": common.machine_info()}
     rows = [[f"default ({ex.default}" + (", after the page" if ex.default in ex.deferred else "") + ")",
              result["default_move"]["median_s"], result["default_move"]["max_s"]],
             ["page at once (the live predictors)", result["page_move"]["median_s"], result["page_move"]["max_s"]],
@@ -96,12 +93,12 @@ def main(argv=None) -> int:
           f"{first.n_nodes} nodes x {first.n_frames} frames; predictors {', '.join(ex.available)}; "
           f"load {load_s:.1f} s; MGN rollout {ex.mgn_seconds if ex.mgn_seconds is None else round(ex.mgn_seconds, 3)} s; "
           f"{args.moves} moves, warm; goal <= {GOAL_S} s\n\n"
-          + md_table(["what", "median [s]", "max [s]"], rows)
+          + common.md_table(["what", "median [s]", "max [s]"], rows)
           + f"\ncommand: `{result['command']}`\n")
-    json_path, md_path = default_paths("explore_latency", args.json, args.md)
-    write_outputs(result, json_path, md_path, md)
+    json_path, md_path = common.default_paths("explore_latency", args.json, args.md)
+    common.write_outputs(result, json_path, md_path, md)
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    common.run(main)

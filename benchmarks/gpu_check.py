@@ -4,7 +4,7 @@
     python -m benchmarks.gpu_check --smoke --json /tmp/g.json      # the same code, small, on a CPU (< 1 min)
 
 Measured on ``jax.devices()[0]``, each after compilation (compile time reported separately):
-- the dense float32 matmul rate of the device (``jnp.dot`` of two n x n matrices, ``--matmul-n``;
+- the dense float32 matmul rate of the device (``jnp.dot`` of two n x n matrices, ``--matmul_n``;
   default 8192 on an accelerator, 1024 on a CPU), the reference for the fractions below;
 - the MeshGraphNet forward and Adam train step (one per dispatch, and ``--scan`` per dispatch) on the
   ROI graph of ``--preset`` (``benchmarks.mgn_vs_torch.prepare_jax``: the model, an MSE loss, Adam), as
@@ -14,28 +14,33 @@ Measured on ``jax.devices()[0]``, each after compilation (compile time reported 
 - one solver trajectory of the ``--preset`` mesh (``benchmarks.solver_speed.timed_simulate``: a compile
   run, then the timed run).
 Full size: ``--preset paper``, 15 x 128, 100 frames. ``--smoke``: preset tiny, 1 x 8, 3 frames, a
-2-frame solver run, 256² matmul, and (when jax is not imported yet) XLA's quick compile options
+2-frame solver run, 256² matmul, and (when jax has not started yet) XLA's quick compile options
 (:data:`SMOKE_XLA_FLAGS`: compilation is most of a smoke run's time, and its timings mean nothing).
 
 Always returns something (issue 42): each part (``matmul``, ``mgn``, ``rollout``, ``solver``) runs in a process
-of its own, started only while ``--budget-s`` (default 300 s, the whole check) has time left and killed when
+of its own, started only while ``--budget_s`` (default 300 s, the whole check) has time left and killed when
 it runs past it; each row is printed and the JSON (atomically rewritten) updated as soon as its part ends,
 and a part that did not fit is recorded as ``{"skipped": "why"}``. (The parent process never touches the
 device: on a GPU the parts would otherwise compete for its preallocated memory.) ``--parts`` picks and orders
-them. Writes JSON where ``--json`` says (default without ``--smoke``: benchmarks/results/gpu_check.json) and
+them. Writes JSON where ``--json`` says (default without ``--smoke``: results/benchmarks/gpu_check.json) and
 the table beside it (``--md``).
 """
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 import os
 import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
+
+from benchmarks import common
+from pcmgn_jax import cli
+from pcmgn_jax.presets import PresetName
 
 FULL = {"preset": "paper", "latent": 128, "layers": 15, "frames": 100, "solver_frames": 0, "repeats": 5,
         "scan": 3, "matmul_n": 0}
@@ -46,29 +51,27 @@ MIN_PART_S = 10.0     # a part is not started with less of the budget left [s] (
 SMOKE_XLA_FLAGS = "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true"  # ~1/3 less CPU
 
 
-def _args(argv):
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--smoke", action="store_true", help="the same code at small sizes (tests, CPU)")
-    p.add_argument("--preset", help="mesh preset of the graph, rollout and solver (paper; smoke: tiny)")
-    p.add_argument("--latent", type=int, help="latent size (128; smoke: 8)")
-    p.add_argument("--layers", type=int, help="message-passing steps (15; smoke: 1)")
-    p.add_argument("--frames", type=int, help="rollout frames (100; smoke: 3)")
-    p.add_argument("--solver-frames", type=int, help="solver frames (0 = the scene's 100; smoke: 2)")
-    p.add_argument("--repeats", type=int, help="timed calls of each (5; smoke: 2)")
-    p.add_argument("--scan", type=int, help="train steps per dispatch of the lax.scan variant (3; smoke: 2)")
-    p.add_argument("--matmul-n", type=int, help="matmul size (0 = 8192 on an accelerator, 1024 on a CPU)")
-    p.add_argument("--budget-s", type=float, default=300.0,
-                   help="seconds for the whole check: a part that does not fit is skipped or cut (300)")
-    p.add_argument("--parts", default=",".join(PARTS), help=f"comma list of parts, in order ({','.join(PARTS)})")
-    p.add_argument("--part", default=None, help=argparse.SUPPRESS)         # a child: run this part only
-    p.add_argument("--part-out", default=None, help=argparse.SUPPRESS)
-    p.add_argument("--json", default=None)
-    p.add_argument("--md", default=None)
-    a = p.parse_args(argv)
-    for k, v in (SMOKE if a.smoke else FULL).items():
-        if getattr(a, k) is None:
-            setattr(a, k, v)
-    return a
+@dataclass(frozen=True)
+class GpuCheckArgs(common.Outputs):
+    smoke: bool = False                  # the same code at small sizes (tests, CPU)
+    preset: PresetName | None = None     # mesh preset of the graph, rollout and solver (None: paper; smoke: tiny)
+    latent: int | None = None            # latent size (None: 128; smoke: 8)
+    layers: int | None = None            # message-passing steps (None: 15; smoke: 1)
+    frames: int | None = None            # rollout frames (None: 100; smoke: 3)
+    solver_frames: int | None = None     # solver frames (0 = the scene's 100; None: 0; smoke: 2)
+    repeats: int | None = None           # timed calls of each (None: 5; smoke: 2)
+    scan: int | None = None              # train steps per dispatch of the lax.scan variant (None: 3; smoke: 2)
+    matmul_n: int | None = None          # matmul size (0 = 8192 on an accelerator, 1024 on a CPU; None: 0; smoke: 256)
+    budget_s: float = 300.0              # seconds for the whole check: a part that does not fit is skipped or cut
+    parts: str = ",".join(PARTS)         # comma list of parts, in order (matmul, mgn, rollout, solver)
+    part: str | None = None              # internal (a child process): run this part only
+    part_out: str | None = None          # internal (a child process): its JSON
+
+
+def _args(argv) -> GpuCheckArgs:
+    """The flags, with the sizes not given taken from FULL (or SMOKE with --smoke)."""
+    a = cli.parse(GpuCheckArgs, argv, description=__doc__, prog="python -m benchmarks.gpu_check")
+    return dataclasses.replace(a, **{k: v for k, v in (SMOKE if a.smoke else FULL).items() if getattr(a, k) is None})
 
 
 def device_info() -> dict:
@@ -82,7 +85,6 @@ def device_info() -> dict:
 def train_and_forward(a, n_nodes: int) -> dict:
     """Forward, train step (1 and ``a.scan`` per dispatch) on a crop of ~``n_nodes`` nodes of the preset's
     mesh (ball pressed into the glass, so contact edges are live), with the FLOPs of each."""
-    from benchmarks import common
     from benchmarks.mgn_vs_torch import jax_results, prepare_jax
 
     g = common.bench_graph(n_nodes, a.preset)
@@ -102,7 +104,6 @@ def rollout_time(a) -> dict:
     """One ``a.frames`` rollout (lax.scan) of one design on the preset's ROI mesh, random parameters."""
     import jax
 
-    from benchmarks import common
     from benchmarks.rollout_throughput import rollout_setup
     from pcmgn_jax.mgn.rollout import rollout
 
@@ -128,7 +129,6 @@ def solver_time(a) -> dict:
 
 def run_part(a) -> dict:
     """The child's work: one part on the default device, with the device and machine blocks."""
-    from benchmarks import common
     out: dict = {"device": device_info(), "machine": common.machine_info()}
     if a.part == "matmul":
         n = a.matmul_n or (1024 if out["device"]["backend"] == "cpu" else 8192)
@@ -150,13 +150,13 @@ def _child(a, part: str, argv, timeout: float) -> tuple[dict | None, str]:
     """Run ``part`` in a process of its own within ``timeout`` [s]: (its output, '') or (None, why)."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "part.json"
-        cmd = [sys.executable, "-m", "benchmarks.gpu_check", *argv, "--part", part, "--part-out", str(out)]
+        cmd = [sys.executable, "-m", "benchmarks.gpu_check", *argv, "--part", part, "--part_out", str(out)]
         t0 = time.perf_counter()
         try:
             run = subprocess.run(cmd, cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True,
                                  timeout=timeout)
         except subprocess.TimeoutExpired:
-            return None, f"did not finish in the {timeout:.0f} s left of --budget-s={a.budget_s:g} (killed)"
+            return None, f"did not finish in the {timeout:.0f} s left of --budget_s={a.budget_s:g} (killed)"
         if run.returncode != 0 or not out.exists():
             tail = (run.stderr or run.stdout).strip().splitlines()[-3:]
             return None, f"failed (exit {run.returncode} after {time.perf_counter() - t0:.0f} s): " + " | ".join(tail)
@@ -204,23 +204,20 @@ def _fractions(result: dict) -> None:
 
 
 def main(argv=None) -> dict:
-    argv = list(sys.argv[1:] if argv is None else argv)
+    argv = cli.normalize_argv(GpuCheckArgs, sys.argv[1:] if argv is None else argv)   # underscore flag names
     a = _args(argv)
-    if a.smoke and "jax" not in sys.modules:        # XLA reads its flags when jax starts (children inherit)
+    if a.smoke and not _backend_started():          # XLA reads its flags when jax starts a backend (children inherit)
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {SMOKE_XLA_FLAGS}".strip()
-    if a.part is not None:                          # a child process: one part, its JSON to --part-out
-        from benchmarks import common
-        from pcmgn_jax.atomic import atomic_write_text
+    from pcmgn_jax.atomic import atomic_write_text
+    if a.part is not None:                          # a child process: one part, its JSON to --part_out
         atomic_write_text(Path(a.part_out), json.dumps(common._clean(run_part(a)), allow_nan=False))
         return {}
-    from benchmarks import common
-    from pcmgn_jax.atomic import atomic_write_text
 
     parts = a.parts.split(",")
     if not parts or set(parts) - set(PARTS):
-        raise SystemExit(f"--parts {a.parts!r}: a comma list of {', '.join(PARTS)}")
+        raise ValueError(f"--parts {a.parts!r}: a comma list of {', '.join(PARTS)}")
     t_start = time.perf_counter()
-    cmd = "python -m benchmarks.gpu_check " + " ".join(argv)
+    cmd = cli.command_line("benchmarks.gpu_check", argv)
     result: dict = {"device": None, "machine": None,
                     "config": {**{k: getattr(a, k) for k in FULL}, "smoke": a.smoke, "mlp_layers": 2,
                                "budget_s": a.budget_s, "parts": parts, "command": cmd}}
@@ -242,11 +239,11 @@ def main(argv=None) -> dict:
         atomic_write_text(json_path, json.dumps(common._clean(result), indent=1, allow_nan=False) + "\n")
         atomic_write_text(md_path, table())
 
-    child_argv = _drop_values(argv, ("--json", "--md", "--budget-s", "--parts"))
+    child_argv = _drop_values(argv, ("--json", "--md", "--budget_s", "--parts"))
     for part in parts:
         left = a.budget_s - (time.perf_counter() - t_start)
         if left < MIN_PART_S:
-            result[part] = {"skipped": f"not started: {max(left, 0):.0f} s of --budget-s={a.budget_s:g} left "
+            result[part] = {"skipped": f"not started: {max(left, 0):.0f} s of --budget_s={a.budget_s:g} left "
                                        f"(a part needs at least {MIN_PART_S:g} s)"}
         else:
             t0 = time.perf_counter()
@@ -269,6 +266,15 @@ def main(argv=None) -> dict:
     return result
 
 
+def _backend_started() -> bool:
+    """Whether JAX has started a backend in this process (XLA has read ``XLA_FLAGS``): importing jax, as the
+    command line does (pcmgn_jax.cli), does not."""
+    if "jax" not in sys.modules:
+        return False
+    from jax._src import xla_bridge   # no public form of this question
+    return xla_bridge.backends_are_initialized()
+
+
 def _drop_values(argv, flags) -> list[str]:
     """``argv`` without ``flags`` (``--flag value`` or ``--flag=value``)."""
     out, skip = [], False
@@ -285,4 +291,4 @@ def _drop_values(argv, flags) -> list[str]:
 
 
 if __name__ == "__main__":
-    main()
+    common.run(main)

@@ -23,35 +23,31 @@ old behaviour).
 """
 from __future__ import annotations
 
-import argparse
 import os
-import sys
 import time
 import traceback
+from dataclasses import dataclass
+from typing import Literal
+
+from benchmarks import common
+from pcmgn_jax import cli
 
 
-def _args(argv):
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--nodes", type=int, default=800)
-    p.add_argument("--layers", type=int, default=8, help="message-passing steps")
-    p.add_argument("--latent", type=int, default=64)
-    p.add_argument("--mlp-layers", type=int, default=2, help="hidden layers per MLP")
-    p.add_argument("--preset", default="auto", help="mesh preset of the crop (auto|tiny|cpu|paper)")
-    p.add_argument("--repeats", type=int, default=15)
-    p.add_argument("--warmup", type=int, default=3)
-    p.add_argument("--scan", type=int, default=10, help="train steps per dispatch of the lax.scan variant")
-    p.add_argument("--threads", type=int, default=0,
-                   help="torch threads (0 = all usable cores, which is what XLA's CPU client uses; to limit "
-                        "both, run under taskset)")
-    p.add_argument("--compile", choices=("on", "off"), default="on", help="also time torch.compile")
-    p.add_argument("--no-torch", action="store_true")
-    p.add_argument("--no-torch-1thread", dest="torch_1thread", action="store_false",
-                   help="skip the extra single-thread PyTorch variants")
-    p.add_argument("--profile", action="store_true", help="op-kind breakdown of the JAX forward and train "
-                   "step (jax.profiler trace; benchmarks.common.profile_ops)")
-    p.add_argument("--json", default=None)
-    p.add_argument("--md", default=None)
-    return p.parse_args(argv)
+@dataclass(frozen=True)
+class MgnVsTorchArgs(common.Outputs):
+    nodes: int = 800                  # graph nodes (a crop of the preset's mesh)
+    layers: int = 8                   # message-passing steps
+    latent: int = 64                  # latent size
+    mlp_layers: int = 2               # hidden layers per MLP
+    preset: Literal["auto", "tiny", "cpu", "paper"] = "auto"   # mesh preset of the crop
+    repeats: int = 15                 # timed calls of each (median)
+    warmup: int = 3                   # untimed calls first
+    scan: int = 10                    # train steps per dispatch of the lax.scan variant
+    threads: int = 0                  # torch threads (0 = all usable cores, which is what XLA's CPU client uses; to limit both, run under taskset)
+    compile: Literal["on", "off"] = "on"   # also time torch.compile
+    torch: bool = True                # the PyTorch side (--no_torch: JAX only)
+    torch_1thread: bool = True        # the extra single-thread PyTorch variants (--no_torch_1thread: skip them)
+    profile: bool = False             # op-kind breakdown of the JAX forward and train step (jax.profiler trace; benchmarks.common.profile_ops)
 
 
 def prepare_jax(g: dict, a) -> tuple[dict, dict]:
@@ -224,13 +220,12 @@ def torch_results(t: dict, variants: dict, info: dict, threads: int) -> dict:
 
 
 def main(argv=None) -> dict:
-    a = _args(sys.argv[1:] if argv is None else argv)
-    from benchmarks import common
+    a = cli.parse(MgnVsTorchArgs, argv, description=__doc__, prog="python -m benchmarks.mgn_vs_torch")
     threads = a.threads or len(os.sched_getaffinity(0))
     g = common.bench_graph(a.nodes, a.preset)
     gi = g["info"]
     have_torch = False
-    if not a.no_torch:
+    if a.torch:
         try:
             import torch  # noqa: F401
             have_torch = True
@@ -294,8 +289,7 @@ def main(argv=None) -> dict:
     machine.update(keep_heap=heap.applied(), threads=threads, matmul_1024_gflops_jax=mm_jax, matmul_1024_gflops_jax_after=mm_jax2,
                    matmul_1024_gflops_torch=mm_torch)
     config = dict(nodes_requested=a.nodes, layers=a.layers, latent=a.latent, mlp_layers=a.mlp_layers,
-                  repeats=a.repeats, warmup=a.warmup, command="python -m benchmarks.mgn_vs_torch " +
-                  " ".join(sys.argv[1:] if argv is None else argv), **gi)
+                  repeats=a.repeats, warmup=a.warmup, command=cli.command_line("benchmarks.mgn_vs_torch", argv), **gi)
     result = dict(jax=jres, torch=tres, config=config, ratios=ratios, flops=flops, machine=machine)
 
     md = [f"## MeshGraphNet: JAX vs PyTorch — {gi['n_nodes']} nodes, {gi['n_mesh_edges']} mesh + "
@@ -337,4 +331,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    common.run(main)

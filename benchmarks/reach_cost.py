@@ -1,6 +1,7 @@
 """Cost of reach (issue 39): one training step's network and one rollout, per processor.
 
     python -m benchmarks.reach_cost [--preset cpu] [--latent 64] [--frames 100] [--repeats 5] [--json PATH] [--md PATH]
+        [--formulations default,realtime]
 
 Variants: local message passing with 8 and 15 steps, the multi-scale (bi-stride V-cycles, 4 levels) and
 the attention processor (32 slices, 4 heads) with 8 steps (a global block after steps 4 and 8), each in
@@ -16,33 +17,28 @@ Timed after compilation (AOT), interleaved round-robin (:func:`benchmarks.common
 """
 from __future__ import annotations
 
-import argparse
-import sys
 import time
+from dataclasses import dataclass
+
+from benchmarks import common
+from benchmarks.rollout_throughput import GraphArgs, rollout_setup
+from pcmgn_jax import cli
 
 VARIANTS = {"local 8": (8, "local"), "local 15": (15, "local"), "multiscale 8": (8, "multiscale"),
             "attention 8": (8, "attention")}
 
 
-def _args(argv):
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--preset", default="cpu", help="mesh preset (tiny|cpu|paper); the graph is its ROI")
-    p.add_argument("--latent", type=int, default=64)
-    p.add_argument("--frames", type=int, default=100, help="rollout steps")
-    p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--formulations", default="default,realtime")
-    p.add_argument("--json", default=None)
-    p.add_argument("--md", default=None)
-    return p.parse_args(argv)
+@dataclass(frozen=True)
+class ReachCostArgs(GraphArgs):
+    repeats: int = 5                          # timed calls of each (median)
+    formulations: str = "default,realtime"    # comma list of formulations (pcmgn_jax.mgn.formulation.FORMULATIONS)
 
 
 def main(argv=None) -> dict:
-    a = _args(sys.argv[1:] if argv is None else argv)
+    a = cli.parse(ReachCostArgs, argv, description=__doc__, prog="python -m benchmarks.reach_cost")
     import jax
     import jax.numpy as jnp
 
-    from benchmarks import common
-    from benchmarks.rollout_throughput import rollout_setup
     from pcmgn_jax.mgn.formulation import FORMULATIONS
     from pcmgn_jax.mgn.normalization import normalize_graph
     from pcmgn_jax.mgn.rollout import input_graph, rollout
@@ -70,7 +66,7 @@ def main(argv=None) -> dict:
                          "reach": reach, "formulation": fname, "nodes": s["n_nodes"]}
     times = common.time_calls(fns, repeats=a.repeats, warmup=1)
     rows, result = [], {"preset": a.preset, "latent": a.latent, "frames": a.frames, "machine": common.machine_info(),
-                        "variants": {}}
+                        "command": cli.command_line("benchmarks.reach_cost", argv), "variants": {}}
     for key, meta in info.items():
         tr, ro = times[key + " train"]["median_ms"], times[key + " rollout"]["median_ms"]
         result["variants"][key] = {**meta, "train_ms": tr, "rollout_ms": ro, "compile_s": compile_s[key]}
@@ -84,4 +80,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    common.run(main)

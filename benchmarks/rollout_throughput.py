@@ -19,28 +19,34 @@ XLA kind) of one design, the union and the vmap batch: where the vmap path loses
 """
 from __future__ import annotations
 
-import argparse
-import sys
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
+from benchmarks import common
+from pcmgn_jax import cli
+from pcmgn_jax.presets import PresetName
 
-def _args(argv):
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--preset", default="cpu", help="mesh preset (tiny|cpu|paper); the graph is its ROI")
-    p.add_argument("--latent", type=int, default=64)
-    p.add_argument("--layers", type=int, default=8, help="message-passing steps")
-    p.add_argument("--mlp-layers", type=int, default=2)
-    p.add_argument("--frames", type=int, default=100, help="rollout steps")
-    p.add_argument("--batches", default="8", help="vmap batch sizes (the old path), comma separated")
-    p.add_argument("--union", default="8", help="disjoint-union batch sizes, comma separated")
-    p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--profile", action="store_true", help="per-op breakdown of one frame step (jax.profiler)")
-    p.add_argument("--no-loop", action="store_true", help="skip the Python-loop comparison")
-    p.add_argument("--json", default=None)
-    p.add_argument("--md", default=None)
-    return p.parse_args(argv)
+
+@dataclass(frozen=True)
+class GraphArgs(common.Outputs):
+    """A random-parameter model on a preset's region-of-interest graph (also benchmarks.reach_cost's)."""
+
+    preset: PresetName = "cpu"   # mesh preset (pcmgn_jax.presets.PRESETS); the graph is its ROI
+    latent: int = 64             # latent size
+    frames: int = 100            # rollout steps
+
+
+@dataclass(frozen=True)
+class RolloutThroughputArgs(GraphArgs):
+    layers: int = 8              # message-passing steps
+    mlp_layers: int = 2          # hidden layers per MLP
+    batches: str = "8"           # vmap batch sizes (the old path), comma separated
+    union: str = "8"             # disjoint-union batch sizes, comma separated
+    repeats: int = 3             # timed calls of each (median)
+    profile: bool = False        # per-op breakdown of one frame step (jax.profiler)
+    loop: bool = True            # the Python-loop comparison (--no_loop: skip it)
 
 
 def rollout_setup(preset: str, *, latent: int, layers: int, mlp_layers: int = 2, n_designs: int = 8,
@@ -133,7 +139,7 @@ def _profile(spec, common_args, one, s, b: int) -> dict:
     vmapped = jax.jit(lambda c, p, u, v: jax.vmap(lambda p, u, v: step(spec, *c, p, u, v)[:3])(p, u, v))
     blk = jax.block_until_ready
     one = [jnp.asarray(x) for x in one[:3]]
-    from benchmarks.common import profile_ops
+    profile_ops = common.profile_ops
     out = {"1 design": profile_ops(lambda: blk(single(common_args, *one))),
            f"union {b}": profile_ops(lambda: blk(union(common_args[:2], batch, ub, vb))),
            f"vmap {b}": profile_ops(lambda: blk(vmapped(common_args, *stacked)))}
@@ -141,10 +147,9 @@ def _profile(spec, common_args, one, s, b: int) -> dict:
 
 
 def main(argv=None) -> dict:
-    a = _args(sys.argv[1:] if argv is None else argv)
+    a = cli.parse(RolloutThroughputArgs, argv, description=__doc__, prog="python -m benchmarks.rollout_throughput")
     import jax
 
-    from benchmarks import common
     from pcmgn_jax.mgn.rollout import jitted_step, rollout, rollout_batch, rollout_union
 
     batches = [int(b) for b in a.batches.split(",") if b.strip()]
@@ -180,7 +185,7 @@ def main(argv=None) -> dict:
         compile_s[f"vmap{b}"] = time.perf_counter() - t0
         fns[f"vmap{b}"] = (lambda fn=fn, args=args: blk(fn(*common_args, *args)))
         per_call[f"vmap{b}"] = b
-    if not a.no_loop:
+    if a.loop:
         pts, u, v = (jax.numpy.asarray(x) for x in one[:3])
 
         def loop():
@@ -196,7 +201,7 @@ def main(argv=None) -> dict:
     ref = ms["single"]
     result = {"single": {"rollout_ms": ref, "per_frame_ms": ref / T, "compile_s": compile_s["single"],
                          "timing": times["single"]}}
-    if not a.no_loop:
+    if a.loop:
         result["python_loop"] = {"rollout_ms": ms["python_loop"], "loop_over_scan": ms["python_loop"] / ref}
     result["union"] = {str(b): dict(batch=b, ms_per_design=ms[f"union{b}"], designs_per_s=1e3 / ms[f"union{b}"],
                                     speedup_vs_single=ref / ms[f"union{b}"],
@@ -214,8 +219,7 @@ def main(argv=None) -> dict:
     config = {"preset": a.preset, "n_nodes": s["n_nodes"], "n_mesh_edges": s["n_mesh_edges"],
               "contact_capacity": s["contact_capacity"], "latent": a.latent, "layers": a.layers,
               "mlp_layers": a.mlp_layers, "frames": T, "repeats": a.repeats, "params": "random (timing only)",
-              "command": "python -m benchmarks.rollout_throughput " +
-              " ".join(sys.argv[1:] if argv is None else argv)}
+              "command": cli.command_line("benchmarks.rollout_throughput", argv)}
     machine = common.machine_info()
     machine["load_avg_1min_start"] = load0
     result.update(config=config, machine=machine)
@@ -249,4 +253,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    common.run(main)

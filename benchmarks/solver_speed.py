@@ -1,7 +1,7 @@
 """Speed of the built-in explicit FE solver: substeps/s and wall time per default trajectory.
 
     python -m benchmarks.solver_speed [--presets cpu,paper] [--batch 8] [--frames 100]
-        [--probe-frames 5] [--budget 120] [--designs-per-call 0] [--json PATH] [--md PATH]
+        [--probe_frames 5] [--budget 120] [--designs_per_call 0] [--json PATH] [--md PATH]
 
 For each mesh preset: the full (un-cropped) mesh of the default scene, designs = OCA1/OCA2
 thicknesses spread over 50-150 µm. Each configuration runs ``solver.simulate`` twice with the
@@ -9,35 +9,32 @@ same shapes; the first call compiles, the second is the timed one (``RunResult.w
 device time of the jitted scan, excluding meshing / element matrices / the eigenvalue estimate,
 which are reported separately as ``prepare_s``).
 
-A short ``--probe-frames`` run comes first; when the full ``--frames`` trajectory is predicted to
+A short ``--probe_frames`` run comes first; when the full ``--frames`` trajectory is predicted to
 take longer than ``--budget`` seconds, the full run is skipped and its wall time is EXTRAPOLATED
 linearly from the probe (explicit dynamics: constant cost per substep), flagged ``extrapolated``.
-Single design and a batch of ``--batch`` designs -> throughput ratio. ``--designs-per-call``
+Single design and a batch of ``--batch`` designs -> throughput ratio. ``--designs_per_call``
 is ``SolverSettings.designs_per_call`` (0: the solver's default, one design at a time on CPU;
-``--designs-per-call 8`` integrates the batch of 8 in one vectorised call).
+``--designs_per_call 8`` integrates the batch of 8 in one vectorised call).
 """
 from __future__ import annotations
 
-import argparse
-import sys
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
+from benchmarks import common
+from pcmgn_jax import cli
 
-def _args(argv):
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--presets", default="cpu,paper")
-    p.add_argument("--batch", type=int, default=8)
-    p.add_argument("--frames", type=int, default=0, help="trajectory frames (0 = the scene default, 100)")
-    p.add_argument("--probe-frames", type=int, default=5)
-    p.add_argument("--budget", type=float, default=120.0,
-                   help="max predicted seconds of one full timed run; longer runs are extrapolated")
-    p.add_argument("--designs-per-call", type=int, default=0,
-                   help="SolverSettings.designs_per_call (0 = the solver's default)")
-    p.add_argument("--json", default=None)
-    p.add_argument("--md", default=None)
-    return p.parse_args(argv)
+
+@dataclass(frozen=True)
+class SolverSpeedArgs(common.Outputs):
+    presets: str = "cpu,paper"   # comma list of mesh presets
+    batch: int = 8               # designs of the batched run
+    frames: int = 0              # trajectory frames (0 = the scene default, 100)
+    probe_frames: int = 5        # frames of the short probe run
+    budget: float = 120.0        # max predicted seconds of one full timed run; longer runs are extrapolated
+    designs_per_call: int = 0    # SolverSettings.designs_per_call (0 = the solver's default)
 
 
 def designs(n: int) -> list[tuple[float, float]]:
@@ -67,8 +64,7 @@ def timed_simulate(scenes, preset, n_frames: int, designs_per_call: int = 0) -> 
 
 
 def main(argv=None) -> dict:
-    a = _args(sys.argv[1:] if argv is None else argv)
-    from benchmarks import common
+    a = cli.parse(SolverSpeedArgs, argv, description=__doc__, prog="python -m benchmarks.solver_speed")
     from pcmgn_jax.scene import default_scene
 
     base = default_scene()
@@ -103,7 +99,7 @@ def main(argv=None) -> dict:
     config = dict(presets=presets, batch=a.batch, designs_per_call=a.designs_per_call, frames=frames,
                   probe_frames=a.probe_frames, budget_s=a.budget,
                   scene="default_scene (axisymmetric, 8 mm half width, full mesh, 6 layers)",
-                  command="python -m benchmarks.solver_speed " + " ".join(sys.argv[1:] if argv is None else argv),
+                  command=cli.command_line("benchmarks.solver_speed", argv),
                   total_benchmark_s=time.perf_counter() - t_start)
     result = dict(solver=out, config=config, machine=common.machine_info())
     md = [f"## Explicit FE solver speed — {frames}-frame default trajectory\n",
@@ -122,4 +118,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    common.run(main)

@@ -1,9 +1,9 @@
 """Solver throughput against the number of designs per compiled call (issue 42).
 
-    python -m benchmarks.solver_throughput [--presets cpu,paper] [--max-batch 256] [--frames 10]
-        [--budget-s 600] [--json PATH]
+    python -m benchmarks.solver_throughput [--presets cpu,paper] [--max_batch 256] [--frames 10]
+        [--budget_s 600] [--json PATH]
 
-For each mesh preset (the default scene's full mesh) and batch size b = 1, 2, 4, ... ``--max-batch``: one
+For each mesh preset (the default scene's full mesh) and batch size b = 1, 2, 4, ... ``--max_batch``: one
 compiled call of the built-in solver (:func:`pcmgn_jax.sim.solver._run`) integrating b designs for
 ``--frames`` output frames. The designs are 8 distinct OCA1/OCA2 thicknesses (50-150 µm), prepared once
 on the host and repeated to fill the batch (the cost of a call does not depend on the values; the 8 share
@@ -15,7 +15,7 @@ per substep; flagged ``extrapolated_to_frames``), and the speed-up over b = 1 of
 preparation per design (mesh, element matrices, stable-step eigenvalues; ``prepare_s_per_design``) is
 measured once per preset and reported beside, not included.
 
-Each row is printed and written to the JSON (atomically) as soon as it is measured; ``--budget-s`` bounds
+Each row is printed and written to the JSON (atomically) as soon as it is measured; ``--budget_s`` bounds
 the whole run: a row is not started when the time left is less than 1.5 times what the previous row of the
 preset took (compile included: on an H200 each row compiles for 15-24 s, whatever its batch), and the skipped
 rows are listed with the reason. ``--sizes`` gives the batch sizes explicitly and in order (e.g. ``1,256,16``:
@@ -23,26 +23,27 @@ the largest right after the single design).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import statistics
-import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks import common
+from pcmgn_jax import cli
 
-def _args(argv):
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--presets", default="cpu,paper")
-    p.add_argument("--max-batch", type=int, default=256, help="largest batch (powers of two from 1)")
-    p.add_argument("--sizes", default="", help="comma list of batch sizes (overrides --max-batch)")
-    p.add_argument("--frames", type=int, default=10, help="output frames integrated per call (10)")
-    p.add_argument("--repeats", type=int, default=2, help="timed calls per row (median; 2)")
-    p.add_argument("--budget-s", type=float, default=600.0, help="seconds for the whole run (600)")
-    p.add_argument("--json", default=None, help="default benchmarks/results/solver_throughput.json")
-    return p.parse_args(argv)
+
+@dataclass(frozen=True)
+class SolverThroughputArgs:
+    presets: str = "cpu,paper"   # comma list of mesh presets
+    max_batch: int = 256         # largest batch (powers of two from 1)
+    sizes: str = ""              # comma list of batch sizes (overrides --max_batch)
+    frames: int = 10             # output frames integrated per call
+    repeats: int = 2             # timed calls per row (median)
+    budget_s: float = 600.0      # seconds for the whole run
+    json: str | None = None      # result JSON (default results/benchmarks/solver_throughput.json)
 
 
 def sizes(a) -> list[int]:
@@ -51,7 +52,7 @@ def sizes(a) -> list[int]:
     else:
         out = [1 << k for k in range(0, max(0, int(a.max_batch)).bit_length()) if 1 << k <= a.max_batch]
     if not out or min(out) < 1:
-        raise SystemExit(f"batch sizes must be >= 1, got {out}")
+        raise ValueError(f"batch sizes must be >= 1, got {out}")
     return out
 
 
@@ -91,11 +92,9 @@ def measure(calls, b: int, repeats: int) -> dict:
 
 
 def main(argv=None) -> dict:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    a = _args(argv)
+    a = cli.parse(SolverThroughputArgs, argv, description=__doc__, prog="python -m benchmarks.solver_throughput")
     import jax
 
-    from benchmarks import common
     from pcmgn_jax.atomic import atomic_write_text
 
     t_start = time.perf_counter()
@@ -104,7 +103,7 @@ def main(argv=None) -> dict:
     result = {"device": {"backend": jax.default_backend(), "kind": dev.device_kind, "platform": dev.platform},
               "config": {"presets": a.presets.split(","), "sizes": sizes(a), "frames": a.frames,
                          "repeats": a.repeats, "budget_s": a.budget_s,
-                         "command": "python -m benchmarks.solver_throughput " + " ".join(argv)},
+                         "command": cli.command_line("benchmarks.solver_throughput", argv)},
               "machine": common.machine_info(), "rows": [], "skipped": []}
 
     def save():
@@ -126,7 +125,7 @@ def main(argv=None) -> dict:
             left = a.budget_s - (time.perf_counter() - t_start)
             if left < 1.5 * last_s or left <= 0:
                 result["skipped"].append({"preset": preset, "batch": b, "why": (
-                    f"{left:.0f} s of --budget-s={a.budget_s:g} left, the previous row took {last_s:.0f} s")})
+                    f"{left:.0f} s of --budget_s={a.budget_s:g} left, the previous row took {last_s:.0f} s")})
                 print(f"{preset} | {b} | skipped: {result['skipped'][-1]['why']}", flush=True)
                 save()
                 continue
@@ -153,4 +152,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    common.run(main)

@@ -1,7 +1,7 @@
 """Surrogate against solver: wall time per design vs error on held-out designs (Pareto plot).
 
     python -m benchmarks.speed_vs_error --runs runs/l32s5,runs/l64s8,runs/l128s15 \\
-        --solver-presets cpu,cpu@1.5,cpu@2,tiny [--baselines nearest,poly2,rbf] [--n-test 6] [--json PATH] ...
+        --solver_presets cpu,cpu@1.5,cpu@2,tiny [--baselines nearest,poly2,rbf] [--n_test 6] [--json PATH] ...
 
 Ground truth: the held-out (test split) trajectories of the runs' dataset, i.e. the solver at the
 training mesh (all runs must share one dataset). Points:
@@ -25,30 +25,29 @@ front, and for every surrogate the fastest solver at least as accurate (the spee
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import math
-import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
+from benchmarks import common
+from pcmgn_jax import cli
 
-def _args(argv):
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--runs", default="", help="comma-separated run directories")
-    p.add_argument("--solver-presets", default="", help="comma-separated mesh presets, e.g. cpu,cpu@2,tiny")
-    p.add_argument("--dataset", default="", help="dataset dir (default: the first run's)")
-    p.add_argument("--n-test", type=int, default=0, help="held-out designs (0 = the run config's n_test)")
-    p.add_argument("--which", default="best", help="checkpoint: best | periodic")
-    p.add_argument("--baselines", default="", help="comma-separated design-space baselines fitted on the training "
-                   "split (none, nearest, poly2, rbf: pcmgn_jax.surrogates), timed like the surrogates")
-    p.add_argument("--n-train", type=int, default=0, help="training designs the baselines fit (0 = the run config's n_train)")
-    p.add_argument("--json", default=None)
-    p.add_argument("--md", default=None)
-    p.add_argument("--png", default=None)
-    return p.parse_args(argv)
+
+@dataclass(frozen=True)
+class SpeedVsErrorArgs(common.Outputs):
+    runs: str = ""               # comma-separated run directories
+    solver_presets: str = ""     # comma-separated mesh presets, e.g. cpu,cpu@2,tiny
+    dataset: str = ""            # dataset dir (default: the first run's)
+    n_test: int = 0              # held-out designs (0 = the run config's n_test)
+    which: Literal["best", "periodic"] = "best"   # checkpoint
+    baselines: str = ""          # comma-separated design-space baselines fitted on the training split (none, nearest, poly2, rbf: pcmgn_jax.surrogates), timed like the surrogates
+    n_train: int = 0             # training designs the baselines fit (0 = the run config's n_train)
+    png: str | None = None       # the plot (default: the JSON's path with .png)
 
 
 # ---- errors ---------------------------------------------------------------------------------------
@@ -276,9 +275,8 @@ def plot(points, path) -> None:
 
 
 def report(points, *, command: str, json_path, md_path, png_path, extra: dict | None = None) -> dict:
-    from benchmarks import common
     if not points:
-        raise ValueError("speed_vs_error: no points (give --runs and/or --solver-presets)")
+        raise ValueError("speed_vs_error: no points (give --runs and/or --solver_presets)")
     plot(points, png_path)
     v_pos = verdicts(points, "position_mae_um")
     v_st = verdicts(points, "stress_mae_mpa")
@@ -306,15 +304,14 @@ def report(points, *, command: str, json_path, md_path, png_path, extra: dict | 
 
 
 def main(argv=None) -> dict:
-    a = _args(sys.argv[1:] if argv is None else argv)
-    from benchmarks import common
+    a = cli.parse(SpeedVsErrorArgs, argv, description=__doc__, prog="python -m benchmarks.speed_vs_error")
     from pcmgn_jax.data.cache import load_split
     from pcmgn_jax.config import TrainConfig
 
     runs = [r for r in a.runs.split(",") if r]
     presets = [p for p in a.solver_presets.split(",") if p]
     if not runs and not a.dataset:
-        raise SystemExit("give --runs (and/or --dataset with --solver-presets)")
+        raise SystemExit("give --runs (and/or --dataset with --solver_presets)")
     cfgs = [TrainConfig.load(Path(r) / "config.json") for r in runs]
     dataset = a.dataset or cfgs[0].resolved_dataset_dir
     for r, c in zip(runs, cfgs):
@@ -333,10 +330,10 @@ def main(argv=None) -> dict:
     points += [solver_point(p, test) for p in presets]
     jp, mp = common.default_paths("speed_vs_error", a.json, a.md)
     png = Path(a.png) if a.png else jp.with_suffix(".png")
-    return report(points, command="python -m benchmarks.speed_vs_error " +
-                  " ".join(sys.argv[1:] if argv is None else argv), json_path=jp, md_path=mp, png_path=png,
+    return report(points, command=cli.command_line("benchmarks.speed_vs_error", argv), json_path=jp, md_path=mp,
+                  png_path=png,
                   extra=dict(dataset=str(dataset), n_test=len(test), runs=runs, solver_presets=presets))
 
 
 if __name__ == "__main__":
-    main()
+    common.run(main)

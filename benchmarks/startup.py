@@ -1,7 +1,7 @@
 """Start-up: seconds from launching a command to its first training step, first rollout and first solver call,
 with an empty (cold) and a filled (warm) persistent compilation cache (issue 42).
 
-    python -m benchmarks.startup [--preset cpu] [--data DIR] [--json PATH] [--md PATH] [--budget-s 900]
+    python -m benchmarks.startup [--preset cpu] [--data DIR] [--json PATH] [--md PATH] [--budget_s 900]
 
 Each figure is measured in a fresh process of the real entry point, from just before the process is started
 (so Python's start, the imports, reading the data, building the graphs, initialising the model and compiling
@@ -16,40 +16,38 @@ time at which the first call of each compiled computation returned):
 
 Three conditions (``--conditions``), in this order, each a new process, command by command (training first,
 then the solver; each command with a cache folder of its own): ``off`` (``PCMGN_JAX_CACHE=0``), ``cold`` (an
-empty cache folder) and ``warm`` (the same folder, filled by the cold run). Before the first, one untimed training process (cache off; ``--no-prime``: none) builds the dataset's
+empty cache folder) and ``warm`` (the same folder, filled by the cold run). Before the first, one untimed training process (cache off; ``--no_prime``: none) builds the dataset's
 read cache and warms the OS file cache. The XLA compile seconds of each first call
 are reported beside (``xla_s``; ~0 when the program came from the cache). ``--data``: a dataset folder of the
 preset (made with the solver when missing; default a temporary folder). The JSON is rewritten after every
-measurement; ``--budget-s`` skips what is not started in time, saying so.
+measurement; ``--budget_s`` skips what is not started in time, saying so.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
+
+from benchmarks import common
+from pcmgn_jax import cli
+from pcmgn_jax.presets import PresetName
 
 ROOT = Path(__file__).resolve().parents[1]
 CONDITIONS = ("off", "cold", "warm")
 
 
-def _args(argv):
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--preset", default="cpu", help="training preset (its data preset is generated if missing)")
-    p.add_argument("--data", default="", help="the preset's dataset folder (default: a temporary one)")
-    p.add_argument("--conditions", default=",".join(CONDITIONS),
-                   help="comma list of off, cold, warm (in this order; warm needs cold before it)")
-    p.add_argument("--prime", action=argparse.BooleanOptionalAction, default=True,
-                   help="one untimed training process first (the dataset's read cache; --no-prime when a run "
-                        "has trained on --data already)")
-    p.add_argument("--budget-s", type=float, default=900.0, help="seconds for the whole benchmark (900)")
-    p.add_argument("--json", default=None, help="default benchmarks/results/startup.json")
-    p.add_argument("--md", default=None)
-    return p.parse_args(argv)
+@dataclass(frozen=True)
+class StartupArgs(common.Outputs):
+    preset: PresetName = "cpu"            # training preset (its data preset is generated if missing)
+    data: str = ""                        # the preset's dataset folder (default: a temporary one)
+    conditions: str = ",".join(CONDITIONS)  # comma list of off, cold, warm (in this order; warm needs cold before it)
+    prime: bool = True                    # one untimed training process first (the dataset's read cache; --no_prime when a run has trained on --data already)
+    budget_s: float = 900.0               # seconds for the whole benchmark
 
 
 def _notes(path: Path) -> list[dict]:
@@ -88,7 +86,7 @@ def measure(kind: str, a, data: Path, work: Path, env: dict, timeout: float) -> 
                "--n_test", "0", "--out", str(folder / "data"), "--no_progress"]
         events = {"first_solver_call": "the solver"}
     t0, run = launch(cmd, {**env, "PCMGN_COMPILE_LOG": str(log)}, timeout)
-    out: dict = {"command": " ".join(cmd[1:]), "process_s": time.time() - t0}
+    out: dict = {"command": cli.command_line(cmd[2], cmd[3:]), "process_s": time.time() - t0}
     if run is None or run.returncode != 0:
         why = "killed at the budget" if run is None else f"exit {run.returncode}: " + " | ".join(
             (run.stderr or run.stdout).strip().splitlines()[-3:])
@@ -106,9 +104,7 @@ def _data_preset(preset: str) -> str:
 
 
 def main(argv=None) -> dict:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    a = _args(argv)
-    from benchmarks import common
+    a = cli.parse(StartupArgs, argv, description=__doc__, prog="python -m benchmarks.startup")
     from pcmgn_jax.atomic import atomic_write_text
 
     base_env = {k: v for k, v in os.environ.items() if k not in ("PCMGN_JAX_CACHE", "PCMGN_JAX_CACHE_DIR")}
@@ -120,7 +116,7 @@ def main(argv=None) -> dict:
     data = Path(a.data) if a.data else work / "data"
     base_env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
     result: dict = {"config": {"preset": a.preset, "data": str(data), "budget_s": a.budget_s,
-                               "command": "python -m benchmarks.startup " + " ".join(argv)},
+                               "command": cli.command_line("benchmarks.startup", argv)},
                     "machine": {**common.machine_info(), "jax_backend": "(not used by the measuring process)"},
                     "runs": {}, "skipped": []}
 
@@ -178,7 +174,6 @@ def main(argv=None) -> dict:
 
 
 def table(result: dict) -> str:
-    from benchmarks import common
     rows = []
     for kind, event in (("train", "first_training_step"), ("train", "first_rollout"), ("solver", "first_solver_call")):
         row = [event.replace("_", " ")]
@@ -192,4 +187,4 @@ def table(result: dict) -> str:
 
 
 if __name__ == "__main__":
-    main()
+    common.run(main)

@@ -20,27 +20,28 @@ the formulation before ``processor='per_design'``) is timed beside it when the r
 """
 from __future__ import annotations
 
-import argparse
 import statistics
-import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
+from benchmarks import common
+from pcmgn_jax import cli
+from pcmgn_jax.presets import PresetName
 
-def _args(argv):
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--preset", default="cpu", help="cpu | paper | tiny: the solver preset (and the run's)")
-    p.add_argument("--workdir", default="", help="trained run (default runs/<preset>; missing -> random parameters)")
-    p.add_argument("--n-test", type=int, default=0, help="test designs (0 = the run's n_test; 8 without a run)")
-    p.add_argument("--batch", type=int, default=8, help="designs per MGN call (disjoint union)")
-    p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--which", default="best")
-    p.add_argument("--no-per-frame", action="store_true", help="skip timing the per-frame processor beside it")
-    p.add_argument("--json", default=None)
-    p.add_argument("--md", default=None)
-    return p.parse_args(argv)
+
+@dataclass(frozen=True)
+class SurrogateSpeedArgs(common.Outputs):
+    preset: PresetName = "cpu"   # the solver preset (and the run's)
+    workdir: str = ""            # trained run (default runs/<preset>; missing -> random parameters)
+    n_test: int = 0              # test designs (0 = the run's n_test; 8 without a run)
+    batch: int = 8               # designs per MGN call (disjoint union)
+    repeats: int = 3             # timed runs of each (median)
+    which: Literal["best", "periodic"] = "best"   # checkpoint
+    per_frame: bool = True       # time the per-frame processor beside it (--no_per_frame: skip)
 
 
 def _median_time(fn, repeats: int) -> tuple[float, float]:
@@ -168,8 +169,7 @@ def solver_time(preset: str, scenes, n_frames: int, repeats: int) -> dict:
 
 
 def main(argv=None) -> dict:
-    a = _args(sys.argv[1:] if argv is None else argv)
-    from benchmarks import common
+    a = cli.parse(SurrogateSpeedArgs, argv, description=__doc__, prog="python -m benchmarks.surrogate_speed")
     from pcmgn_jax.config import TrainConfig
     from pcmgn_jax.data.cache import load_split
     from pcmgn_jax.scene import Scene, default_scene
@@ -182,16 +182,16 @@ def main(argv=None) -> dict:
         if not test:
             raise SystemExit(f"{cfg.resolved_dataset_dir}/test holds no trajectories")
         point = trained_point(workdir, test, batch=a.batch, repeats=a.repeats, which=a.which,
-                              per_frame=not a.no_per_frame)
+                              per_frame=a.per_frame)
         scenes, n_frames = [Scene.from_dict(t.meta["scene"]) for t in test], test[0].n_frames - 1
     else:
-        point, designs = untrained_point(a.preset, a.n_test or 8, repeats=a.repeats, per_frame=not a.no_per_frame)
+        point, designs = untrained_point(a.preset, a.n_test or 8, repeats=a.repeats, per_frame=a.per_frame)
         scenes, n_frames = [default_scene().with_design(*d) for d in designs], 100
     point.update(solver_time(a.preset, scenes, n_frames, a.repeats))
     point["ratio"] = point["solver_s_per_design"] / point["mgn_s_per_design"]
     if "mgn_per_frame_s_per_design" in point:
         point["ratio_per_frame"] = point["solver_s_per_design"] / point["mgn_per_frame_s_per_design"]
-    cmd = "python -m benchmarks.surrogate_speed " + " ".join(sys.argv[1:] if argv is None else argv)
+    cmd = cli.command_line("benchmarks.surrogate_speed", argv)
     result = dict(preset=a.preset, workdir=str(workdir) if trained else None, trained=trained, n_designs=len(scenes),
                   n_frames=n_frames, batch=a.batch, command=cmd, machine=common.machine_info(), **point)
     fmt = lambda x, f="{:.3g}": "n/a" if x is None else f.format(x)  # noqa: E731
@@ -212,4 +212,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    common.run(main)

@@ -1,6 +1,6 @@
 """The surrogate-accuracy ablation: each formulation change alone and combined, several seeds, same data.
 
-    python -m experiments.ablation --out results/ablation_v3 --num_steps 1000 --seeds 0,1 \
+    python -m experiments.ablation --out results/ablation/new --num_steps 1000 --seeds 0,1 \
         --cells quasi_static,quasi_static+ema,quasi_static+thickness,default
 
 Every cell is a training run (``--preset cpu`` plus the cell's flags, ``runs/ablation/<cell>_s<seed>``)
@@ -20,7 +20,7 @@ from pcmgn_jax import cli
 
 @dataclass(frozen=True)
 class AblationArgs:
-    out: str = "results/ablation_v3"        # output stem: OUT.json and OUT.md
+    out: str = "results/ablation/new"        # output stem: OUT.json and OUT.md
     runs: str = "runs/ablation"             # where the cells' run directories go
     num_steps: int = 1000                   # optimiser steps per cell (the cpu preset trains 4000)
     seeds: str = "0,1"                      # comma-separated training seeds (same data for all)

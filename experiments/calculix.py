@@ -77,7 +77,7 @@ def main(argv=None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     digest = write_trajectory(traj, out / "trajectory")
-    summary = {"command": "python -m experiments.calculix " + " ".join(sys.argv[1:] if argv is None else argv),
+    summary = {"command": cli.command_line("experiments.calculix", argv),
                "design_um": [d * 1e6 for d in scene.design], "preset": args.preset, "deck": extra["deck"],
                "settings": dataclasses.asdict(settings), "ccx_wall_time_s": extra["run"]["wall_time_s"],
                "force_N": extra["force_N"].tolist(), "output_dt": scene.output_dt, "trajectory_sha256": digest}

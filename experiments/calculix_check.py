@@ -69,7 +69,7 @@ def main(argv=None) -> int:
         print(f"error: {err}", file=sys.stderr)
         return 2
     out = Path(args.out)
-    command = "python -m experiments.calculix_check " + " ".join(sys.argv[1:] if argv is None else argv)
+    command = cli.command_line("experiments.calculix_check", argv)
     cases, failed = [], []
     designs = [d for d in args.designs.split(";") if d.strip()]
     labels = args.labels.split(",")

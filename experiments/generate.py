@@ -30,18 +30,18 @@ from dataclasses import dataclass
 from typing import Literal
 
 from pcmgn_jax import cli
-from pcmgn_jax.config import PRESETS as TRAIN_PRESETS
-from pcmgn_jax.data.dataset import PRESETS, DatasetError, ensure_dataset
+from pcmgn_jax.data.dataset import DatasetError, ensure_dataset
 from pcmgn_jax.data.designs import DESIGN_HIGH, DESIGN_LOW, FAMILIES, parse_designs, parse_scene_params
 from pcmgn_jax.data.shards import parse_shard
 from pcmgn_jax.data.stack import StackFamily
+from pcmgn_jax.presets import PRESETS, PresetName
 from pcmgn_jax.scene import Scene, default_scene
 
 
 @dataclass(frozen=True)
 class GenerateArgs:
     out: str                                   # dataset directory
-    preset: Literal[PRESETS] = "cpu"           # mesh resolution / frame count (sim.mesh.MESH_PRESETS)
+    preset: PresetName = "cpu"                 # mesh resolution / frame count / scene family (pcmgn_jax.presets.PRESETS)
     n_train: int | None = None                 # training trajectories, validation excluded (as in experiments.train); None: the preset's (tiny 3, cpu 12, paper 100)
     n_val: int | None = None                   # validation trajectories, written to the train split after the n_train; None: the preset's (tiny 1, cpu 2, paper 5)
     n_test: int | None = None                  # LHS test designs; None: the preset's (tiny 2, cpu 6, paper 50)
@@ -62,7 +62,7 @@ class GenerateArgs:
 
 def preset_sizes(preset: str) -> tuple[int, int, int]:
     """(n_train, n_val, n_test) of ``experiments.train --preset PRESET`` (the train split holds n_train + n_val)."""
-    p = TRAIN_PRESETS[preset]
+    p = PRESETS[preset].train
     return p["n_train"], p["n_val"], p["n_test"]
 
 

@@ -16,11 +16,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pcmgn_jax import cli
+from pcmgn_jax.presets import PresetName
 
 
 @dataclass(frozen=True)
 class ReachArgs:
-    preset: str = "cpu"      # training preset (its mesh preset and message-passing steps); ignored with --workdir
+    preset: PresetName = "cpu"   # training preset (its mesh preset and message-passing steps); ignored with --workdir
     workdir: str = ""        # a run directory: its config.json's mesh preset, steps and processor
     levels: int = 0          # coarse levels of the multi-scale variant (0: the formulation's reach_levels)
     out: str = ""            # output JSON ("" -> results/reach/reach_PRESET.json, or RUN/reach.json)
@@ -53,7 +54,7 @@ def main(argv=None) -> int:
     if args.workdir:
         variants["this run"] = dict(steps=steps, reach=form.reach, levels=form.reach_levels)
     report = reach_report(mesh, mesh.part_names, contact_parts(scene)[1], variants)
-    report.update(preset=cfg.preset, mesh_preset=mesh_preset, command="python -m experiments.reach " + " ".join(argv))
+    report.update(preset=cfg.preset, mesh_preset=mesh_preset, command=cli.command_line("experiments.reach", argv))
     out = Path(args.out or (Path(args.workdir) / "reach.json" if args.workdir
                             else f"results/reach/reach_{cfg.preset}.json"))
     out.parent.mkdir(parents=True, exist_ok=True)

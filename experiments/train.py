@@ -1,7 +1,8 @@
 """Train the MeshGraphNet: ``python -m experiments.train [--preset cpu] [--workdir runs/cpu] [--lambda_pen=0]``.
 
-Every TrainConfig field is a flag (``--key=value``; ``--help`` lists them); ``--preset tiny|cpu|paper``
-fills the defaults (pcmgn_jax.config.PRESETS); plus ``--workdir DIR`` and ``--resume``, which continues the
+Every TrainConfig field is a flag (``--key=value``; ``--help`` lists them); ``--preset NAME``
+fills the defaults (the preset's training settings, pcmgn_jax.presets.PRESETS: tiny, cpu, paper, family, family_tiny,
+stack, stack_tiny); plus ``--workdir DIR`` and ``--resume``, which continues the
 run from its last checkpoint and refuses flags that change its saved config.json. A workdir that holds a run
 is refused without ``--resume`` unless ``--overwrite`` (the earlier run is moved to ``DIR.old-<time>``); a
 workdir another process trains in is refused (docs/reliability.md). ``--devices`` splits each
@@ -14,13 +15,13 @@ On a fresh machine the preset's dataset is generated first (data/<data_preset>, 
 With ``--lambda_pen`` > 0 the best checkpoint is chosen among validations after the term switched on
 (``--lambda_start``); if there were none, the final state is kept and the run says so.
 
-``--dataset_dir DIR`` (pcmgn_jax.data.dataset.dataset_source, prepare_dataset): a directory that does not
-exist or holds a generator manifest gets the preset's designs from the solver (resumable); with a manifest,
+``--dataset_dir DIR`` (pcmgn_jax.data.layout.dataset_source, pcmgn_jax.data.splits.prepare_dataset): a directory
+that does not exist or holds a generator manifest gets the preset's designs from the solver (resumable); with a manifest,
 the sizes it records are used unless --n_train / --n_val / --n_test say otherwise
 (pcmgn_jax.train.pipeline.fit_to_dataset); a directory of
 trajectory files without a manifest (``DIR/train/*.json|.h5|.xdmf``, ``DIR/test/...``, e.g. from
 ``python -m experiments.import_ansys --exports EXPORTS --out DIR``) is trained on as it is: ``--n_train``
-by name order, validation on the last ``--n_val`` of DIR/train (pcmgn_jax.data.dataset.load_splits);
+by name order, validation on the last ``--n_val`` of DIR/train (pcmgn_jax.data.splits.load_splits);
 anything else is a one-line error and nothing is written. RUN/data.json records the dataset directory,
 its source (generate | imported) and every training and validation trajectory (name, content hash,
 meta 'source', node count).

@@ -10,12 +10,13 @@ Flags are written ``--key=value`` or ``--key value`` with underscores (the paper
 (``--noise_std=3e-7``). Booleans: ``--flag`` / ``--no_flag`` / ``--flag=true|false``. An unknown flag
 raises ``ValueError`` naming it (entry points print it and exit with status 2).
 
-Training: :func:`parse_train` reads ``--preset tiny|cpu|paper`` first, fills every default from
-``pcmgn_jax.config.PRESETS``, then parses every :class:`TrainConfig` field as a flag, plus ``--workdir``,
-``--resume`` and ``--overwrite``. ``--formulation=paper|default|dynamic|realtime`` is read first too, wherever it
-stands: it sets the nested formulation to ``FORMULATIONS[name]`` (with the preset's formulation overrides) before the
-formulation's field flags (``--panel_target=X``, ``--rigid_ball``, ``--contact_projection``,
-``--scene_features=a,b|none``) apply. With ``--resume`` the defaults come from the run's ``config.json`` instead, and a flag
+Training: :func:`parse_train` reads ``--preset NAME`` first (one of ``pcmgn_jax.presets.PRESETS``: tiny, cpu,
+paper, family, family_tiny, stack, stack_tiny), fills every default from that preset's training settings, then
+parses every :class:`TrainConfig` field as a flag, plus ``--workdir``, ``--resume`` and ``--overwrite``.
+``--formulation=paper|default|dynamic|realtime`` is read first too, wherever it stands: it sets the nested
+formulation to ``FORMULATIONS[name]`` (with the preset's formulation overrides) before the formulation's field flags
+(``--panel_target=X``, ``--rigid_ball``, ``--contact_projection``, ``--scene_features=a,b|none``) apply. With
+``--resume`` the defaults come from the run's ``config.json`` instead, and a flag
 that changes a saved value is refused (:func:`pcmgn_jax.config.check_resume`).
 """
 from __future__ import annotations
@@ -31,8 +32,9 @@ from typing import Annotated, Any, Sequence, TypeVar
 
 import tyro
 
-from pcmgn_jax.config import (FORMULATION_FIELDS, PRESETS, TrainConfig, check_resume, config_diff,
-                              resolve_formulation, scene_feature_names)
+from pcmgn_jax.config import (FORMULATION_FIELDS, TrainConfig, check_resume, config_diff, resolve_formulation,
+                              scene_feature_names)
+from pcmgn_jax.presets import PRESETS
 
 __all__ = ["TrainArgs", "check_resume", "config_diff", "given_flags", "normalize_argv", "parse", "parse_config",
            "parse_train", "preset_of"]
@@ -236,7 +238,7 @@ def _select(cfg: TrainConfig, name: str | None) -> TrainConfig:
     if name is None:
         return cfg
     return cfg.replace(**resolve_formulation(
-        {k: v for k, v in PRESETS[cfg.preset].items() if k in FORMULATION_FIELDS}, {"formulation": name},
+        {k: v for k, v in PRESETS[cfg.preset].train.items() if k in FORMULATION_FIELDS}, {"formulation": name},
         check=False))
 
 

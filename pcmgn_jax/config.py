@@ -1,6 +1,7 @@
-"""Training configuration: one frozen dataclass, three presets, paper-style ``--key=value`` flags.
+"""Training configuration: one frozen dataclass, started from a preset, paper-style ``--key=value`` flags.
 
-Every default lives here with a comment. Unknown keys (in flags or JSON) raise ``ValueError``.
+Every default lives here with a comment; a preset's values over them live in :data:`pcmgn_jax.presets.PRESETS`
+(its ``train`` settings, beside its mesh and scene family). Unknown keys (in flags or JSON) raise ``ValueError``.
 The formulation (what the model predicts, :class:`pcmgn_jax.mgn.formulation.Formulation`) is one nested
 field, ``cfg.formulation``; a preset names its base (``formulation="default"``, recorded in
 ``formulation_name``) and may override its fields (``scene_features=(...)``); so may
@@ -21,21 +22,23 @@ import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, get_args
 
-from pcmgn_jax.mgn.formulation import FORMULATIONS, NOISE_PARTS, Formulation
+from pcmgn_jax.mgn.formulation import FORMULATIONS, NOISE_PARTS, Formulation, NoiseParts
+from pcmgn_jax.presets import PRESETS, PresetName
 from pcmgn_jax.surrogates.kinds import names as kind_names
 
-# residual_of: the baselines the network can learn a correction of (the registry's kinds with residual_base)
-RESIDUAL_BASES = ("",) + kind_names(residual_base=True)
-RESIDUAL_BALLS = ("baseline", "network")  # residual_ball: who moves the rigid ball in a residual run's rollout
+# residual_of: "" or a baseline the network can learn a correction of (the registry's kinds with residual_base)
+ResidualBase = Literal[("",) + kind_names(residual_base=True)]
+ResidualBall = Literal["baseline", "network"]  # residual_ball: who moves the rigid ball in a residual run's rollout
+RESIDUAL_BASES, RESIDUAL_BALLS = get_args(ResidualBase), get_args(ResidualBall)
 
 
 @dataclass(frozen=True)
 class TrainConfig:
     # ---- data -------------------------------------------------------------------------------
-    preset: str = "cpu"              # which preset filled the defaults (tiny | cpu | paper | family | family_tiny | stack | stack_tiny)
-    data_preset: str = "cpu"         # mesh/solver preset handed to dataset.ensure_dataset
+    preset: PresetName = "cpu"       # which preset filled the defaults (pcmgn_jax.presets.PRESETS)
+    data_preset: PresetName = "cpu"  # mesh/solver preset handed to dataset.ensure_dataset (a preset's own name)
     dataset_dir: str = ""            # dataset root; "" -> data/<data_preset>
     n_train: int = 12                # training trajectories, validation excluded (the train split holds n_train + n_val); with --dataset_dir of a generated dataset: its manifest's unless given
     n_val: int = 2                   # held out from the train split for the validation rollout (after the n_train)
@@ -54,8 +57,8 @@ class TrainConfig:
     # ---- loss -------------------------------------------------------------------------------
     lambda_pen: float = 0.0          # weight of the penetration term (0 = vanilla MGN; paper: 10)
     lambda_obj: float = 0.0          # weight of the objective term: per graph, the squared error of the OLED's objective-section mean von Mises (normalised; docs/design.md §7); 0 = off
-    residual_of: str = ""            # "" (the network predicts the fields) | rom: the network predicts what the named baseline gets wrong (the panel's displacement and every node's von Mises minus the baseline's, out-of-fold on the training scenes); a rollout adds the baseline back (pcmgn_jax/surrogates/residual.py; docs/design.md §5.2)
-    residual_ball: str = "baseline"  # with residual_of, where a rollout's rigid ball goes: baseline (the baseline's ball trajectory; the network corrects the panel's fields along it) | network (the network's own ball dynamics); rollout-only (evaluate --residual_ball overrides)
+    residual_of: ResidualBase = ""            # "" (the network predicts the fields) | rom: the network predicts what the named baseline gets wrong (the panel's displacement and every node's von Mises minus the baseline's, out-of-fold on the training scenes); a rollout adds the baseline back (pcmgn_jax/surrogates/residual.py; docs/design.md §5.2)
+    residual_ball: ResidualBall = "baseline"  # with residual_of, where a rollout's rigid ball goes: baseline (the baseline's ball trajectory; the network corrects the panel's fields along it) | network (the network's own ball dynamics); rollout-only (evaluate --residual_ball overrides)
     lambda_start: float = 0.0        # fraction of training before the penetration term switches on (then a 10 % linear ramp; 0 = from step 0, the paper)
     poly_ball: int = 6               # polynomial degree of the ball boundary fit (penetration term)
     poly_panel: int = 5              # polynomial degree of the cover-glass fit (penetration term)
@@ -63,7 +66,7 @@ class TrainConfig:
     pen_length_scale: float = 1e-6   # [m] unit of the penetration depth d in L_pen (µm, see penetration.py)
     noise_std: float = 0.0           # Gaussian noise on the input displacement [m], all noised nodes (paper: 3e-7)
     noise_rel: float = 0.0           # used when noise_std = 0: sigma per part = noise_rel x its RMS motion per frame
-    noise_parts: str = "none"        # none | ball | panel | all
+    noise_parts: NoiseParts = "none"  # none | ball | panel | all
     pushforward: bool = False        # inputs of the noise_parts = the model's own one-step prediction (no gradient through it)
     frames_per_sample: int = 0       # frames of each sample's trajectory decoded from its one processor pass per step (the sample's and F-1 more, evenly spread); > 1 needs processor='per_design'; 0 = auto: 8 with processor='per_design', else 1
     # ---- optimisation -----------------------------------------------------------------------
@@ -132,7 +135,7 @@ class TrainConfig:
     def from_preset(cls, preset: str = "cpu", **overrides: Any) -> "TrainConfig":
         if preset not in PRESETS:
             raise ValueError(f"config: unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
-        return cls(**resolve_formulation({**PRESETS[preset], "preset": preset}, overrides))
+        return cls(**resolve_formulation(preset_settings(preset), overrides))
 
     @classmethod
     def from_json(cls, data: dict) -> "TrainConfig":
@@ -296,57 +299,7 @@ def check_batch_split(batch_graphs: int, devices: int) -> None:
                          f"{devices * max(1, round(batch_graphs / devices))})")
 
 
-STACK_FEATURES = ("ball_radius", "material", "own_thickness", "layer_depth", "total_thickness")  # the stack presets' inputs
-PRESETS: dict[str, dict[str, Any]] = {
-    # tests and smoke checks: tiny mesh, small model, < 1 min
-    "tiny": dict(data_preset="tiny", n_train=3, n_val=1, n_test=2, latent_size=32,
-                 message_passing_steps=3, epochs=1, num_steps=400, steps_per_dispatch=20,
-                 log_every=20, ckpt_every=200, val_every=200),
-    # the README's main job on a 2-core CPU: the project's default formulation (rigid ball, quasi-static
-    # panel, per-part normalisation, strain features, contact projection); the parameters' moving
-    # average is validated and kept (validation MAE swings between checkpoints otherwise); no noise (nothing of the panel's state is an
-    # input, so there is no rollout error to imitate); no penetration term: lambda = 10 from step 0 or
-    # from half-way harmful to this formulation (docs/results/surrogate.md, results/ablation_v2.md); with
-    # --lambda_pen > 0 the term starts half-way (lambda_start)
-    "cpu": dict(data_preset="cpu", n_train=12, n_val=2, n_test=6, latent_size=64,
-                message_passing_steps=8, epochs=1, num_steps=4000, steps_per_dispatch=25,
-                log_every=100, ckpt_every=1000, val_every=500, formulation="default",
-                lambda_pen=0.0, lambda_start=0.5, noise_std=0.0, noise_rel=0.0, noise_parts="none",
-                ema_decay=0.998),
-    # the paper: 15 x 128, 100 epochs, 100 training / 50 test trajectories (a GPU job)
-    "paper": dict(data_preset="paper", n_train=100, n_val=5, n_test=50, latent_size=128,
-                  message_passing_steps=15, epochs=100, num_steps=0, steps_per_dispatch=50,
-                  log_every=500, ckpt_every=10000, val_every=10000, formulation="paper",
-                  lambda_pen=10.0, noise_std=3e-7, noise_parts="all"),  # the paper's best: B.6/P.5, λ=10
-    # scene family (issue 12; pcmgn_jax.data.designs.FAMILIES): ball radius, drop speed, OCA1/OCA2/POL
-    # thicknesses vary, every scene on its own mesh; the cpu preset's model and loss (no penetration
-    # term: the default formulation's contact projection stands in for it), 2 graphs per step, the ball
-    # radius as a node input (the speed is in the velocity state)
-    "family": dict(data_preset="family", n_train=22, n_val=2, n_test=8, latent_size=64,
-                   message_passing_steps=8, epochs=1, num_steps=4000, steps_per_dispatch=25, batch_graphs=2,
-                   log_every=100, ckpt_every=1000, val_every=500, formulation="default",
-                   lambda_pen=0.0, lambda_start=0.5, noise_std=0.0, noise_rel=0.0, noise_parts="none",
-                   scene_features=("ball_radius", "layer_thickness"), ema_decay=0.998,
-                   origin="support_top"),  # heights from the plate's top: a plate change moves nothing above it (design §5)
-    # tests and smoke checks of the family path: a handful of tiny scenes, a small model, seconds
-    "family_tiny": dict(data_preset="family_tiny", n_train=4, n_val=1, n_test=2, latent_size=32,
-                        message_passing_steps=3, epochs=1, num_steps=60, steps_per_dispatch=20, batch_graphs=2,
-                        log_every=20, ckpt_every=60, val_every=60, formulation="default", lambda_pen=10.0,
-                        noise_rel=1.0, noise_parts="panel", scene_features=("ball_radius", "layer_thickness"),
-                        origin="support_top"),
-    # panel stacks of 5-7 layers (issue 40; pcmgn_jax.data.stack): inputs that do not depend on a layer's index
-    # (docs/design.md §5): six role node types (ball, contact layer, film, OLED, support, fixed) whatever the
-    # layer count, each node's own material, layer thickness and depth below the contact layer's top, the
-    # stack's total thickness, heights from the contact layer's top; the family preset's model and loss
-    "stack": dict(data_preset="stack", n_train=100, n_val=4, n_test=20, latent_size=64,
-                  message_passing_steps=8, epochs=1, num_steps=4000, steps_per_dispatch=25, batch_graphs=2,
-                  log_every=100, ckpt_every=1000, val_every=500, formulation="default",
-                  lambda_pen=0.0, lambda_start=0.5, noise_std=0.0, noise_rel=0.0, noise_parts="none",
-                  scene_features=STACK_FEATURES, part_identity="role", ema_decay=0.998, origin="contact_top"),
-    # tests and smoke checks of the stack path: tiny stacks, a small model, seconds
-    "stack_tiny": dict(data_preset="stack_tiny", n_train=4, n_val=1, n_test=2, latent_size=32,
-                       message_passing_steps=3, epochs=1, num_steps=40, steps_per_dispatch=20, batch_graphs=2,
-                       log_every=20, ckpt_every=40, val_every=40, formulation="default", lambda_pen=0.0,
-                       noise_std=0.0, noise_rel=0.0, noise_parts="none", scene_features=STACK_FEATURES,
-                       part_identity="role", origin="contact_top"),
-}
+def preset_settings(preset: str) -> dict[str, Any]:
+    """TrainConfig keyword arguments of ``preset`` (:data:`pcmgn_jax.presets.PRESETS`): its ``train`` settings,
+    its name as ``preset`` and ``data_preset``."""
+    return {**PRESETS[preset].train, "preset": preset, "data_preset": preset}

@@ -9,7 +9,7 @@ from pcmgn_jax.mgn import batching
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn import rollout as rl
 from pcmgn_jax.mgn.formulation import FORMULATIONS
-from pcmgn_jax.mgn.graphs import topology_from_trajectory
+from pcmgn_jax.mgn.inputs import topology_from_trajectory
 from pcmgn_jax.mgn.model import EncodeProcessDecode
 from pcmgn_jax.mgn.normalization import normalize_graph
 

@@ -36,9 +36,9 @@ def test_mgn_vs_torch_tiny(tmp_path, with_torch):
     from benchmarks import mgn_vs_torch
     out = tmp_path / "m.json"
     argv = ["--nodes", "60", "--layers", "1", "--latent", "8", "--repeats", "2", "--warmup", "1",
-            "--scan", "2", "--compile", "off", "--no-torch-1thread", "--json", str(out)]
+            "--scan", "2", "--compile", "off", "--no_torch_1thread", "--json", str(out)]
     if not with_torch:
-        argv.append("--no-torch")
+        argv.append("--no_torch")
     mgn_vs_torch.main(argv)
     r = _load(out)
     assert r["jax"]["forward_ms"] > 0 and r["jax"]["train_step_ms"] > 0
@@ -90,7 +90,7 @@ def test_rollout_throughput_tiny(tmp_path):
 def test_solver_speed_tiny(tmp_path):
     from benchmarks import solver_speed
     out = tmp_path / "s.json"
-    solver_speed.main(["--presets", "tiny", "--batch", "2", "--frames", "2", "--probe-frames", "1",
+    solver_speed.main(["--presets", "tiny", "--batch", "2", "--frames", "2", "--probe_frames", "1",
                        "--json", str(out)])
     r = _load(out)
     t = r["solver"]["tiny"]
@@ -98,7 +98,7 @@ def test_solver_speed_tiny(tmp_path):
     assert t["batch_throughput_ratio"] > 0
     # extrapolation path: a budget of 0 s skips the full run
     out2 = tmp_path / "s2.json"
-    solver_speed.main(["--presets", "tiny", "--batch", "1", "--frames", "3", "--probe-frames", "1",
+    solver_speed.main(["--presets", "tiny", "--batch", "1", "--frames", "3", "--probe_frames", "1",
                        "--budget", "0", "--json", str(out2)])
     assert _load(out2)["solver"]["tiny"]["1"]["extrapolated"] is True
 
@@ -195,7 +195,7 @@ def test_surrogate_speed_trained_point_scores_the_rollout_it_times(tiny_run, tin
 def test_surrogate_speed_untrained_tiny(tmp_path):
     from benchmarks import surrogate_speed
     out = tmp_path / "ss.json"
-    r = surrogate_speed.main(["--preset", "tiny", "--workdir", str(tmp_path / "none"), "--n-test", "1",
+    r = surrogate_speed.main(["--preset", "tiny", "--workdir", str(tmp_path / "none"), "--n_test", "1",
                               "--repeats", "1", "--json", str(out), "--md", str(tmp_path / "ss.md")])
     j = _load(out)
     for k in ("mgn_s_per_design", "solver_s_per_design", "ratio", "mgn_per_frame_s_per_design"):
@@ -238,10 +238,10 @@ def test_gpu_check_budget_skips_and_says_so(tmp_path):
     and the JSON and table are still written (the check always returns something)."""
     from benchmarks import gpu_check
     out = tmp_path / "g.json"
-    r = gpu_check.main(["--smoke", "--budget-s", "0", "--json", str(out)])
+    r = gpu_check.main(["--smoke", "--budget_s", "0", "--json", str(out)])
     j = _load(out)
     for part in gpu_check.PARTS:
-        assert "not started" in j[part]["skipped"] and "--budget-s=0" in j[part]["skipped"], part
+        assert "not started" in j[part]["skipped"] and "--budget_s=0" in j[part]["skipped"], part
     assert r["config"]["budget_s"] == 0 and "skipped: not started" in out.with_suffix(".md").read_text()
 
 

@@ -2,7 +2,8 @@
 import pytest
 
 from pcmgn_jax import cli
-from pcmgn_jax.config import PRESETS, TrainConfig
+from pcmgn_jax.config import TrainConfig
+from pcmgn_jax.presets import PRESETS
 from pcmgn_jax.mgn.formulation import FORMULATIONS
 
 
@@ -110,8 +111,8 @@ def test_entry_point_flags(tmp_path, capsys):
     assert (args.n_train, args.n_test, args.out) == (14, 6, "data/cpu")
     args = cli.parse(generate.GenerateArgs, ["--designs", "40,40;40,160", "--split", "extrap", "--out", "d"])
     assert args.designs == "40,40;40,160" and args.split == "extrap" and args.n_train is None
-    assert generate.preset_sizes("cpu") == (PRESETS["cpu"]["n_train"], PRESETS["cpu"]["n_val"],
-                                            PRESETS["cpu"]["n_test"])
+    assert generate.preset_sizes("cpu") == (PRESETS["cpu"].train["n_train"], PRESETS["cpu"].train["n_val"],
+                                            PRESETS["cpu"].train["n_test"])
     assert cli.parse(panel_report.PanelReportArgs, ["--preset", "cpu", "--frames", "130"]).frames == 130
     assert generate.main(["--out", str(tmp_path), "--bogus", "1"]) == 2
     assert "unknown flag(s): --bogus" in capsys.readouterr().err

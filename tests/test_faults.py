@@ -20,6 +20,7 @@ import pytest
 from conftest import make_synthetic_trajectory, tiny_config
 from pcmgn_jax import cli, lock
 from pcmgn_jax.data import dataset as ds
+from pcmgn_jax.data import splits
 from pcmgn_jax.data.trajectory_io import TrajectoryFileError, trajectory_paths, write_trajectory
 from pcmgn_jax.mgn import checkpoint
 from pcmgn_jax.train import loop as training
@@ -217,7 +218,7 @@ def _h5_nan(stem: Path) -> None:
 @pytest.mark.parametrize("damage", ["truncate", "nan"])
 def test_a_damaged_trajectory_behind_a_built_cache_is_caught(tmp_path, damage):
     root = _imported(tmp_path / "data")
-    ds.load_splits(root, n_train=3, n_val=1, n_test=0)                     # the cache is built
+    splits.load_splits(root, n_train=3, n_val=1, n_test=0)                     # the cache is built
     stem = root / "train" / "run01"
     if damage == "truncate":
         h5 = trajectory_paths(stem)[1]
@@ -225,19 +226,19 @@ def test_a_damaged_trajectory_behind_a_built_cache_is_caught(tmp_path, damage):
     else:
         _h5_nan(stem)
     with pytest.raises(TrajectoryFileError, match="run01"):
-        ds.load_splits(root, n_train=3, n_val=1, n_test=0)
+        splits.load_splits(root, n_train=3, n_val=1, n_test=0)
 
 
 def test_a_changed_manifest_entry_is_caught(tmp_path, monkeypatch):
     from test_dataset import FakeSolver
     monkeypatch.setitem(sys.modules, "pcmgn_jax.sim.solver", FakeSolver())
     root = ds.ensure_dataset(tmp_path / "gen", preset="tiny", n_train=3, n_test=1, progress=False)
-    assert len(ds.load_splits(root, n_train=2, n_val=1, n_test=1)[0]) == 2
+    assert len(splits.load_splits(root, n_train=2, n_val=1, n_test=1)[0]) == 2
     man = json.loads((root / "manifest.json").read_text())
     man["splits"]["train"]["trajectories"][1]["design_m"][0] *= 1.5
     (root / "manifest.json").write_text(json.dumps(man))
     with pytest.raises(ds.DatasetError, match=r"entry 'train_0001' disagrees with .*train_0001.json \(design_m"):
-        ds.load_splits(root, n_train=2, n_val=1, n_test=1)
+        splits.load_splits(root, n_train=2, n_val=1, n_test=1)
 
 
 # ---- inputs and entry points ---------------------------------------------------------------------------------

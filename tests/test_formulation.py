@@ -101,7 +101,7 @@ def test_quasi_static_inputs_are_a_function_of_the_ball_state_alone():
     with the rigid ball's (which every node carries as 4 channels); the dynamic panel's graph does."""
     from pcmgn_jax.mgn import contact as contact_lib
     from pcmgn_jax.mgn.formulation import BALL_STATE_CHANNELS, model_inputs
-    from pcmgn_jax.mgn.graphs import topology_from_trajectory
+    from pcmgn_jax.mgn.inputs import topology_from_trajectory
     from pcmgn_jax.mgn.rollout import input_graph
 
     traj = make_synthetic_trajectory(1.0)

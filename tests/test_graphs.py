@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from pcmgn_jax.mgn import contact, graphs
+from pcmgn_jax.mgn.inputs import topology_from_trajectory
 
 #   3 --- 4 --- 5          y = 1e-5
 #   |  0  |  1  |
@@ -78,7 +79,7 @@ def test_contact_excludes_mesh_edges():
 
 def test_build_graph_jit_equals_eager(tiny_trajs):
     t = tiny_trajs[0]
-    topo = graphs.topology_from_trajectory(t)
+    topo = topology_from_trajectory(t)
     idx = contact.allocate(points=t.points, cells=t.cells, cell_part=t.cell_part, radius=20e-6,
                            positions=[t.positions])
 
@@ -107,7 +108,7 @@ def test_mesh_receivers_sorted_alone_and_in_a_union():
     from pcmgn_jax.mgn import batching
     trajs = [make_synthetic_trajectory(0.9), drop_last_column(make_synthetic_trajectory(1.2))]
     trajs = trajs + trajs[::-1]
-    topos = [graphs.topology_from_trajectory(t) for t in trajs]
+    topos = [topology_from_trajectory(t) for t in trajs]
     assert all(np.all(np.diff(t.mesh_receivers) >= 0) for t in topos)
     idx = [contact.allocate(points=t.points, cells=t.cells, cell_part=t.cell_part, radius=20e-6, capacity=16)
            for t in trajs]

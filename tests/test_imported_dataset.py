@@ -17,6 +17,7 @@ import pytest
 from conftest import drop_last_column, make_synthetic_trajectory
 from pcmgn_jax import cli
 from pcmgn_jax.data import dataset as ds
+from pcmgn_jax.data import splits
 from pcmgn_jax.data.trajectory_io import write_trajectory
 
 
@@ -65,18 +66,18 @@ def test_imported_folder_splits_and_is_never_generated_into(tmp_path):
     assert ds.dataset_source(root) == ds.IMPORTED
     assert ds.dataset_source(tmp_path / "absent") == ds.GENERATE
     names = lambda ts: [t.meta["name"] for t in ts]  # noqa: E731
-    train, val, test = ds.load_splits(root, n_train=2, n_val=2, n_test=1)
+    train, val, test = splits.load_splits(root, n_train=2, n_val=2, n_test=1)
     assert names(train) == ["run00", "run01"] and names(val) == ["run03", "run04"] and names(test) == ["case0"]
-    train, val, _ = ds.load_splits(root, n_train=4, n_val=1, n_test=0)   # the validation run stays run04
+    train, val, _ = splits.load_splits(root, n_train=4, n_val=1, n_test=0)   # the validation run stays run04
     assert names(train) == ["run00", "run01", "run02", "run03"] and names(val) == ["run04"]
-    assert names(ds.load_splits(root, n_train=5, n_val=0, n_test=0)[0])[-1] == "run04"
+    assert names(splits.load_splits(root, n_train=5, n_val=0, n_test=0)[0])[-1] == "run04"
     with pytest.raises(ds.DatasetError, match=r"holds 5 train / 1 test .* \(set --n_train, --n_val and --n_test"):
-        ds.load_splits(root, n_train=5, n_val=1, n_test=1)
+        splits.load_splits(root, n_train=5, n_val=1, n_test=1)
     before = _tree(root)
     with pytest.raises(ds.DatasetError, match=r"no manifest.json \(an imported dataset\?\); the solver does not"):
         ds.ensure_dataset(root, preset="family_tiny", n_train=2, n_test=1, progress=False)
     assert _tree(root) == before
-    assert ds.prepare_dataset(root, preset="family_tiny", n_train=5, n_test=1) == (root, ds.IMPORTED)
+    assert splits.prepare_dataset(root, preset="family_tiny", n_train=5, n_test=1) == (root, ds.IMPORTED)
     assert _tree(root) == before
 
 
@@ -86,14 +87,14 @@ def test_pool_two_datasets_renumbers_resumes_and_refuses_mixing(tmp_path, capsys
     from experiments import generate
     a, b, out = _imported(tmp_path / "a", n_train=3), _imported(tmp_path / "b", n_train=2, n_test=2), tmp_path / "pool"
     assert generate.main(["--out", str(out), "--pool", f"{a},{b}"]) == 0
-    train, val, test = ds.load_splits(out, n_train=4, n_val=1, n_test=1)
-    src = ds.load_directory(a / "train") + ds.load_directory(b / "train")
+    train, val, test = splits.load_splits(out, n_train=4, n_val=1, n_test=1)
+    src = splits.load_directory(a / "train") + splits.load_directory(b / "train")
     assert [t.meta["name"] for t in train + val] == [f"train_{i:04d}" for i in range(5)]
     for got, want in zip(train + val, src):
         np.testing.assert_array_equal(got.displacement, want.displacement)
         np.testing.assert_array_equal(got.points, want.points)
-    assert len(ds.load_directory(out / "test")) == 1    # only the first dataset's test split
-    np.testing.assert_array_equal(test[0].von_mises, ds.load_directory(a / "test")[0].von_mises)
+    assert len(splits.load_directory(out / "test")) == 1    # only the first dataset's test split
+    np.testing.assert_array_equal(test[0].von_mises, splits.load_directory(a / "test")[0].von_mises)
     before = {p: p.stat().st_mtime_ns for p in out.rglob("*.h5")}
     assert generate.main(["--out", str(out), "--pool", f"{a},{b}"]) == 0
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*.h5")} == before     # resumed: nothing rewritten

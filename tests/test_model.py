@@ -6,6 +6,7 @@ import pytest
 
 from pcmgn_jax.mgn import contact
 from pcmgn_jax.mgn import graphs
+from pcmgn_jax.mgn.inputs import topology_from_trajectory
 from pcmgn_jax import cli
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.mgn.model import EncodeProcessDecode
@@ -14,7 +15,7 @@ from pcmgn_jax.mgn.model import EncodeProcessDecode
 @pytest.fixture(scope="module")
 def graph(tiny_trajs):
     t = tiny_trajs[0]
-    topo = graphs.topology_from_trajectory(t)
+    topo = topology_from_trajectory(t)
     idx = contact.allocate(points=t.points, cells=t.cells, cell_part=t.cell_part, radius=20e-6,
                            positions=[t.positions])
     e = contact.update(idx, jnp.asarray(t.positions[5], jnp.float32))

@@ -20,7 +20,7 @@ from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn import rollout as rl
 from pcmgn_jax.mgn.attention import PhysicsAttention
 from pcmgn_jax.mgn.formulation import FORMULATIONS, Formulation
-from pcmgn_jax.mgn.graphs import topology_from_trajectory
+from pcmgn_jax.mgn.inputs import topology_from_trajectory
 from pcmgn_jax.mgn.hierarchy import adjacency, build_levels
 from pcmgn_jax.mgn.model import EncodeProcessDecode, global_block_steps
 from pcmgn_jax.mgn.normalization import normalize_graph

@@ -10,9 +10,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from pcmgn_jax.config import STACK_FEATURES, TrainConfig
+from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.data.stack import (BALL_RANGES, E3_RADIUS, STACK_FAMILIES, range_warnings, stack_layer_count,
                                   stack_warnings)
+from pcmgn_jax.presets import STACK_FEATURES
 from pcmgn_jax.scene import default_scene
 
 FAM = STACK_FAMILIES["stack_tiny"]

@@ -1,9 +1,8 @@
 """Trajectory datasets: design sampling, scene families, resumable batched generation with the solver.
 
 The directory layout, the manifest format and the rule for what a directory is live in
-:mod:`pcmgn_jax.data.layout`; reading splits for a run (``load_splits``, ``prepare_dataset``,
-``load_directory``) in :mod:`pcmgn_jax.data.splits`. Both are re-exported here for callers that import
-them from this module.
+:mod:`pcmgn_jax.data.layout` (re-exported here); reading splits for a run (``load_splits``, ``prepare_dataset``,
+``load_directory``) in :mod:`pcmgn_jax.data.splits`, which builds on this module.
 
 Designs are thicknesses of ``scene.design_layers`` in metres (the manifest also lists them in µm).
 ``train`` and ``test`` come from ONE seeded Latin hypercube of ``n_train + n_test`` points over
@@ -60,20 +59,19 @@ from pcmgn_jax.data.layout import (
 from pcmgn_jax.data.trajectory_io import (
     TrajectoryFileError,
     atomic_write_json,
+    content_hash,
     read_trajectory,
     write_trajectory,
 )
 from pcmgn_jax.lock import hold
+from pcmgn_jax.presets import PRESET_NAMES
 from pcmgn_jax.scene import Scene, default_scene
-from pcmgn_jax.sim.mesh import MESH_PRESETS
 from pcmgn_jax.trajectory import Trajectory
 
-_SPLITS_NAMES = ("load_directory", "load_splits", "prepare_dataset")   # re-exported from data.splits (__getattr__)
 __all__ = ["FAMILIES", "GENERATE", "IMPORTED", "MANIFEST", "PRESETS", "DatasetError", "SceneFamily", "dataset_source",
-           "ensure_dataset", "lhs_designs", "load_directory", "load_manifest", "load_splits",  # noqa: F822 (__getattr__)
-           "parse_designs", "parse_scene_params", "prepare_dataset", "split_stems"]  # noqa: F822 (prepare_dataset: __getattr__)
+           "ensure_dataset", "lhs_designs", "load_manifest", "parse_designs", "parse_scene_params", "split_stems"]
 
-PRESETS = tuple(MESH_PRESETS)          # mesh resolution / frame count (names: sim.mesh.MESH_PRESETS)
+PRESETS = PRESET_NAMES                 # mesh resolution / frame count / family (pcmgn_jax.presets.PRESETS)
 _SPLIT_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
 
 
@@ -100,8 +98,6 @@ def _is_done(root: Path, entry: dict[str, Any], layers: Sequence[str]) -> bool:
         traj = read_trajectory(root / entry["path"], verify=True)
     except TrajectoryFileError:
         return False
-    from pcmgn_jax.data.trajectory_io import content_hash
-
     digest = content_hash(traj)
     if entry.get("sha256") not in (None, digest):
         return False
@@ -369,12 +365,3 @@ def _solve_checked(solve, scene: Scene, items, preset: str, family: SceneFamily 
     if len(trajs) != len(des):
         raise DatasetError(f"solver returned {len(trajs)} trajectories for {len(des)} designs")
     return trajs[:len(items)]
-
-
-def __getattr__(name: str):
-    """``load_directory``, ``load_splits`` and ``prepare_dataset`` from :mod:`pcmgn_jax.data.splits`, looked up
-    on first use (splits.py imports this module, so a top-level import here would be circular)."""
-    if name in _SPLITS_NAMES:
-        from pcmgn_jax.data import splits
-        return getattr(splits, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

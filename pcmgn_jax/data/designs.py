@@ -10,6 +10,7 @@ from typing import Sequence
 import numpy as np
 
 from pcmgn_jax.data.stack import STACK_FAMILIES, StackFamily
+from pcmgn_jax.presets import PRESETS
 from pcmgn_jax.scene import Scene, with_parameters
 
 DESIGN_LOW = 50e-6                     # default design range [m] (paper: 50-150 µm)
@@ -54,10 +55,10 @@ class SceneFamily:
 FAMILY_PARAMETERS = (("ball.radius", 4.0e-3, 6.0e-3), ("ball.velocity", 0.5, 0.75),
                      ("OCA1", 50e-6, 150e-6), ("OCA2", 50e-6, 150e-6), ("POL", 30e-6, 70e-6))
 FAMILIES: dict[str, SceneFamily | StackFamily] = {
-    "family": SceneFamily(FAMILY_PARAMETERS, n_frames=100),
-    "family_tiny": SceneFamily(FAMILY_PARAMETERS, n_frames=20),   # tests and smoke runs: 80 µs
+    **{name: SceneFamily(FAMILY_PARAMETERS, n_frames=p.n_frames) for name, p in PRESETS.items() if p.family == "scene"},
     **STACK_FAMILIES,   # panel stacks of 5-7 layers, a padded parameter vector (pcmgn_jax.data.stack)
 }
+"""The scene family of each family preset (its ``family`` and ``n_frames`` in :data:`pcmgn_jax.presets.PRESETS`)."""
 
 
 # ---- designs ------------------------------------------------------------------------------------

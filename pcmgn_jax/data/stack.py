@@ -32,6 +32,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from pcmgn_jax.presets import PRESETS
 from pcmgn_jax.scene import Ball, Layer, Scene
 
 # slot: (name, material class, nominal thickness [m], nominal E [Pa], nu, density [kg/m^3], kind)
@@ -190,7 +191,7 @@ def range_warnings(label: str, params: Mapping[str, float]) -> list[str]:
     return out
 
 
-STACK_FAMILIES = {"stack": StackFamily(n_frames=100), "stack_tiny": StackFamily(n_frames=20)}
+STACK_FAMILIES = {name: StackFamily(n_frames=p.n_frames) for name, p in PRESETS.items() if p.family == "stack"}
 
 
 def stack_warnings(trajs: Sequence) -> list[str]:

@@ -19,7 +19,7 @@ from pcmgn_jax.sim import solver
 
 
 def panel_report(preset: str = "cpu", designs: str = "50,50;100,100;150,150", frames: int = 150,
-                 out: str | Path = "results/panel_report", command: str = "") -> list[str]:
+                 out: str | Path = "results/solver/panel_report", command: str = "") -> list[str]:
     """Simulate the default scene with each design of ``designs`` (``T_OCA1,T_OCA2`` in µm, designs
     separated by ``;``) on mesh ``preset`` for ``frames`` frames of the scene's output interval; write
     OUT.json (``command`` recorded), OUT.md and OUT.png; return the markdown table's lines."""

@@ -1,6 +1,6 @@
 """The evaluation pipeline as a library call: ``pcmgn_jax.eval.run(workdir)``.
 
-Loads the run's splits from its config's dataset directory (:func:`pcmgn_jax.data.dataset.load_splits`,
+Loads the run's splits from its config's dataset directory (:func:`pcmgn_jax.data.splits.load_splits`,
 a generated or an imported dataset alike: test = the first ``n_test`` of DIR/test), or any directory of
 trajectory files (``data``), and scores the run's model beside the baselines fitted on its training split
 (:func:`pcmgn_jax.eval.evaluate.evaluate`). ``experiments/evaluate.py`` parses flags and calls :func:`run`.

@@ -29,10 +29,12 @@ import orbax.checkpoint as ocp
 
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.mgn import contact as contact_lib
-from pcmgn_jax.mgn.graphs import Topology, topology_from_trajectory
+from pcmgn_jax.mgn.graphs import Topology
+from pcmgn_jax.mgn.inputs import topology_from_trajectory
 from pcmgn_jax.mgn.model import EncodeProcessDecode
 from pcmgn_jax.mgn.normalization import Stats
 from pcmgn_jax.mgn.rollout import Spec
+from pcmgn_jax.scene import Scene
 
 ITEMS = ("state", "stats", "meta")
 
@@ -200,8 +202,6 @@ def load(workdir: str | Path, ref, *, which: str = "best", cfg: TrainConfig | No
     ``ref`` supplies the mesh (points, cells, parts) and its scene; the parameters and statistics come
     from the checkpoint (``which``: 'best', or 'periodic' for the latest).
     """
-    from pcmgn_jax.scene import Scene
-
     workdir = require_run(workdir) if cfg is None else Path(workdir)
     cfg = cfg or TrainConfig.load(workdir / "config.json")
     path = checkpoint_dir(workdir, which)

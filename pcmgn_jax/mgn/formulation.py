@@ -93,6 +93,7 @@ rollout), and the target is corrected so the update from the noisy input lands o
 from __future__ import annotations
 
 import dataclasses
+from typing import Literal, get_args
 
 import jax
 import jax.numpy as jnp
@@ -100,17 +101,16 @@ import numpy as np
 
 from pcmgn_jax.mgn.scene_features import PER_LAYER_FEATURES, SCENE_FEATURES
 
-TARGETS = ("velocity", "displacement", "position", "acceleration", "total_displacement")
-NORMALIZATIONS = ("global", "per_part")
-FEATURES = ("paper", "strain")
-LOSS_WEIGHTINGS = ("nodes", "parts")
-PANEL_MODELS = ("dynamic", "quasi_static")
-PROCESSORS = ("per_frame", "per_design")
-PART_IDENTITIES = ("type", "material", "role")
-ORIGINS = ("mesh", "contact_top", "support_top")
-REACHES = ("local", "multiscale", "attention")
+Target = Literal["velocity", "displacement", "position", "acceleration", "total_displacement"]  # --help lists them
+Normalization, Features = Literal["global", "per_part"], Literal["paper", "strain"]
+LossWeighting, PanelModel = Literal["nodes", "parts"], Literal["dynamic", "quasi_static"]
+Processor, PartIdentity = Literal["per_frame", "per_design"], Literal["type", "material", "role"]
+Origin, Reach = Literal["mesh", "contact_top", "support_top"], Literal["local", "multiscale", "attention"]
+NoiseParts = Literal["none", "ball", "panel", "all"]
+(TARGETS, NORMALIZATIONS, FEATURES, LOSS_WEIGHTINGS, PANEL_MODELS, PROCESSORS, PART_IDENTITIES, ORIGINS, REACHES,
+ NOISE_PARTS) = (get_args(t) for t in (Target, Normalization, Features, LossWeighting, PanelModel, Processor,
+                                      PartIdentity, Origin, Reach, NoiseParts))   # the allowed values
 BALL_STATE_CHANNELS = 2  # quasi_static: [u_ball,y, v_ball,y] on every node (the ball moves along the axis)
-NOISE_PARTS = ("none", "ball", "panel", "all")
 BALL_PART = 0  # scene convention: part 0 is the ball, 1.. the layers from the top (scene.py)
 
 
@@ -118,22 +118,22 @@ BALL_PART = 0  # scene convention: part 0 is the ball, 1.. the layers from the t
 class Formulation:
     """Static description of what the MGN predicts (a jit cache key; see the module docstring)."""
 
-    ball_target: str = "acceleration"   # the ball's target: velocity | displacement | position | acceleration | total_displacement
-    panel_target: str = "velocity"      # the layers' target (same choices)
-    rigid_ball: bool = True             # the ball as one rigid body driven by its contact nodes (False: every node free, the paper)
-    normalization: str = "per_part"     # per_part (one normaliser per node type) | global (the paper)
-    features: str = "strain"            # strain (deformation channels of their own) | paper
-    loss_weighting: str = "parts"       # parts (every part counts alike) | nodes (the paper: mean over nodes)
-    scene_features: tuple[str, ...] = ()  # per-scene node inputs: ball_radius, ball_velocity, layer_thickness, stack_thickness, material (flag: comma list or none)
-    panel_model: str = "dynamic"        # dynamic (the layers' state integrated) | quasi_static (their fields a map of the ball's state)
-    contact_projection: bool = False    # rollouts move cover-glass nodes inside the rigid ball onto its surface
-    processor: str = "per_frame"        # per_frame (the ball state is a node input: the processor runs every frame) | per_design (quasi_static only: the processor runs once per design on the static graph, the ball state enters the decoder)
-    part_identity: str = "type"         # type (a one-hot of every part) | material (the layers known only by their 'material' scene feature: a one-hot is kept for the ball and the fixed nodes) | role (six node types whatever the layer count: ball, contact layer, film, objective layer (OLED), support, fixed; graphs.ROLES)
-    reach: str = "local"                # local (message passing only: message_passing_steps hops) | multiscale (+ bi-stride coarse levels, BSMS-GNN) | attention (+ physics attention over learned slices, Transolver); design §5.3
-    reach_levels: int = 4               # multiscale: coarse levels of the V-cycle
-    reach_slices: int = 32              # attention: learned slices (tokens) per graph
-    reach_heads: int = 4                # attention: heads of the attention among the slices (divides latent_size)
-    origin: str = "mesh"                # mesh (node positions in the mesh's coordinates, y from the plate's bottom) | contact_top (y from the contact layer's top surface: layers below it may change thickness without moving the nodes above in the features) | support_top (y from the bottom layer's top: the plate's thickness moves nothing above it)
+    ball_target: Target = "acceleration"      # the ball's target: velocity | displacement | position | acceleration | total_displacement
+    panel_target: Target = "velocity"         # the layers' target (same choices)
+    rigid_ball: bool = True                   # the ball as one rigid body driven by its contact nodes (False: every node free, the paper)
+    normalization: Normalization = "per_part" # per_part (one normaliser per node type) | global (the paper)
+    features: Features = "strain"             # strain (deformation channels of their own) | paper
+    loss_weighting: LossWeighting = "parts"   # parts (every part counts alike) | nodes (the paper: mean over nodes)
+    scene_features: tuple[str, ...] = ()      # per-scene node inputs: ball_radius, ball_velocity, layer_thickness, stack_thickness, material (flag: comma list or none)
+    panel_model: PanelModel = "dynamic"       # dynamic (the layers' state integrated) | quasi_static (their fields a map of the ball's state)
+    contact_projection: bool = False          # rollouts move cover-glass nodes inside the rigid ball onto its surface
+    processor: Processor = "per_frame"        # per_frame (the ball state is a node input: the processor runs every frame) | per_design (quasi_static only: the processor runs once per design on the static graph, the ball state enters the decoder)
+    part_identity: PartIdentity = "type"      # type (a one-hot of every part) | material (the layers known only by their 'material' scene feature: a one-hot is kept for the ball and the fixed nodes) | role (six node types whatever the layer count: ball, contact layer, film, objective layer (OLED), support, fixed; graphs.ROLES)
+    reach: Reach = "local"                    # local (message passing only: message_passing_steps hops) | multiscale (+ bi-stride coarse levels, BSMS-GNN) | attention (+ physics attention over learned slices, Transolver); design §5.3
+    reach_levels: int = 4                     # multiscale: coarse levels of the V-cycle
+    reach_slices: int = 32                    # attention: learned slices (tokens) per graph
+    reach_heads: int = 4                      # attention: heads of the attention among the slices (divides latent_size)
+    origin: Origin = "mesh"                   # mesh (node positions in the mesh's coordinates, y from the plate's bottom) | contact_top (y from the contact layer's top surface: layers below it may change thickness without moving the nodes above in the features) | support_top (y from the bottom layer's top: the plate's thickness moves nothing above it)
 
     def __post_init__(self):
         bad = [f for f in self.scene_features if f not in SCENE_FEATURES]

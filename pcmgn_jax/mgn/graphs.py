@@ -38,6 +38,8 @@ import jraph
 import numpy as np
 from flax import struct
 
+from pcmgn_jax.geometry import quad_sides
+
 MESH_EDGE_DIM = 6
 CONTACT_EDGE_DIM = 3
 
@@ -97,8 +99,6 @@ def quad_edges(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Only the 4 sides of each quad (no diagonals), as in Algorithm 1 ("edge pairs from C_quad").
     Returns (senders, receivers) int32 arrays of length 2 * n_unique_sides.
     """
-    from pcmgn_jax.geometry import quad_sides
-
     und = quad_sides(cells)
     senders = np.concatenate([und[:, 0], und[:, 1]])
     receivers = np.concatenate([und[:, 1], und[:, 0]])
@@ -155,15 +155,6 @@ def with_scene_features(topology: Topology, rows) -> Topology:
     if rows.shape != (topology.n_node, rows.shape[-1]):
         raise ValueError(f"scene features: expected ({topology.n_node}, k) rows, got {rows.shape}")
     return topology.replace(scene_features=rows.copy())
-
-
-def topology_from_trajectory(traj, scene_features: tuple = (), levels: int = 0, identity: str = "type") -> Topology:
-    """Topology of a :class:`pcmgn_jax.trajectory.Trajectory` (n_parts from its scene/part names), with the
-    scene features ``scene_features`` (names, :data:`pcmgn_jax.mgn.scene_features.SCENE_FEATURES`) read from
-    its meta['scene'] and ``levels`` coarse levels (:func:`pcmgn_jax.mgn.inputs.design_topology`)."""
-    from pcmgn_jax.mgn.inputs import design_topology
-    return design_topology(traj, traj.meta["scene"] if scene_features else traj.meta.get("scene"), scene_features,
-                           levels=levels, identity=identity)
 
 
 def n_parts_of(traj) -> int:

@@ -37,6 +37,7 @@ from pcmgn_jax.mgn.graphs import (
     n_parts_of,
     with_scene_features,
 )
+from pcmgn_jax.mgn.scene_features import scene_feature_rows
 from pcmgn_jax.scene import Scene
 
 
@@ -82,7 +83,6 @@ def with_scene(topology: Topology, scene, names, design=None) -> Topology:
     """``topology`` with the scene features ``names`` of ``scene`` on its nodes ((N, k) float32 [SI];
     no names: unchanged). ``design`` (D,) [m], possibly traced: the design layers' thicknesses the
     features follow (:func:`pcmgn_jax.mgn.scene_features.scene_feature_rows`)."""
-    from pcmgn_jax.mgn.scene_features import scene_feature_rows
     if not names:
         return topology
     parts = topology.node_type if topology.node_part is None else topology.node_part
@@ -114,6 +114,14 @@ def design_topology(mesh, scene=None, scene_features=(), *, n_parts: int | None 
         _, panel_part = contact_lib.contact_parts(_scene_obj(scene))
         topo = topo.replace(top_nodes=np.asarray(mesh.node_type) == panel_part)
     return with_scene(topo, scene, scene_features)
+
+
+def topology_from_trajectory(traj, scene_features: tuple = (), levels: int = 0, identity: str = "type") -> Topology:
+    """Topology of a :class:`pcmgn_jax.trajectory.Trajectory` (n_parts from its scene/part names), with the
+    scene features ``scene_features`` (names, :data:`pcmgn_jax.mgn.scene_features.SCENE_FEATURES`) read from
+    its meta['scene'] and ``levels`` coarse levels (:func:`design_topology`)."""
+    return design_topology(traj, traj.meta["scene"] if scene_features else traj.meta.get("scene"), scene_features,
+                           levels=levels, identity=identity)
 
 
 def contact_radius(mesh, scene) -> float:

@@ -8,7 +8,9 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
+from pcmgn_jax.mgn.contact import contact_parts
 from pcmgn_jax.mgn.part_rows import geometry_rows
+from pcmgn_jax.scene import Scene
 
 SCENE_FEATURES = {"ball_radius": ("ball", "radius"), "ball_velocity": ("ball", "velocity"),  # -> scene dict keys
                   "layer_thickness": ("layers", "thickness"),  # one channel per layer, in the scene's order
@@ -108,8 +110,6 @@ def scene_feature_rows(scene: dict, names, node_type, design=None):
     (:func:`material_rows`), on every node.
     NumPy, or JAX with a traced ``design`` (see :func:`scene_feature_values`)."""
     xp = np if design is None else jnp
-    from pcmgn_jax.mgn.contact import contact_parts
-    from pcmgn_jax.scene import Scene
     n = len(node_type)
     blocks = []
     for name in names:

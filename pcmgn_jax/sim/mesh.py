@@ -19,6 +19,7 @@ from typing import Mapping
 import numpy as np
 
 from pcmgn_jax import geometry
+from pcmgn_jax.presets import PRESETS
 from pcmgn_jax.scene import Scene
 
 
@@ -55,34 +56,8 @@ class MeshSpec:
     thickness_elems: bool = False
 
 
-MESH_PRESETS: dict[str, MeshSpec] = {
-    # tests and smoke checks: a few hundred nodes
-    "tiny": MeshSpec(h_contact=50e-6, fine_radius=0.4e-3, fine_depth=0.1e-3, growth=1.4,
-                     layer_elems={"CG": 2, "OCA1": 2, "POL": 1, "OCA2": 2, "OLED": 1, "PLATE": 3},
-                     h_layer=50e-6, bottom_growth=1.6, roi_x=1.0e-3, roi_ball_height=0.5e-3),
-    # the 2-core default: ~25 um at the contact
-    "cpu": MeshSpec(h_contact=25e-6, fine_radius=0.5e-3, fine_depth=0.1e-3, growth=1.2,
-                    layer_elems={"CG": 4, "OCA1": 3, "POL": 2, "OCA2": 3, "OLED": 2, "PLATE": 6},
-                    h_layer=25e-6, bottom_growth=1.4, roi_x=3.0e-3, roi_ball_height=0.6e-3),
-    # the paper's resolution (<= 10 um at the contact; ~7.7k solver nodes, ~3.2k graph nodes in
-    # the region of interest, like the paper's 11.5-14.4k -> 2.4-3.1k), for a GPU
-    "paper": MeshSpec(fine_radius=0.4e-3, fine_depth=0.08e-3, growth=1.2,
-                      layer_elems={"CG": 10, "OCA1": 5, "POL": 4, "OCA2": 5, "OLED": 3, "PLATE": 8},
-                      roi_x=3.0e-3, roi_ball_height=0.5e-3),
-    # scene families (pcmgn_jax.data.designs.FAMILIES): OCA1, POL, OCA2 get ceil(t / h_layer) elements, so
-    # meshes differ between scenes. 'family': between tiny and cpu (35 um at the contact), the objective's
-    # 3 mm section in the ROI; 'family_tiny': the tiny mesh, for tests and smoke runs
-    "family": MeshSpec(h_contact=35e-6, fine_radius=0.45e-3, fine_depth=0.1e-3, growth=1.3,
-                       layer_elems={"CG": 3, "OLED": 1, "PLATE": 5}, h_layer=35e-6, bottom_growth=1.5,
-                       roi_x=3.0e-3, roi_ball_height=0.5e-3, thickness_elems=True),
-    "family_tiny": MeshSpec(h_contact=50e-6, fine_radius=0.4e-3, fine_depth=0.1e-3, growth=1.4,
-                            layer_elems={"CG": 2, "OLED": 1, "PLATE": 3}, h_layer=50e-6, bottom_growth=1.6,
-                            roi_x=1.0e-3, roi_ball_height=0.5e-3, thickness_elems=True),
-}
-# the stack family (pcmgn_jax.data.stack): the scene family's meshes; a layer that is not CG, OLED or the plate
-# (OCA1, POL, TSP, OCA2, BF) gets ceil(t / h_layer) elements
-MESH_PRESETS["stack"] = MESH_PRESETS["family"]
-MESH_PRESETS["stack_tiny"] = MESH_PRESETS["family_tiny"]
+MESH_PRESETS: dict[str, MeshSpec] = {name: MeshSpec(**p.mesh) for name, p in PRESETS.items()}
+"""Each preset's mesh (its ``mesh`` settings in :data:`pcmgn_jax.presets.PRESETS`)."""
 
 
 def mesh_spec(preset: str | MeshSpec) -> MeshSpec:

@@ -27,7 +27,7 @@ CELLS = {
     "dynamic": ("all three: the layers as a second dynamical system (velocity target, own state as input)",
                 {"formulation": "dynamic"}),
     "quasi_static": ("+ quasi-static panel (layers at their reference, total displacement as a map of the "
-                     "ball's state; results/ablation_v2's 'default')", {**_QUASI_STATIC, "ema_decay": 0.0}),
+                     "ball's state; results/ablation/panel's 'default')", {**_QUASI_STATIC, "ema_decay": 0.0}),
     "quasi_static+ema": ("+ the parameters' moving average validated and kept (--ema_decay=0.998)",
                          {**_QUASI_STATIC, "ema_decay": 0.998}),
     "quasi_static+thickness": ("+ the layer thicknesses as node inputs (--scene_features=layer_thickness)",
@@ -69,7 +69,7 @@ def table(results: dict, baselines: dict) -> str:
 
 
 def run(names=(), *, seeds=(0, 1), num_steps: int = 1000, runs: str | Path = "runs/ablation",
-        out: str | Path = "results/ablation_v3", command: str = "") -> str:
+        out: str | Path = "results/ablation/new", command: str = "") -> str:
     """Train and evaluate the cells ``names`` (() = all of :data:`CELLS`) at each training seed, cells under
     RUNS/<cell>_s<seed>; write OUT.json and OUT.md (``command`` recorded in both); return the table."""
     names = list(names) or list(CELLS)

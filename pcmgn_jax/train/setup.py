@@ -34,9 +34,9 @@ from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.batching import bucket_size
 from pcmgn_jax.mgn.checkpoint import make_spec
 from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, is_ball, model_inputs
-from pcmgn_jax.mgn.graphs import Topology, topology_from_trajectory
+from pcmgn_jax.mgn.graphs import Topology
 from pcmgn_jax.mgn.hierarchy import level_sizes
-from pcmgn_jax.mgn.inputs import contact_radius, graph_inputs, with_scene
+from pcmgn_jax.mgn.inputs import contact_radius, graph_inputs, topology_from_trajectory, with_scene
 from pcmgn_jax.mgn.normalization import Accumulator, Stats, TypedAccumulator, make_stats
 from pcmgn_jax.mgn.rollout import Spec, input_graph
 from pcmgn_jax.mgn.scene_features import across_part_channels
