@@ -4,7 +4,7 @@ import jax
 import numpy as np
 import pytest
 
-from conftest import CompileCounter, drop_last_column, make_synthetic_trajectory
+from fixtures.helpers import CompileCounter, drop_last_column, make_synthetic_trajectory
 from pcmgn_jax.mgn import batching
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn import rollout as rl

@@ -12,7 +12,7 @@ import jax
 import numpy as np
 import pytest
 
-from conftest import CompileCounter, drop_last_column, make_synthetic_trajectory, one_union, tiny_config
+from fixtures.helpers import CompileCounter, drop_last_column, make_synthetic_trajectory, one_union, tiny_config
 from pcmgn_jax.scene import default_scene, with_parameters
 from pcmgn_jax.sim.mesh import build_mesh, roi, with_spec
 from pcmgn_jax.train.loop import init_params

@@ -17,7 +17,7 @@ import jax
 import numpy as np
 import pytest
 
-from conftest import make_synthetic_trajectory, tiny_config
+from fixtures.helpers import make_synthetic_trajectory, tiny_config
 from pcmgn_jax import cli, lock
 from pcmgn_jax.data import dataset as ds
 from pcmgn_jax.data import splits

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from conftest import DT, make_synthetic_trajectory
+from fixtures.helpers import DT, make_synthetic_trajectory
 from pcmgn_jax.mgn.formulation import (FORMULATIONS, TARGETS, Formulation, add_noise, integrate, is_ball,
                                        previous_displacement, training_sample)
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import CompileCounter, make_synthetic_trajectory, tiny_config
+from fixtures.helpers import CompileCounter, make_synthetic_trajectory, tiny_config
 from pcmgn_jax import compile_cache, compile_notes
 from pcmgn_jax.scene import default_scene
 from pcmgn_jax.sim import solver

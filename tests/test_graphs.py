@@ -103,7 +103,7 @@ def test_bad_inputs_raise():
 def test_mesh_receivers_sorted_alone_and_in_a_union():
     """The model sums mesh messages with indices_are_sorted=True: quad_edges and the padded disjoint
     union (offset designs, padding edges on the padding node) keep the mesh receivers ascending."""
-    from conftest import drop_last_column, make_synthetic_trajectory
+    from fixtures.helpers import drop_last_column, make_synthetic_trajectory
 
     from pcmgn_jax.mgn import batching
     trajs = [make_synthetic_trajectory(0.9), drop_last_column(make_synthetic_trajectory(1.2))]
@@ -142,7 +142,7 @@ def test_graph_inputs_are_what_training_surrogates_and_objectives_build():
     features the MGN objective traces with the design."""
     from types import SimpleNamespace
 
-    from conftest import drop_last_column, make_synthetic_trajectory, tiny_config
+    from fixtures.helpers import drop_last_column, make_synthetic_trajectory, tiny_config
 
     from pcmgn_jax.surrogates.inputs import design_of
 

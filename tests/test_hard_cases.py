@@ -32,7 +32,7 @@ from pcmgn_jax.mgn.rollout import rollout_checked
 from pcmgn_jax.scene import Scene, default_scene
 from pcmgn_jax.sim.solver import solve_designs
 from pcmgn_jax.train import loop as training
-from conftest import one_union
+from fixtures.helpers import one_union
 from pcmgn_jax.train.sampling import pair_table
 from pcmgn_jax.train.setup import prepare
 from pcmgn_jax.train.step import loss_fn

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import drop_last_column, make_synthetic_trajectory
+from fixtures.helpers import drop_last_column, make_synthetic_trajectory
 from pcmgn_jax import cli
 from pcmgn_jax.data import dataset as ds
 from pcmgn_jax.data import splits

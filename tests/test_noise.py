@@ -4,7 +4,7 @@ import jax
 import numpy as np
 import pytest
 
-from conftest import make_synthetic_trajectory
+from fixtures.helpers import make_synthetic_trajectory
 from pcmgn_jax.train.noise import motion_rms, noise_parts_mask, noise_sigma, sample_noise
 
 SIGMA = 0.3e-6
@@ -66,9 +66,9 @@ def test_rigid_ball_gets_one_shared_draw_and_keys_matter():
 @pytest.mark.slow  # ~15 s: noise is off in the default formulation (the default suite's 10-minute budget)
 def test_training_loss_runs_the_noise(tiny_trajs):
     """The training step's loss changes with the key exactly when noise is configured."""
-    from conftest import tiny_config
+    from fixtures.helpers import tiny_config
     from pcmgn_jax.train.loop import init_params
-    from conftest import one_union
+    from fixtures.helpers import one_union
     from pcmgn_jax.train.sampling import pair_table
     from pcmgn_jax.train.setup import prepare
     from pcmgn_jax.train.step import loss_fn

@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from conftest import tiny_config
+from fixtures.helpers import tiny_config
 from pcmgn_jax.mgn.formulation import FORMULATIONS, is_ball
 from pcmgn_jax.mgn.normalization import Accumulator, TypedAccumulator, denormalize_output, normalize_target
 from pcmgn_jax.train.sampling import pair_table, sample

@@ -8,18 +8,16 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from fixtures.helpers import tensor_grid
 from pcmgn_jax import metrics
 from pcmgn_jax.opt import search
 from pcmgn_jax.opt.problem import DesignBox
 
 
 def _rect_mesh(nx, ny, xs=None, ys=None):
-    xs = np.linspace(0, 4e-3, nx + 1) if xs is None else xs
-    ys = np.linspace(0, 1e-3, ny + 1) if ys is None else ys
-    pts = np.array([(x, y) for y in ys for x in xs])
-    cells = np.array([[j * (nx + 1) + i, j * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i]
-                      for j in range(ny) for i in range(nx)])
-    return pts, cells
+    """A 4 mm x 1 mm grid of nx x ny cells, or the given node lines [m]."""
+    return tensor_grid(np.linspace(0, 4e-3, nx + 1) if xs is None else xs,
+                       np.linspace(0, 1e-3, ny + 1) if ys is None else ys)
 
 
 def test_objective_readings_against_hand_computed_values():

@@ -100,7 +100,7 @@ def test_per_design_gradient_through_the_rollout_is_finite(tiny_run, tiny_trajs)
 def test_multi_frame_loss_is_the_mean_of_its_frames_losses(tiny_trajs):
     """frames_per_sample = F: one processor pass, F readouts; the loss is the mean of the F single-frame
     losses (each the per-frame network's loss of that frame: same network, one pass each)."""
-    from conftest import tiny_config
+    from fixtures.helpers import tiny_config
     from pcmgn_jax.train.loop import init_params
     from pcmgn_jax.train.setup import prepare
     from pcmgn_jax.train.sampling import sample_frames, union_batch
@@ -139,7 +139,7 @@ def test_multi_frame_loss_is_the_mean_of_its_frames_losses(tiny_trajs):
 
 
 def test_frames_per_sample_needs_a_per_design_processor():
-    from conftest import tiny_config
+    from fixtures.helpers import tiny_config
     with pytest.raises(ValueError, match="frames_per_sample"):
         tiny_config(frames_per_sample=4)
     assert tiny_config(processor="per_design", frames_per_sample=4).frames_per_sample == 4

@@ -8,7 +8,7 @@ matplotlib.use("Agg")  # files only, as the entry points choose
 
 import numpy as np
 import pytest
-from conftest import make_synthetic_trajectory
+from fixtures.helpers import make_synthetic_trajectory
 from matplotlib.colors import LogNorm
 
 from pcmgn_jax import metrics

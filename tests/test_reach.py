@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from conftest import CompileCounter, drop_last_column, make_synthetic_trajectory, tiny_config
+from fixtures.helpers import CompileCounter, drop_last_column, make_synthetic_trajectory, tiny_config
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.mgn import batching
 from pcmgn_jax.mgn import contact as contact_lib

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from conftest import make_synthetic_trajectory, tiny_config
+from fixtures.helpers import make_synthetic_trajectory, tiny_config
 from pcmgn_jax.surrogates import correction, residual
 from pcmgn_jax.surrogates.rom import Rom
 from pcmgn_jax.mgn.formulation import is_ball

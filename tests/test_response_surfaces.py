@@ -5,11 +5,11 @@ import warnings
 import numpy as np
 import pytest
 
-from conftest import drop_last_column, make_synthetic_trajectory
+from fixtures.helpers import drop_last_column, make_synthetic_trajectory
 from pcmgn_jax.surrogates import response_surfaces as rs
 from pcmgn_jax.surrogates import surfaces
-from pcmgn_jax.surrogates.rom import POD_ENERGY, Rom
 from pcmgn_jax.surrogates.regression import FieldRegression
+from pcmgn_jax.surrogates.rom import POD_ENERGY, Rom
 
 
 def _quadratic_data(n=12, m=5, seed=0):

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from fixtures.ansys_files import write_cdb, write_results
+from fixtures.helpers import tensor_grid
 from fixtures.synthetic import synthetic_trajectory
 from pcmgn_jax import geometry
 from pcmgn_jax.data import importers as imp
@@ -32,24 +33,14 @@ PART_NAMES = ["ball", "CG", "OCA", "PLATE"]
 DX = 0.1 * MM
 
 
-def _grid(xs, ys, offset):
-    """Nodes of the tensor grid xs x ys and its CCW quads; cell (j, i) = row j (from y[0]), column i."""
-    pts = np.array([[x, y] for y in ys for x in xs])
-    nx = len(xs) - 1
-    cells = [[offset + j * (nx + 1) + i, offset + j * (nx + 1) + i + 1,
-              offset + (j + 1) * (nx + 1) + i + 1, offset + (j + 1) * (nx + 1) + i]
-             for j in range(len(ys) - 1) for i in range(nx)]
-    return pts, np.array(cells, np.int64)
-
-
 def _scene_mesh(x_panel, x_ball, *, ball_rows=3):
     """Layered panel on columns ``x_panel`` and a ball block on columns ``x_ball`` 10 um above it
     (3 rows of 0.1 mm). Returns a Trajectory (zero fields, 2 frames) and index helpers
     panel_cell(row_from_top, col), ball_cell(row_from_bottom, col)."""
     top = sum(ROW_H)
     ys = top - np.concatenate([[0.0], np.cumsum(ROW_H)])[::-1]            # bottom -> top
-    p_pts, p_cells = _grid(x_panel, ys, 0)
-    b_pts, b_cells = _grid(x_ball, top + 0.01 * MM + DX * np.arange(ball_rows + 1), len(p_pts))
+    p_pts, p_cells = tensor_grid(x_panel, ys, 0)
+    b_pts, b_cells = tensor_grid(x_ball, top + 0.01 * MM + DX * np.arange(ball_rows + 1), len(p_pts))
     n_rows = len(ROW_H)
     p_part = np.repeat(np.array(ROW_PART[::-1]), len(x_panel) - 1)        # rows stored bottom -> top
     points = np.concatenate([p_pts, b_pts])

@@ -5,7 +5,7 @@ import jax
 import numpy as np
 import pytest
 
-from conftest import CompileCounter, drop_last_column
+from fixtures.helpers import CompileCounter, drop_last_column
 from pcmgn_jax.mgn import rollout as rl
 def _args(t):
     return t.points, t.displacement[0], t.velocity[0], t.von_mises[0]

@@ -24,7 +24,7 @@ CHILD = r'''
 import json, sys, tempfile
 import jax
 import numpy as np
-from conftest import CompileCounter, make_synthetic_trajectory, tiny_config
+from fixtures.helpers import CompileCounter, make_synthetic_trajectory, tiny_config
 from pcmgn_jax.train import loop
 from pcmgn_jax.train.sampling import gather_unions, pair_table, sample_ids
 from pcmgn_jax.train.sharding import data_parallel
@@ -94,7 +94,7 @@ import jax
 jax.config.update("jax_cpu_collectives_implementation", "gloo")  # CPU collectives across processes
 port, pid, workdir = sys.argv[1], int(sys.argv[2]), sys.argv[3]
 jax.distributed.initialize(coordinator_address="localhost:" + port, num_processes=2, process_id=pid)
-from conftest import make_synthetic_trajectory, tiny_config
+from fixtures.helpers import make_synthetic_trajectory, tiny_config
 from pcmgn_jax.train import loop
 from pcmgn_jax.train.sharding import data_parallel
 assert (jax.process_count(), jax.device_count(), jax.local_device_count()) == (2, 8, 4)

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from conftest import CompileCounter, tiny_config
+from fixtures.helpers import CompileCounter, tiny_config
 from pcmgn_jax.mgn import checkpoint
 from pcmgn_jax.mgn import rollout as rl
 from pcmgn_jax.train import loop as training
@@ -156,7 +156,7 @@ def test_objective_term_is_the_squared_section_mean_error(tiny_trajs):
     the section costs c^2; scatter that averages to zero over the section costs nothing (the node MSE
     charges both alike). The weights are the evaluation's own objective weights on the OLED."""
     import dataclasses
-    from conftest import one_union, tiny_config
+    from fixtures.helpers import one_union, tiny_config
     from pcmgn_jax.mgn.normalization import normalize_target
     from pcmgn_jax.scene import default_scene
     from pcmgn_jax.sim.mesh import build_mesh
