@@ -9,7 +9,7 @@ training mesh (all runs must share one dataset). Points:
 - surrogates: each run directory (trained with ``python -m experiments.train``), best checkpoint,
   batched ``rollout_checked`` over the test designs (compiled before timing). Cost per design =
   rollout wall time / n_designs + building the design's ROI mesh (``mesh_build_s``).
-- baselines (``--baselines``): the design-space regressions of :mod:`pcmgn_jax.eval.surrogates`, fitted
+- baselines (``--baselines``): the design-space regressions of :mod:`pcmgn_jax.surrogates`, fitted
   on the first ``n_train`` training trajectories (the run's), cost per design = prediction wall time.
 - solvers: each mesh preset (``tiny|cpu|paper``, or ``PRESET@F`` = PRESET with element sizes x F and
   through-thickness element counts / F) run on the same designs with ``solver.simulate`` (batched,
@@ -45,7 +45,7 @@ class SpeedVsErrorArgs(common.Outputs):
     dataset: str = ""            # dataset dir (default: the first run's)
     n_test: int = 0              # held-out designs (0 = the run config's n_test)
     which: Literal["best", "periodic"] = "best"   # checkpoint
-    baselines: str = ""          # comma-separated design-space baselines fitted on the training split (none, nearest, poly2, rbf: pcmgn_jax.eval.surrogates), timed like the surrogates
+    baselines: str = ""          # comma-separated design-space baselines fitted on the training split (none, nearest, poly2, rbf: pcmgn_jax.surrogates), timed like the surrogates
     n_train: int = 0             # training designs the baselines fit (0 = the run config's n_train)
     png: str | None = None       # the plot (default: the JSON's path with .png)
 
@@ -53,8 +53,8 @@ class SpeedVsErrorArgs(common.Outputs):
 # ---- errors ---------------------------------------------------------------------------------------
 
 def errors(pred_u, pred_vm, test_trajs) -> dict:
-    """pred_u (B,T,N,2) [m], pred_vm (B,T,N) [Pa] on the test trajectories' nodes (pcmgn_jax.eval.metrics)."""
-    from pcmgn_jax.eval.metrics import position_errors_um, stress_errors_mpa
+    """pred_u (B,T,N,2) [m], pred_vm (B,T,N) [Pa] on the test trajectories' nodes (pcmgn_jax.metrics)."""
+    from pcmgn_jax.metrics import position_errors_um, stress_errors_mpa
     tu = np.stack([np.asarray(t.displacement, np.float64) for t in test_trajs])
     ts = np.stack([np.asarray(t.von_mises, np.float64) for t in test_trajs])
     pos = position_errors_um(pred_u, tu)
@@ -71,7 +71,7 @@ def surrogate_point(workdir, test_trajs, *, which: str = "best", label: str | No
     before timing); a single-design rollout timed separately."""
     import jax
 
-    from pcmgn_jax.eval.surrogates import MGNSurrogate
+    from pcmgn_jax.surrogates.mgn import MGNSurrogate
 
     workdir = Path(workdir)
     ref = test_trajs[0]
@@ -95,10 +95,11 @@ def surrogate_point(workdir, test_trajs, *, which: str = "best", label: str | No
 
 
 def baseline_point(kind: str, train_trajs, test_trajs) -> dict:
-    """A design-space baseline (:class:`pcmgn_jax.eval.surrogates.FieldRegression`) fitted on
+    """A design-space baseline (:class:`pcmgn_jax.surrogates.regression.FieldRegression`) fitted on
     ``train_trajs``, predicting the test designs' fields on the shared mesh; cost per design = its
     prediction wall time (no mesh needed: it predicts the reference nodes' fields directly)."""
-    from pcmgn_jax.eval.surrogates import FieldRegression, design_of
+    from pcmgn_jax.surrogates.inputs import design_of
+    from pcmgn_jax.surrogates.regression import FieldRegression
     model = FieldRegression(kind, train_trajs)
     designs = np.stack([design_of(t) for t in test_trajs])
     model.predict(designs[:1])  # warm-up (lazy imports, first call)

@@ -4,9 +4,9 @@
     python -m benchmarks.surrogate_speed --preset paper [--workdir RUN]   # no trained paper run: timing only
 
 With a trained run (``--workdir``, default ``runs/<preset>``) the MGN rolls out the run's test designs
-through the evaluation's surrogate (:class:`pcmgn_jax.eval.surrogates.MGNSurrogate`: padded disjoint
+through the evaluation's surrogate (:class:`pcmgn_jax.surrogates.mgn.MGNSurrogate`: padded disjoint
 unions of ``--batch`` designs, every frame of every node decoded) and is scored on them in the same run:
-position MAE [µm], von Mises MAE [MPa] (:mod:`pcmgn_jax.eval.metrics`) and the OLED objective's (section
+position MAE [µm], von Mises MAE [MPa] (:mod:`pcmgn_jax.metrics`) and the OLED objective's (section
 area mean) relative error [%] (:func:`pcmgn_jax.eval.baselines.objective_scores`). Without one (the
 ``paper`` preset is a GPU job nobody has run), the model is the preset's size with RANDOM parameters
 (shapes, not values, set the cost) and the errors are null.
@@ -62,9 +62,9 @@ def trained_point(workdir: Path, test, *, batch: int, repeats: int, which: str, 
     import dataclasses
 
     from benchmarks.speed_vs_error import _mesh_build_s, errors
-    from pcmgn_jax.eval import metrics
+    from pcmgn_jax import metrics
     from pcmgn_jax.eval.baselines import objective_scores
-    from pcmgn_jax.eval.surrogates import MGNSurrogate
+    from pcmgn_jax.surrogates.mgn import MGNSurrogate
     from pcmgn_jax.scene import Scene
 
     mgn = MGNSurrogate(workdir, test[0], which=which, batch=batch)
@@ -98,7 +98,7 @@ def _design_points_s(test) -> float:
     """Host time [s] per design to place a new design's nodes: the affine design map of the OCA box
     (:class:`pcmgn_jax.sim.design_map.DesignMap`, built once per scene, as the optimiser and the explorer
     use it; rebuilding the whole mesh per design costs ~0.7 s here and is not needed in this box)."""
-    from pcmgn_jax.eval.surrogates import design_of
+    from pcmgn_jax.surrogates.inputs import design_of
     from pcmgn_jax.scene import Scene
     from pcmgn_jax.sim.design_map import DesignMap
     scene = Scene.from_dict(test[0].meta["scene"])

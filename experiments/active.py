@@ -26,13 +26,14 @@ from pathlib import Path
 from typing import Literal
 
 from pcmgn_jax import cli
+from pcmgn_jax.surrogates.kinds import choices
 
 
 @dataclass(frozen=True)
 class ActiveArgs:
     workdir: str                                                # training run (its data, mesh preset, test split; mgn: its model)
     task: Literal["box", "robust"] = "box"                      # box: the paper's two OCAs; robust: OCA1, OCA2, POL over drop cases
-    surrogate: Literal["kriging", "auto", "mgn"] = "kriging"    # what predicts the objective and its spread
+    surrogate: Literal[choices("active")] = "kriging"           # what predicts the objective and its spread
     acquisition: Literal["ei", "lcb", "mean"] = "ei"            # how the next design is picked
     budget: int = 16                                            # solver runs in the loop (designs x drop cases)
     n_init: int = 4                                             # LHS designs of round 0

@@ -61,9 +61,9 @@ def main(argv: list[str] | None = None) -> int:
     from pcmgn_jax.atomic import atomic_write_text
     from pcmgn_jax.config import TrainConfig
     from pcmgn_jax.data.splits import load_directory
-    from pcmgn_jax.eval.pipeline import run_splits
     from pcmgn_jax.data.trajectory_io import atomic_write_json
     from pcmgn_jax.eval.ensemble import ensemble_report, report_markdown
+    from pcmgn_jax.surrogates.mgn import run_splits
 
     members = [m for m in args.members.split(",") if m] + (_train_members(args) if args.train else [])
     if not members:

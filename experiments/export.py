@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from pcmgn_jax import cli
-from pcmgn_jax.eval.export import export_comparison
 from pcmgn_jax.data.trajectory_io import read_trajectory
+from pcmgn_jax.eval.export import export_comparison
 
 
 @dataclass(frozen=True)
@@ -31,7 +31,7 @@ class ExportArgs:
 def predict_with_model(workdir: Path, truth):
     """(displacement (T,N,2) [m], von_mises (T,N) [Pa]) of the trained model in ``workdir``
     rolled out from frame 0 of ``truth`` (best checkpoint)."""
-    from pcmgn_jax.eval.surrogates import MGNSurrogate
+    from pcmgn_jax.surrogates.mgn import MGNSurrogate
 
     disp, vm = MGNSurrogate(workdir, truth).rollout_trajectories([truth])
     return disp[0], vm[0]

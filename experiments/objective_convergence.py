@@ -61,7 +61,7 @@ def main(argv=None) -> int:
 
     from pcmgn_jax.data.designs import parse_designs
     from pcmgn_jax.data.trajectory_io import atomic_write_json
-    from pcmgn_jax.eval.metrics import OBJECTIVES
+    from pcmgn_jax.metrics import OBJECTIVES
     from pcmgn_jax.opt.check import solver_objectives
     from pcmgn_jax.scene import default_scene
 

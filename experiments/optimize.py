@@ -5,7 +5,7 @@
   python -m experiments.optimize --workdir runs/cpu --surrogate mgn --method slsqp --starts 2
   python -m experiments.optimize --workdir runs/cpu --surrogate rbf --method ga --objective node_mean
 
-Objective (docs/design.md §8, pcmgn_jax.eval.metrics): time-mean over the window of the OLED von Mises stress
+Objective (docs/design.md §8, pcmgn_jax.metrics): time-mean over the window of the OLED von Mises stress
 at x < 3 mm, the section's area-weighted mean by default (node_mean: the paper's node average;
 disc_mean; peak). Bounds 50-150 µm per OCA, 150 <= T1 + T2 <= 250 µm. The baselines (nearest, poly2,
 rbf) are fitted on the run's training split; mgn is the run's model. The optimum is re-simulated by the
@@ -23,12 +23,13 @@ from pathlib import Path
 from typing import Literal
 
 from pcmgn_jax import cli
+from pcmgn_jax.surrogates.kinds import choices
 
 
 @dataclass(frozen=True)
 class OptimizeArgs:
     workdir: str                                            # training run (config.json; checkpoints for mgn)
-    surrogate: Literal["mgn", "nearest", "poly2", "rbf", "kriging", "mop", "auto"] = "mgn"  # what predicts the objective (kriging/mop: a response surface of the objective itself; auto: mop, its CoP table in the result)
+    surrogate: Literal[choices("optimise")] = "mgn"  # what predicts the objective (kriging/mop: a response surface of the objective itself; auto: mop, its CoP table in the result)
     method: Literal["ga", "gradient", "slsqp"] = "ga"       # pymoo GA, multi-start projected gradient, or scipy SLSQP
     objective: Literal["area_mean", "node_mean", "disc_mean", "peak"] = "area_mean"  # reading (docs/design.md §8)
     pop: int = 100                                          # GA population (paper: 100)

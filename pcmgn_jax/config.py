@@ -26,8 +26,10 @@ from typing import Any, Literal, get_args
 
 from pcmgn_jax.mgn.formulation import FORMULATIONS, NOISE_PARTS, Formulation, NoiseParts
 from pcmgn_jax.presets import PRESETS, PresetName
+from pcmgn_jax.surrogates.kinds import names as kind_names
 
-ResidualBase = Literal["", "rom"]   # residual_of: the baselines the network can learn a correction of
+# residual_of: "" or a baseline the network can learn a correction of (the registry's kinds with residual_base)
+ResidualBase = Literal[("",) + kind_names(residual_base=True)]
 ResidualBall = Literal["baseline", "network"]  # residual_ball: who moves the rigid ball in a residual run's rollout
 RESIDUAL_BASES, RESIDUAL_BALLS = get_args(ResidualBase), get_args(ResidualBall)
 
@@ -55,7 +57,7 @@ class TrainConfig:
     # ---- loss -------------------------------------------------------------------------------
     lambda_pen: float = 0.0          # weight of the penetration term (0 = vanilla MGN; paper: 10)
     lambda_obj: float = 0.0          # weight of the objective term: per graph, the squared error of the OLED's objective-section mean von Mises (normalised; docs/design.md §7); 0 = off
-    residual_of: ResidualBase = ""            # "" (the network predicts the fields) | rom: the network predicts what the named baseline gets wrong (the panel's displacement and every node's von Mises minus the baseline's, out-of-fold on the training scenes); a rollout adds the baseline back (pcmgn_jax/eval/residual.py; docs/design.md §5.2)
+    residual_of: ResidualBase = ""            # "" (the network predicts the fields) | rom: the network predicts what the named baseline gets wrong (the panel's displacement and every node's von Mises minus the baseline's, out-of-fold on the training scenes); a rollout adds the baseline back (pcmgn_jax/surrogates/residual.py; docs/design.md §5.2)
     residual_ball: ResidualBall = "baseline"  # with residual_of, where a rollout's rigid ball goes: baseline (the baseline's ball trajectory; the network corrects the panel's fields along it) | network (the network's own ball dynamics); rollout-only (evaluate --residual_ball overrides)
     lambda_start: float = 0.0        # fraction of training before the penetration term switches on (then a 10 % linear ramp; 0 = from step 0, the paper)
     poly_ball: int = 6               # polynomial degree of the ball boundary fit (penetration term)
@@ -178,7 +180,7 @@ class TrainConfig:
         """The formulation a rollout's ``lax.scan`` runs (:func:`pcmgn_jax.mgn.checkpoint.make_spec`): the
         run's, except that with ``residual_of`` the contact projection leaves the scan (the network's panel
         output is then a residual, not a position); it acts on the corrected field once the baseline is
-        added (:meth:`pcmgn_jax.eval.surrogates.MGNSurrogate.rollout_trajectories`, :func:`pcmgn_jax.eval.residual.rigid_contact`)."""
+        added (:meth:`pcmgn_jax.surrogates.mgn.MGNSurrogate.rollout_trajectories`, :func:`pcmgn_jax.surrogates.correction.rigid_contact`)."""
         if self.residual_of:
             return self.formulation.replace(contact_projection=False)
         return self.formulation

@@ -180,7 +180,7 @@ def test_surrogate_speed_trained_point_scores_the_rollout_it_times(tiny_run, tin
     evaluation's metrics), from a trained tiny run."""
     from benchmarks.speed_vs_error import errors
     from benchmarks.surrogate_speed import trained_point
-    from pcmgn_jax.eval.surrogates import MGNSurrogate
+    from pcmgn_jax.surrogates.mgn import MGNSurrogate
     _, workdir, _ = tiny_run
     test = tiny_trajs[3:]
     p = trained_point(workdir, test, batch=2, repeats=1, which="best")

@@ -42,7 +42,7 @@ def regression_run(tmp_path_factory):
 # ---- the state logic (no browser) -------------------------------------------------------------------
 
 def test_parameters_units_and_slider_range():
-    from pcmgn_jax.explore.session import parameter
+    from pcmgn_jax.explore.types import parameter
     p = parameter("OCA1", 50e-6, 150e-6)
     assert (p.unit, p.scale, p.label) == ("µm", 1e6, "OCA1 thickness")
     assert np.allclose(p.slider_range(), (25e-6, 175e-6))
@@ -103,7 +103,7 @@ def test_regression_only_run_states_and_flags(regression_run):
 
 
 def test_objective_history_averages_to_the_objective(regression_run):
-    from pcmgn_jax.eval import metrics
+    from pcmgn_jax import metrics
     _, ex = regression_run
     t = ex.train[0]
     per_frame = ex.objective_history(t, t.von_mises)
@@ -112,7 +112,7 @@ def test_objective_history_averages_to_the_objective(regression_run):
 
 
 def test_solver_check_overlays_truth_and_error(regression_run):
-    from pcmgn_jax.eval.surrogates import design_of
+    from pcmgn_jax.surrogates.inputs import design_of
     _, ex = regression_run
     x = design_of(ex.train[1])               # a training design: the solver is compiled for its step already
     truth = ex.check(x)

@@ -27,7 +27,7 @@ def test_export_fields_and_errors(tmp_path):
     np.testing.assert_allclose(pd["position_abs_error"], np.sqrt(2) * 1e-6, rtol=1e-6)
     np.testing.assert_allclose(pd["von_mises_abs_error"], 2e6, rtol=1e-9)
     summary = json.loads((tmp_path / "cmp.json").read_text())
-    assert summary["position_mae_um"] == pytest.approx(1.0)  # per component (eval.metrics), 1 µm in x and y
+    assert summary["position_mae_um"] == pytest.approx(1.0)  # per component (pcmgn_jax.metrics), 1 µm in x and y
     assert summary["stress_mae_mpa"] == pytest.approx(2.0)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cmp.h5", "cmp.json", "cmp.xdmf"]
     with pytest.raises(ValueError, match=r"shape \(4, 18, 1\), expected \(4, 18, 2\)"):

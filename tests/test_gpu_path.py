@@ -175,7 +175,7 @@ def test_optimize_objective_compiles_once_over_population_sizes(tiny_run, tiny_t
     new designs compile nothing."""
     from types import SimpleNamespace
 
-    from pcmgn_jax.eval.surrogates import MGNSurrogate
+    from pcmgn_jax.surrogates.mgn import MGNSurrogate
     from pcmgn_jax.opt.objectives import MGNObjective
     from pcmgn_jax.sim.design_map import DesignMap
     _, workdir, _ = tiny_run

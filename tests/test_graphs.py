@@ -144,7 +144,9 @@ def test_graph_inputs_are_what_training_surrogates_and_objectives_build():
 
     from fixtures.helpers import drop_last_column, make_synthetic_trajectory, tiny_config
 
-    from pcmgn_jax.eval.surrogates import MGNSurrogate, design_of
+    from pcmgn_jax.surrogates.inputs import design_of
+
+    from pcmgn_jax.surrogates.mgn import MGNSurrogate
     from pcmgn_jax.mgn.inputs import graph_inputs, with_scene
     from pcmgn_jax.train.setup import contact_positions, graph_for, prepare
 

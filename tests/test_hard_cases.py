@@ -25,7 +25,7 @@ import pytest
 
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.eval import evaluate as evaluation
-from pcmgn_jax.eval.metrics import penetration_stats
+from pcmgn_jax.metrics import penetration_stats
 from pcmgn_jax.mgn import checkpoint
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.rollout import rollout_checked

@@ -82,23 +82,9 @@ def _report(cycles: list[Cycle]) -> str:
                      for c in cycles)
 
 
-# the eval cycle the surrogates registry removes (issue 38): the only cycle left in the library
-EVAL_CYCLE = {"pcmgn_jax.eval.baselines", "pcmgn_jax.eval.ensemble", "pcmgn_jax.eval.evaluate",
-              "pcmgn_jax.eval.pipeline", "pcmgn_jax.eval.residual", "pcmgn_jax.eval.response_surfaces",
-              "pcmgn_jax.eval.rom", "pcmgn_jax.eval.scene_inputs", "pcmgn_jax.eval.surrogates"}
-
-
-@pytest.mark.xfail(strict=True, reason="eval cycle: removed by the surrogates registry (issue 38)")
 def test_library_has_no_import_cycle():
     cycles = import_cycles("pcmgn_jax")
     assert not cycles, f"import cycles inside pcmgn_jax (break one import of each):\n{_report(cycles)}"
-
-
-def test_only_the_eval_cycle_is_left():
-    """Until the surrogates registry lands, the one cycle left is eval's (a new cycle elsewhere fails here);
-    drop this test with the xfail mark above."""
-    cycles = import_cycles("pcmgn_jax")
-    assert all(set(c.modules) <= EVAL_CYCLE for c in cycles), f"import cycles outside eval/:\n{_report(cycles)}"
 
 
 def test_planted_cycle_is_reported(tmp_path, monkeypatch):

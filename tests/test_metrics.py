@@ -1,8 +1,8 @@
-"""pcmgn_jax.eval.metrics: every metric against hand-computed values (one definition each)."""
+"""pcmgn_jax.metrics: every metric against hand-computed values (one definition each)."""
 import numpy as np
 import pytest
 
-from pcmgn_jax.eval import metrics
+from pcmgn_jax import metrics
 
 
 def test_field_metrics_hand_computed():

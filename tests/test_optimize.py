@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from fixtures.helpers import tensor_grid
-from pcmgn_jax.eval import metrics
+from pcmgn_jax import metrics
 from pcmgn_jax.opt import search
 from pcmgn_jax.opt.problem import DesignBox
 
@@ -250,7 +250,7 @@ def test_ga_resumes_after_a_kill_with_the_same_result(tmp_path):
 def test_mgn_objective_gradient_matches_finite_differences(tiny_run, tiny_trajs):
     """Exact forward-mode gradient of (design -> mesh -> rollout -> objective) on the tiny synthetic run
     (design: the CG thickness; the CG top and the ball move with it) against central differences."""
-    from pcmgn_jax.eval.surrogates import MGNSurrogate
+    from pcmgn_jax.surrogates.mgn import MGNSurrogate
     from pcmgn_jax.opt.objectives import MGNObjective
     from pcmgn_jax.sim.design_map import DesignMap
     _, workdir, _ = tiny_run

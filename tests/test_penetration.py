@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pcmgn_jax.eval.metrics import penetration_stats, signed_distance_to_polyline
+from pcmgn_jax.metrics import penetration_stats, signed_distance_to_polyline
 from pcmgn_jax.geometry import boundary_nodes
 from pcmgn_jax.train.penetration import penetration_depth, penetration_loss, poly_fit_eval
 

@@ -11,7 +11,8 @@ import pytest
 from fixtures.helpers import make_synthetic_trajectory
 from matplotlib.colors import LogNorm
 
-from pcmgn_jax.eval import metrics, plots
+from pcmgn_jax import metrics
+from pcmgn_jax.eval import plots
 
 
 @pytest.fixture

@@ -1,4 +1,4 @@
-"""residual_of: the MGN as a learned correction of a baseline's fields (pcmgn_jax/eval/residual.py)."""
+"""residual_of: the MGN as a learned correction of a baseline's fields (pcmgn_jax/surrogates/residual.py, correction.py)."""
 import dataclasses
 import json
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from fixtures.helpers import make_synthetic_trajectory, tiny_config
-from pcmgn_jax.eval import residual
-from pcmgn_jax.eval.rom import Rom
+from pcmgn_jax.surrogates import correction, residual
+from pcmgn_jax.surrogates.rom import Rom
 from pcmgn_jax.mgn.formulation import is_ball
 
 
@@ -42,17 +42,17 @@ def test_residual_round_trip_keeps_the_ball(scenes):
     t = scenes[2]
     rng = np.random.default_rng(0)
     bu, bvm = rng.normal(size=t.displacement.shape) * 1e-6, rng.normal(size=t.von_mises.shape) * 1e6
-    (r,) = residual.residual_trajectories([t], [bu], [bvm])
+    (r,) = correction.residual_trajectories([t], [bu], [bvm])
     ball = is_ball(t.node_type)
     np.testing.assert_array_equal(r.displacement[:, ball], t.displacement[:, ball])   # the dynamical state
     np.testing.assert_allclose(r.displacement[:, ~ball], t.displacement[:, ~ball] - bu[:, ~ball])
     np.testing.assert_allclose(r.von_mises, t.von_mises - bvm)
     assert r.meta["residual_of_baseline"] and "residual_of_baseline" not in t.meta
-    (u,), (vm,) = residual.corrected([t], [r.displacement], [r.von_mises], [bu], [bvm])
+    (u,), (vm,) = correction.corrected([t], [r.displacement], [r.von_mises], [bu], [bvm])
     np.testing.assert_allclose(u, t.displacement, atol=1e-18)
     np.testing.assert_allclose(vm, t.von_mises, atol=1e-6)
     with pytest.raises(ValueError, match="do not match"):
-        residual.corrected([t], [r.displacement], [r.von_mises], [bu[:, :-1]], [bvm])
+        correction.corrected([t], [r.displacement], [r.von_mises], [bu[:, :-1]], [bvm])
 
 
 def test_residual_splits_validation_uses_the_whole_training_fit(scenes):
@@ -82,7 +82,7 @@ def test_config_names_what_a_residual_run_needs():
 @pytest.mark.slow  # ~60 s: a tiny training run and its evaluation
 def test_residual_run_trains_and_reports_the_corrected_fields(scenes, tmp_path):
     from pcmgn_jax.eval.evaluate import evaluate
-    from pcmgn_jax.eval.surrogates import MGNSurrogate
+    from pcmgn_jax.surrogates.registry import fit
     from pcmgn_jax.train import loop as training
     cfg = tiny_config(residual_of="rom", num_steps=40, val_every=40, ckpt_every=40)
     train, val = residual.residual_splits("rom", scenes[:4], scenes[4:5])
@@ -90,7 +90,7 @@ def test_residual_run_trains_and_reports_the_corrected_fields(scenes, tmp_path):
     (tmp_path / "config.json").write_text(json.dumps(cfg.to_dict()))
     m = evaluate(tmp_path, test_trajs=scenes[5:], train_trajs=scenes[:4], plot=False)
     assert m["residual_of"] == "rom" and m["contact_projection"] and np.isfinite(m["position_mae_um"])
-    mgn = MGNSurrogate(tmp_path, scenes[5], base_trajs=scenes[:4])
+    mgn = fit("mgn", scenes[:4], workdir=tmp_path, ref=scenes[5])
     u, vm = mgn.rollout_trajectories(scenes[5:])
     base_u, base_vm = Rom(scenes[:4]).predict_trajectories(scenes[5:])
     # the corrected field is the baseline plus a bounded correction, not a field rebuilt from scratch
@@ -98,7 +98,7 @@ def test_residual_run_trains_and_reports_the_corrected_fields(scenes, tmp_path):
     gap = np.abs(np.asarray(u)[0][:, panel] - base_u[0][:, panel]).max()
     assert gap < np.abs(scenes[5].displacement).max()
     ball = is_ball(scenes[5].node_type)   # residual_ball='baseline': the ball follows the rom's ball
-    path_u, _ = residual.ball_path(scenes[5], base_u[0], mgn.sim.spec.dt)
+    path_u, _ = correction.ball_path(scenes[5], base_u[0], mgn.sim.spec.dt)
     np.testing.assert_allclose(np.asarray(u)[0][1:, ball], path_u[:, ball], atol=1e-12)
     assert m["residual_ball"] == "baseline"
     with pytest.raises(ValueError, match="residual"):
@@ -108,7 +108,7 @@ def test_residual_run_trains_and_reports_the_corrected_fields(scenes, tmp_path):
 def test_rigid_contact_makes_the_ball_rigid_and_removes_the_overlap(scenes):
     """A prediction whose ball sinks 5 µm into a panel that does not move: rigid_contact (the rollout's
     contact rule, also the rom_contact baseline) leaves one rigid ball and no cover-glass node inside it."""
-    from pcmgn_jax.eval import metrics
+    from pcmgn_jax import metrics
     from pcmgn_jax.eval.evaluate import boundary
     t = scenes[2]
     ball = is_ball(t.node_type)
@@ -119,7 +119,7 @@ def test_rigid_contact_makes_the_ball_rigid_and_removes_the_overlap(scenes):
     bn, pn = boundary(t, 1)
     depth = lambda v: metrics.penetration_stats((t.points + v)[:, bn], (t.points + v)[:, pn])["max_um"]  # noqa: E731
     assert depth(u) > 4.0
-    fixed = residual.rigid_contact(t, u)
+    fixed = correction.rigid_contact(t, u)
     assert depth(fixed) < 0.05 and np.ptp(fixed[:, ball], axis=1).max() == 0.0
     np.testing.assert_allclose(fixed[:, ball, 1], u[:, ball, 1].mean(axis=1, keepdims=True).repeat(ball.sum(), 1))
     moved = np.abs(fixed - u)[:, ~ball].max(axis=(0, 2)) > 0

@@ -1,4 +1,4 @@
-"""pcmgn_jax.eval.response_surfaces (kriging, MOP with CoP) and pcmgn_jax.eval.rom against known answers."""
+"""pcmgn_jax.surrogates.response_surfaces (kriging, MOP with CoP) and pcmgn_jax.surrogates.rom against known answers."""
 import dataclasses
 import warnings
 
@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from fixtures.helpers import drop_last_column, make_synthetic_trajectory
-from pcmgn_jax.eval import response_surfaces as rs
-from pcmgn_jax.eval.rom import POD_ENERGY, Rom
-from pcmgn_jax.eval.surrogates import FieldRegression
+from pcmgn_jax.surrogates import response_surfaces as rs
+from pcmgn_jax.surrogates import surfaces
+from pcmgn_jax.surrogates.regression import FieldRegression
+from pcmgn_jax.surrogates.rom import POD_ENERGY, Rom
 
 
 def _quadratic_data(n=12, m=5, seed=0):
@@ -70,18 +71,18 @@ def test_field_surfaces_on_a_shared_mesh(tiny_trajs):
     """The synthetic fields are linear in the design: MOP picks linear and predicts a new design exactly."""
     truth = make_synthetic_trajectory(1.0)
     d = FieldRegression("none", [truth]).x
-    mop = rs.FieldSurface("mop", tiny_trajs)
+    mop = surfaces.FieldSurface("mop", tiny_trajs)
     assert mop.model.choice == {"u": "linear", "vm": "linear"}
     u, vm = mop.predict(d)
     assert u.shape == (1,) + truth.displacement.shape and vm.shape == (1,) + truth.von_mises.shape
     np.testing.assert_allclose(u[0], truth.displacement, atol=1e-9 * np.abs(truth.displacement).max())
     np.testing.assert_allclose(vm[0], truth.von_mises, atol=1e-9 * truth.von_mises.max())
-    k = rs.FieldSurface("kriging", tiny_trajs)
+    k = surfaces.FieldSurface("kriging", tiny_trajs)
     u, vm = k.predict(d)
     assert np.abs(u[0] - truth.displacement).max() < 0.02 * np.abs(truth.displacement).max()
     assert np.abs(vm[0] - truth.von_mises).max() < 0.02 * truth.von_mises.max()
     assert k.predict_std(d)[0].shape == u.shape and not k.warnings
-    s = rs.ObjectiveSurface("mop", tiny_trajs, readings=("area_mean",), part=1)
+    s = surfaces.ObjectiveSurface("mop", tiny_trajs, readings=("area_mean",), part=1)
     got = s.predict_trajectories([truth])["area_mean"]
     assert got == pytest.approx(rs.objective_table([truth], ("area_mean",), part=1)["area_mean"], rel=1e-9)
 
@@ -125,7 +126,7 @@ def test_rom_missing_parameter_and_out_of_range(family):
     with pytest.raises(ValueError, match=r"no_speed.*'ball\.velocity' missing"):
         rom.predict_trajectories([bad])
     with pytest.raises(ValueError, match="'ball.velocity' missing"):
-        rs.ObjectiveSurface("kriging", train, readings=("area_mean",), part=1).predict_trajectories([bad])
+        surfaces.ObjectiveSurface("kriging", train, readings=("area_mean",), part=1).predict_trajectories([bad])
     fast = _scene(1.0, 6.0, name="too_fast")
     with pytest.warns(rs.ExtrapolationWarning, match="too_fast"):
         us, _ = rom.predict_trajectories([fast])
@@ -171,8 +172,8 @@ def test_evaluation_baselines_score_every_kind(tiny_trajs, family):
     kriging/mop score the objective directly (the synthetic objective is linear in the design: MOP exact)
  and their field surfaces on a shared mesh (the synthetic panel has no OLED: fields only); across meshes only rom gives fields, and a zero-shot or
     out-of-box query is listed under ``warnings``."""
-    from pcmgn_jax.eval import metrics
-    from pcmgn_jax.eval.baselines import KINDS, baseline_metrics
+    from pcmgn_jax import metrics
+    from pcmgn_jax.eval.baselines import BASELINES, baseline_metrics
 
     def scores(pu, pv, test):
         return metrics.field_metrics(pu, pv, [t.displacement for t in test], [t.von_mises for t in test])
@@ -181,7 +182,7 @@ def test_evaluation_baselines_score_every_kind(tiny_trajs, family):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         b = baseline_metrics(tiny_trajs, test, lambda u, v: scores(u, v, test))
-    assert set(b) == set(KINDS)
+    assert set(b) == set(BASELINES)
     assert b["poly2"]["position_mae_um"] < 1e-6 and b["mop"]["position_mae_um"] < 1e-6  # linear fields
     assert b["mop"]["mop_fields"] == {"u": "linear", "vm": "linear"}
     assert "no part named 'OLED'" in b["kriging"]["objective"]   # the synthetic panel has no OLED layer

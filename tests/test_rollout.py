@@ -59,8 +59,8 @@ def test_evaluate_scores_model_and_baselines(tiny_run, tiny_trajs):
     import json
 
     from pcmgn_jax.eval import evaluate as evaluation
-    from pcmgn_jax.eval import metrics
-    from pcmgn_jax.eval.surrogates import MGNSurrogate
+    from pcmgn_jax import metrics
+    from pcmgn_jax.surrogates.mgn import MGNSurrogate
     _, workdir, _ = tiny_run
     train, test = tiny_trajs[:2], tiny_trajs[2:]
     m = evaluation.evaluate(workdir, test_trajs=test, train_trajs=train, plot=True)
@@ -121,7 +121,7 @@ def test_evaluate_any_directory_and_baselines_that_need_the_training_mesh(tiny_r
 def test_surrogate_many_meshes(tiny_run, tiny_trajs):
     """MGNSurrogate rolls designs of different meshes out in one union batch: the same fields as each
     alone; stacked arrays when node counts agree, lists when they differ."""
-    from pcmgn_jax.eval.surrogates import MGNSurrogate
+    from pcmgn_jax.surrogates.mgn import MGNSurrogate
     _, workdir, _ = tiny_run
     a, b = tiny_trajs[2], drop_last_column(tiny_trajs[3])
     u, vm = MGNSurrogate(workdir, a).rollout_trajectories([a, b])
@@ -177,7 +177,7 @@ def _contact_scene(gap_um=-2.0, spacing=25e-6, radius=5e-3):
 def test_contact_projection_moves_only_nodes_inside_the_ball_onto_its_surface():
     """Cover-glass nodes inside the rigid ball land on the ball's surface polyline (so the fit-free
     penetration is at most the facet sagitta); nodes below the ball, or beyond its x range, do not move."""
-    from pcmgn_jax.eval.metrics import penetration_stats
+    from pcmgn_jax.metrics import penetration_stats
     points, index = _contact_scene(gap_um=-2.0)
     u = np.zeros_like(points, np.float32)
     far = index.panel_nodes[points[index.panel_nodes, 0] > 2.2e-3][:3]
@@ -226,7 +226,7 @@ def test_a_given_ball_path_drives_the_ball_and_its_own_path_changes_nothing(tiny
     """rollout_designs with ``ball_u`` / ``ball_v``: the ball's rows follow the given path; given the path
     the network itself produced, the rollout is the undriven one (the panel is the same map of the ball's
     state). A dynamic panel refuses a path."""
-    from pcmgn_jax.eval.surrogates import MGNSurrogate
+    from pcmgn_jax.surrogates.mgn import MGNSurrogate
     _, workdir, _ = tiny_run
     t = tiny_trajs[3]
     mgn = MGNSurrogate(workdir, t)

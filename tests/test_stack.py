@@ -140,7 +140,7 @@ def test_role_identity_refuses_per_layer_features():
 
 
 def test_kriging_and_mop_on_the_padded_vector_recover_a_known_function():
-    from pcmgn_jax.eval.response_surfaces import fit_surface
+    from pcmgn_jax.surrogates.response_surfaces import fit_surface
     fam = STACK_FAMILIES["stack"]
     names = list(fam.names)
     x, q = fam.sample(60, 0), fam.sample(20, 5)
@@ -174,7 +174,7 @@ def _fake(name, scene, n=12):
 
 
 def test_rom_refuses_stacks_of_other_layers_by_name():
-    from pcmgn_jax.eval.rom import Rom, StackRom, fit_rom
+    from pcmgn_jax.surrogates.rom import Rom, StackRom, fit_rom
     rows = [FAM.sample(1, s, layer_counts=(c,))[0] for s, c in ((0, 5), (1, 7), (2, 5))]
     trajs = [_fake(f"t{i}", _scene(r)) for i, r in enumerate(rows)]
     with pytest.raises(ValueError, match="rom: the meshes do not map"):
@@ -186,7 +186,7 @@ def test_rom_refuses_stacks_of_other_layers_by_name():
 
 
 def test_the_rom_answers_a_stack_from_the_training_stacks_of_its_layer_list():
-    from pcmgn_jax.eval.rom import StackRom, fit_rom
+    from pcmgn_jax.surrogates.rom import StackRom, fit_rom
     train = [_synthetic_stack(5, s) for s in (11, 12, 13)] + [_synthetic_stack(7, s) for s in (14, 15)]
     query = _synthetic_stack(5, 16)
     rom = fit_rom(train)

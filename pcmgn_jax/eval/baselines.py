@@ -4,22 +4,22 @@
 
 ``scores(pred_u, pred_vm) -> dict`` is the evaluation's own scoring of a field prediction (pred_u a list of
 (T, N_b, 2) [m], pred_vm of (T, N_b) [Pa], one per test trajectory on its mesh; the same function scores the
-MGN), so every predictor is measured by one definition (:mod:`pcmgn_jax.eval.metrics`). Kinds
-(:data:`KINDS`, simplest first):
+MGN), so every predictor is measured by one definition (:mod:`pcmgn_jax.metrics`). Kinds: those of
+:data:`pcmgn_jax.surrogates.kinds.KINDS` with ``baseline`` (simplest first), each fitted by
+:func:`pcmgn_jax.surrogates.registry.fit`:
 
 - ``none``, ``nearest``: zero fields; the nearest training design or scene with its fields carried over
-  (any meshes; :class:`surrogates.NearestScene` when the meshes differ)
+  (any meshes; :class:`~pcmgn_jax.surrogates.regression.NearestScene` when the meshes differ)
 - ``poly2``, ``rbf``: per-node regressions of the fields over the design (one shared mesh only)
 - ``kriging``, ``mop``: response surfaces of the OLED objective readings over the scene parameters
-  (:class:`response_surfaces.ObjectiveSurface`; any meshes), scored directly on the objective; on one
-  shared mesh also of the fields (:class:`response_surfaces.FieldSurface`), whose objective is kept under
+  (:class:`~pcmgn_jax.surrogates.surfaces.ObjectiveSurface`; any meshes), scored directly on the objective; on
+  one shared mesh also of the fields (:class:`~pcmgn_jax.surrogates.surfaces.FieldSurface`), whose objective is kept under
   ``fields_oled_objective*``; ``mop`` adds ``mop`` (the chosen candidate and every candidate's CoP per reading)
-- ``rom``: POD of the fields on a reference mesh + a GP on the coefficients (:class:`rom.Rom`; any meshes of
-  one layer list; training stacks of several: one rom per layer list, :class:`rom.StackRom`, refusing a query
-  whose layer list no training scene has)
-- ``rom_contact`` (evaluate's tables, :data:`EVALUATE_KINDS`): the rom with the MGN rollout's hard contact
-  (a rigid ball, the cover glass projected out of it: :func:`residual.rigid_contact`), so a
-  baseline-corrected MGN (``residual_of=rom``) is measured against what the constraint alone gives
+- ``rom``: POD of the fields on a reference mesh + a GP on the coefficients (:mod:`pcmgn_jax.surrogates.rom`;
+  any meshes of one layer list; training stacks of several: one rom per layer list, refusing a query whose
+  layer list no training scene has)
+- ``rom_contact``: the rom with the MGN rollout's hard contact (a rigid ball, the cover glass projected out
+  of it), so a baseline-corrected MGN (``residual_of=rom``) is measured against what the constraint alone gives
 
 A baseline that cannot answer says why (``not_applicable``); queries outside the training box or changing
 what training held fixed are answered and listed under ``warnings`` (strings), never silently.
@@ -32,23 +32,17 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from pcmgn_jax.eval import metrics
-from pcmgn_jax.eval.response_surfaces import ExtrapolationWarning, FieldSurface, ObjectiveSurface
-from pcmgn_jax.eval.rom import fit_rom
-from pcmgn_jax.eval.surrogates import FieldRegression, NearestScene, design_of
+from pcmgn_jax import metrics
+from pcmgn_jax.surrogates.inputs import shared_mesh
+from pcmgn_jax.surrogates.kinds import KINDS, names
+from pcmgn_jax.surrogates.registry import fit
+from pcmgn_jax.surrogates.response_surfaces import ExtrapolationWarning
 
-KINDS = ("none", "nearest", "poly2", "rbf", "kriging", "mop", "rom")
-EVALUATE_KINDS = KINDS + ("rom_contact",)  # what evaluate scores (rom_contact: the rom + the rollout's contact rule)
+BASELINES = names(baseline=True)   # what evaluate scores beside the model, in the registry's order
 SUMMARY_KEYS = ("position_mae_um", "position_rmse_um", "stress_mae_mpa", "stress_rmse_mpa", "penetration_max_um",
                 "penetration_mean_um", "oled_objective_rel_error_pct_mean", "oled_objective_rel_error_pct_max",
                 "oled_objective_area_rel_error_pct_mean", "oled_objective_area_rel_error_pct_max")
 READING_KEYS = {"node_mean": "oled_objective", "area_mean": "oled_objective_area"}  # reading -> metrics key
-
-
-def shared_mesh(trajs) -> bool:
-    """True when every trajectory has the same mesh (node count and cells): per-node baselines apply."""
-    ref = trajs[0]
-    return all(t.n_nodes == ref.n_nodes and np.array_equal(t.cells, ref.cells) for t in trajs)
 
 
 def objective_scores(test_trajs: Sequence, pred: dict[str, np.ndarray], *, part: int | None = None) -> dict:
@@ -72,37 +66,15 @@ def _summary(m: dict) -> dict:
     return {k: m[k] for k in SUMMARY_KEYS if k in m}
 
 
-def _per_node(kind: str, train_trajs, test_trajs):
-    n_train = sorted({t.n_nodes for t in train_trajs})
-    raise ValueError(f"{kind}: per-node regression needs one shared topology (one node numbering for every "
-                     f"training and predicted design); here the meshes differ (training node counts "
-                     f"{n_train[0]}..{n_train[-1]}, test {sorted({t.n_nodes for t in test_trajs})})")
-
-
-def _fields(kind: str, train_trajs, test_trajs, shared: bool, scores: Callable) -> dict:
-    """none / nearest / poly2 / rbf / rom: a field prediction, scored like the model."""
-    designs = np.stack([design_of(t) for t in test_trajs]) if shared else None
-    if kind in ("rom", "rom_contact"):
-        model = fit_rom(train_trajs)
-        t0 = time.perf_counter()
-        pu, ps = model.predict_trajectories(test_trajs)
-        if kind == "rom_contact":
-            from pcmgn_jax.eval.residual import rigid_contact
-            pu = [rigid_contact(t, u) for t, u in zip(test_trajs, pu)]
-    elif shared:
-        model = FieldRegression(kind, train_trajs)
-        t0 = time.perf_counter()
-        pu, ps = model.predict(designs)
-    elif kind in ("none", "nearest"):
-        model = NearestScene(train_trajs, zero=kind == "none")
-        t0 = time.perf_counter()
-        pu, ps = model.predict_trajectories(test_trajs)
-    else:
-        _per_node(kind, train_trajs, test_trajs)
+def _fields(kind: str, train_trajs, test_trajs, scores: Callable) -> dict:
+    """A kind that predicts fields (none / nearest / poly2 / rbf / rom / rom_contact), scored like the model."""
+    model = fit(kind, train_trajs, queries=test_trajs)
+    t0 = time.perf_counter()
+    pu, ps = model.predict_trajectories(test_trajs)
     seconds = time.perf_counter() - t0
     out = {**_summary(scores(list(pu), list(ps))), "fit_seconds": model.fit_seconds,
            "predict_seconds_per_trajectory": seconds / len(test_trajs)}
-    if kind in ("rom", "rom_contact"):
+    if hasattr(model, "pod_modes"):
         out.update(pod_modes=model.pod_modes, warnings=list(model.warnings))
     return out
 
@@ -110,30 +82,26 @@ def _fields(kind: str, train_trajs, test_trajs, shared: bool, scores: Callable) 
 def _surface(kind: str, train_trajs, test_trajs, shared: bool, scores: Callable) -> dict:
     """kriging / mop: the objective surface scored on the objective; on a shared mesh the field surface too."""
     out, warns = {}, []
-    try:
-        surf = ObjectiveSurface(kind, train_trajs)
-    except ValueError as err:  # e.g. no OLED part: the fields may still apply
-        if not shared:
-            raise
-        out["objective"] = f"not applicable: {err}"
+    s = fit(kind, train_trajs, queries=test_trajs, fields=shared)
+    if s.objective is None:   # e.g. no OLED part: the fields still apply
+        out["objective"] = f"not applicable: {s.objective_not_applicable}"
     else:
         t0 = time.perf_counter()
-        pred = surf.predict_trajectories(test_trajs)
-        out.update(objective_scores(test_trajs, pred), fit_seconds=surf.fit_seconds,
+        pred = s.objectives(test_trajs)
+        out.update(objective_scores(test_trajs, pred), fit_seconds=s.fit_seconds,
                    predict_seconds_per_trajectory=(time.perf_counter() - t0) / len(test_trajs))
-        warns += list(surf.warnings)
+        warns += list(s.objective.warnings)
         if kind == "mop":
-            out["mop"] = surf.model.report()
-    if shared:
-        field = FieldSurface(kind, train_trajs)
-        pu, ps = field.predict(np.stack([design_of(t) for t in test_trajs]))
+            out["mop"] = s.objective.model.report()
+    if s.fields is not None:
+        pu, ps = s.predict_trajectories(test_trajs)
         m = scores(list(pu), list(ps))
         out.update({k: m[k] for k in SUMMARY_KEYS if k in m and "objective" not in k})
         out.update({f"fields_{k}": m[k] for k in SUMMARY_KEYS if k in m and "objective" in k})
-        out["fields_fit_seconds"] = field.fit_seconds
+        out["fields_fit_seconds"] = s.fields.fit_seconds
         if kind == "mop":
-            out["mop_fields"] = {q: field.model.report()[q]["chosen"] for q in ("u", "vm")}
-        warns += [w for w in field.warnings if w not in warns]
+            out["mop_fields"] = {q: s.fields.model.report()[q]["chosen"] for q in ("u", "vm")}
+        warns += [w for w in s.fields.warnings if w not in warns]
     else:
         out["fields"] = "not applicable: per-node field surfaces need one shared mesh (see rom for fields)"
     out["warnings"] = warns
@@ -141,21 +109,21 @@ def _surface(kind: str, train_trajs, test_trajs, shared: bool, scores: Callable)
 
 
 def baseline_metrics(train_trajs: Sequence, test_trajs: Sequence, scores: Callable,
-                     kinds: Sequence[str] = KINDS) -> dict:
+                     kinds: Sequence[str] = BASELINES) -> dict:
     """Every baseline in ``kinds`` fitted on ``train_trajs`` and scored on ``test_trajs`` (module docstring)."""
     train_trajs, test_trajs = list(train_trajs), list(test_trajs)
     shared = shared_mesh(train_trajs + test_trajs)
     out = {}
     for kind in kinds:
-        if kind not in EVALUATE_KINDS:
-            raise ValueError(f"baseline must be one of {EVALUATE_KINDS}, got {kind!r}")
+        if kind not in BASELINES:
+            raise ValueError(f"baseline must be one of {BASELINES}, got {kind!r}")
         try:
             with _warnings.catch_warnings():
                 _warnings.simplefilter("ignore", ExtrapolationWarning)  # recorded under "warnings" instead
-                if kind in ("kriging", "mop"):
+                if KINDS[kind].objective_surface:
                     out[kind] = _surface(kind, train_trajs, test_trajs, shared, scores)
                 else:
-                    out[kind] = _fields(kind, train_trajs, test_trajs, shared, scores)
+                    out[kind] = _fields(kind, train_trajs, test_trajs, scores)
         except ValueError as err:
             out[kind] = {"not_applicable": str(err)}
     return out

@@ -4,7 +4,7 @@
 mean over each frame interval [N] (CalculiX: from the ball's momentum, :func:`pcmgn_jax.data.calculix.ball_force`;
 built-in: the mean of its per-substep contact force over the frame, the same quantity), the contact start /
 end (first and last interval with a force above 1e-3 of the peak, so both codes are read at one 4 us grid),
-the peak cover-glass von Mises, the OLED objective's readings (:mod:`pcmgn_jax.eval.metrics`) and the
+the peak cover-glass von Mises, the OLED objective's readings (:mod:`pcmgn_jax.metrics`) and the
 maximum approach. :func:`field_errors` compares the fields at given frames. :func:`compare` puts two
 runs side by side with relative differences. :func:`section_weights` is the mesh-refinement series' fixed
 section: the area mean over exactly 0 <= x <= x_end, whatever the mesh's grading.
@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from pcmgn_jax.eval import metrics
+from pcmgn_jax import metrics
 from pcmgn_jax.sim.output import contact_phases
 from pcmgn_jax.trajectory import Trajectory
 
@@ -40,7 +40,7 @@ def contact_window(force: np.ndarray, dt: float, threshold: float = 1e-3) -> dic
 def impact_figures(traj: Trajectory, force: np.ndarray, *, von_mises: np.ndarray | None = None) -> dict[str, Any]:
     """One run's figures: :func:`contact_window` of ``force`` (T-1,) [N], ``peak_cg_von_mises_mpa`` (max over
     frames and the top layer's nodes), ``objective_<reading>_mpa`` for every reading of
-    :data:`pcmgn_jax.eval.metrics.OBJECTIVES` (on the trajectory's own von Mises unless ``von_mises`` (T, N)
+    :data:`pcmgn_jax.metrics.OBJECTIVES` (on the trajectory's own von Mises unless ``von_mises`` (T, N)
     [Pa] is given) and ``max_ball_approach_um`` (largest downward ball displacement in the region)."""
     dt = float(traj.times[1] - traj.times[0])
     vm = traj.von_mises if von_mises is None else von_mises

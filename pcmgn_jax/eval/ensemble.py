@@ -24,14 +24,17 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
+from scipy.stats import spearmanr
 
-from pcmgn_jax.eval import metrics
+from pcmgn_jax import metrics
+from pcmgn_jax.surrogates.inputs import TrainingScenes
+from pcmgn_jax.surrogates.registry import fit
+from pcmgn_jax.surrogates.response_surfaces import Kriging, objective_table
 
 
 def spearman(spread, error) -> dict:
     """{'rho', 'p', 'n'} Spearman's rank correlation of spread and error (1-D, same length); 'rho' None
     with 'why' when it is undefined (n < 3, or a side constant)."""
-    from scipy.stats import spearmanr
     s, e = np.asarray(spread, float).reshape(-1), np.asarray(error, float).reshape(-1)
     if s.shape != e.shape:
         raise ValueError(f"spearman: spread {s.shape} and error {e.shape} differ in shape")
@@ -57,8 +60,6 @@ class ResidualSpread:
 
     def __init__(self, train: Sequence, f_train, *, reading: str = metrics.DEFAULT_OBJECTIVE,
                  part: int | None = None):
-        from pcmgn_jax.eval.response_surfaces import Kriging, objective_table
-        from pcmgn_jax.eval.scene_inputs import TrainingScenes
         self.scenes = TrainingScenes(train)
         truth = objective_table(train, (reading,), part=part)[reading]
         self.residual_mpa = truth - np.asarray(f_train, float)
@@ -80,7 +81,6 @@ def residual_spread_record(spread: ResidualSpread, trajs, pred_mpa, *, reading: 
     """The spread beside each prediction of a set with truth: per design the MGN's objective [MPa], the
     residual GP's std [MPa], the real error [%], Spearman ρ of std against error, and the error after the
     GP's mean correction."""
-    from pcmgn_jax.eval.response_surfaces import objective_table
     truth = objective_table(trajs, (reading,), part=part)[reading]
     pred = np.asarray(pred_mpa, float)
     rm, rs = spread.predict(trajs)
@@ -102,10 +102,9 @@ def rollout_objectives(trajs, vms, part, reading: str = metrics.DEFAULT_OBJECTIV
 def member_predictions(workdirs: Sequence, sets: Mapping[str, Sequence], ref, part: int | None = None) -> list[dict]:
     """Per member {set: (u list (T, N, 2) [m], objective (B,) [MPa], vm list (T, N) [Pa])}, each member's
     rollouts of every set; ``part``: the objective's part id (default the OLED, by name)."""
-    from pcmgn_jax.eval.surrogates import MGNSurrogate
     out = []
     for w in workdirs:
-        m = MGNSurrogate(Path(w), ref)
+        m = fit("mgn", workdir=Path(w), ref=ref)
         got = {}
         for name, trajs in sets.items():
             u, vm = m.rollout_trajectories(trajs)
@@ -137,13 +136,11 @@ def ensemble_report(workdirs: Sequence, sets: Mapping[str, Sequence], train: Seq
     the runs ``workdirs`` (one is allowed: no ensemble figures then), ``train`` the runs' training
     trajectories (kriging and the residual GP are fitted on them); ``part``: the objective's part id
     (default the OLED, found by name)."""
-    from pcmgn_jax.eval.response_surfaces import ObjectiveSurface, objective_table
-
     if reading != metrics.DEFAULT_OBJECTIVE:
         raise ValueError(f"ensemble report: only the {metrics.DEFAULT_OBJECTIVE} reading, got {reading!r}")
     K = len(workdirs)
     preds = member_predictions(workdirs, {**sets, "_train": train}, train[0], part)
-    krig = ObjectiveSurface("kriging", train, readings=(reading,), part=part)
+    krig = fit("kriging", train, readings=(reading,), part=part, fields=False).objective
     resid = ResidualSpread(train, np.mean([p["_train"][1] for p in preds], axis=0), reading=reading, part=part)
     out = {"members": [str(w) for w in workdirs], "n_members": K, "reading": reading,
            "n_train": len(train), "sets": {}}

@@ -1,7 +1,7 @@
 """Roll out a trained run on a set of trajectories and write ``eval/metrics.json`` + PNG plots,
 beside the baselines (:mod:`pcmgn_jax.eval.baselines`) fitted on the run's training split.
 
-Metrics (definitions in :mod:`pcmgn_jax.eval.metrics`; SI in, reports in µm and MPa), over frames
+Metrics (definitions in :mod:`pcmgn_jax.metrics`; SI in, reports in µm and MPa), over frames
 1..T-1 of full rollouts from frame 0:
   position_mae_um / position_rmse_um   |u_pred - u_true| per node and component
   stress_mae_mpa / stress_rmse_mpa     von Mises
@@ -11,7 +11,7 @@ Metrics (definitions in :mod:`pcmgn_jax.eval.metrics`; SI in, reports in µm and
   baselines                            the same summary keys for none / nearest / poly2 / rbf / kriging /
                                        mop / rom (:mod:`pcmgn_jax.eval.baselines`), or {"not_applicable": why}
   penetration_*                        fit-free (ball boundary nodes below the CG top polyline,
-                                       pcmgn_jax.eval.metrics.penetration_stats), prediction and truth
+                                       pcmgn_jax.metrics.penetration_stats), prediction and truth
   rollout_seconds_per_trajectory       wall time of the batched jitted rollout (compile excluded); a
                                        residual_of run adds the baseline's prediction and the projection
                                        (whose first call on a mesh compiles: benchmarks time it warm)
@@ -31,15 +31,18 @@ from typing import Sequence
 
 import numpy as np
 
+from pcmgn_jax import metrics
+from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.data.stack import stack_warnings
 from pcmgn_jax.data.trajectory_io import atomic_write_json
-from pcmgn_jax.eval import metrics, plots
-from pcmgn_jax.eval.baselines import EVALUATE_KINDS, READING_KEYS, baseline_metrics, objective_scores
-from pcmgn_jax.eval.surrogates import MGNSurrogate
+from pcmgn_jax.eval import plots
+from pcmgn_jax.eval.baselines import BASELINES, READING_KEYS, baseline_metrics, objective_scores
+from pcmgn_jax.eval.ensemble import ResidualSpread, residual_spread_record, rollout_objectives
 from pcmgn_jax.geometry import roi_boundary_nodes
 from pcmgn_jax.mgn.contact import contact_parts
 from pcmgn_jax.provenance import code_version
 from pcmgn_jax.scene import Scene
+from pcmgn_jax.surrogates.registry import fit
 
 
 def boundary(ref, panel_part: int):
@@ -135,13 +138,12 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
     scene = Scene.from_dict(ref.meta["scene"])
     cfg = None
     if contact_projection or residual_ball:  # rollout-only fields: the same checkpoint serves both
-        from pcmgn_jax.config import TrainConfig
         cfg = TrainConfig.load(workdir / "config.json")
         if contact_projection:
             cfg = cfg.replace(formulation=cfg.formulation.replace(contact_projection=contact_projection == "on"))
         if residual_ball:
             cfg = cfg.replace(residual_ball=residual_ball)
-    mgn = MGNSurrogate(workdir, ref, which=which, batch=batch, cfg=cfg, base_trajs=list(train_trajs) or None)
+    mgn = fit("mgn", train_trajs, workdir=workdir, ref=ref, which=which, batch=batch, cfg=cfg)
     pu, ps = mgn.rollout_trajectories(test_trajs)
     _, panel_part = contact_parts(scene)
     bnodes, pnodes = zip(*[boundary(t, panel_part) for t in test_trajs])
@@ -163,9 +165,8 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
     if train_trajs:
         m["baselines"] = baseline_metrics(train_trajs, test_trajs,
                                            lambda u, vm: _scores(scene, test_trajs, u, vm, bnodes, pnodes),
-                                           kinds=EVALUATE_KINDS)
+                                           kinds=BASELINES)
     if mgn_spread and train_trajs and "OLED" in scene.part_names:
-        from pcmgn_jax.eval.ensemble import ResidualSpread, residual_spread_record, rollout_objectives
         stacks = {tuple(t.meta.get("part_names") or scene.part_names) for t in list(train_trajs) + list(test_trajs)}
         part = scene.part_names.index("OLED") if len(stacks) == 1 else None   # None: by name, per trajectory
         _, tv = mgn.rollout_trajectories(train_trajs)

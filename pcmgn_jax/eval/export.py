@@ -29,7 +29,7 @@ from pcmgn_jax.data.trajectory_io import (
     trajectory_paths,
     write_xdmf_series,
 )
-from pcmgn_jax.eval.metrics import field_metrics
+from pcmgn_jax.metrics import field_metrics
 from pcmgn_jax.trajectory import Trajectory
 
 __all__ = ["comparison_summary", "export_comparison"]
@@ -38,7 +38,7 @@ COMPARISON_FORMAT = "pcmgn_jax.comparison"
 
 
 def comparison_summary(truth: Trajectory, pred_disp: np.ndarray, pred_vm: np.ndarray) -> dict[str, Any]:
-    """Errors of a prediction (:func:`pcmgn_jax.eval.metrics.field_metrics`, the evaluation's definitions):
+    """Errors of a prediction (:func:`pcmgn_jax.metrics.field_metrics`, the evaluation's definitions):
     position [µm] and von Mises [MPa] MAE/RMSE over frames 1.., and per frame."""
     m = field_metrics(np.asarray(pred_disp, np.float64)[None], np.asarray(pred_vm, np.float64)[None],
                       np.asarray(truth.displacement, np.float64)[None], np.asarray(truth.von_mises, np.float64)[None])

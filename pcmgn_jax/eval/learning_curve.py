@@ -16,8 +16,10 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from pcmgn_jax.eval.tasks import METRICS, WINNER_METRICS, mean_rows
+from pcmgn_jax.surrogates.kinds import by_rank, names
 
-CURVE_PREDICTORS = ("MGN", "kriging", "mop", "rom", "nearest")   # plotted and tabulated, when present
+# plotted and tabulated, when present: the MGN and the kinds with ``curve`` (pcmgn_jax/surrogates/kinds.py), by rank
+CURVE_PREDICTORS = ("MGN",) + tuple(by_rank(names(curve=True)))
 
 
 def curve_rows(points: Mapping[int, Sequence[dict]]) -> dict[int, dict[str, dict[str, float]]]:

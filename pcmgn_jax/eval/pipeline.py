@@ -21,19 +21,6 @@ def output_name(data: str = "", name: str = "") -> str | None:
     return Path(data).resolve().name if data else None
 
 
-def run_splits(workdir: str | Path):
-    """(cfg, train, val, test) of a training run directory: its ``config.json`` (a
-    :class:`~pcmgn_jax.config.TrainConfig`) and :func:`pcmgn_jax.data.splits.load_splits` of its dataset at its sizes.
-    ``FileNotFoundError`` when ``workdir`` holds no config.json."""
-    from pcmgn_jax.config import TrainConfig
-    from pcmgn_jax.data.splits import load_splits
-    run = Path(workdir)
-    if not (run / "config.json").exists():
-        raise FileNotFoundError(f"{run}/config.json: not a training run directory")
-    cfg = TrainConfig.load(run / "config.json")
-    return (cfg, *load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train, n_val=cfg.n_val, n_test=cfg.n_test))
-
-
 def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str = "",
         contact_projection: str = "", mgn_spread: bool = False, residual_ball: str = "", split: str = "test") -> dict:
     """Evaluate the run in ``workdir`` and return the metrics dict written to
@@ -45,7 +32,7 @@ def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str =
     run's rollout contact projection ("" = the run's); ``residual_ball``: a residual run's ball override ("" =
     the run's); ``split``: ``val`` scores the run's validation trajectories instead (RUN/eval/val unless
     ``name``), where a rollout setting is chosen without looking at the test split."""
-    from pcmgn_jax.config import TrainConfig
+    from pcmgn_jax.config import TrainConfig   # here, not at the top: `import pcmgn_jax.eval` stays light
     from pcmgn_jax.data.splits import load_directory, load_splits
     from pcmgn_jax.eval import evaluate as evaluation
     from pcmgn_jax.mgn.checkpoint import require_run

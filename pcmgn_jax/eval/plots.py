@@ -16,7 +16,7 @@ import numpy as np
 from matplotlib.collections import PolyCollection
 from matplotlib.colors import LogNorm
 
-from pcmgn_jax.eval import metrics
+from pcmgn_jax import metrics
 
 PHASE_COLORS = {"drop": "#dddddd", "contact": "#ffd9a8", "rebound_in_contact": "#b9e3b0", "separated": "#c6dbef"}
 STRESS_DECADES = 4   # the log colour scale's range below its maximum: 700 MPa (cover glass) down to 0.07 MPa
@@ -149,7 +149,7 @@ def compare_frames(path, points, cells, pred_u, true_u, pred_s, true_s, frames, 
 def objective_vs_time(path, traj, pred_vm, *, times_us=None, phases=None,
                       readings=(metrics.DEFAULT_OBJECTIVE, "node_mean")) -> dict:
     """The OLED objective's integrand over time, prediction vs truth: each frame's section mean of von Mises
-    [MPa] (:func:`pcmgn_jax.eval.metrics.oled_objective_of` on that one frame; the objective is its mean over
+    [MPa] (:func:`pcmgn_jax.metrics.oled_objective_of` on that one frame; the objective is its mean over
     the window, given in the legend), one panel per reading; ``pred_vm`` (T, N) [Pa] on ``traj``'s mesh.
     Returns {reading: {"pred_mpa": (T,), "true_mpa": (T,), "objective_pred_mpa", "objective_true_mpa"}}."""
     times_us = np.asarray(traj.times) * 1e6 if times_us is None else np.asarray(times_us)

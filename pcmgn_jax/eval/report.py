@@ -339,7 +339,7 @@ def render(run: dict, *, optimize_table: Sequence[str] | None = None, title: str
             f"<p class=note>Evaluation <code>{e(run['eval_dir'])}/metrics.json</code>: {e('; '.join(map(str, info)))}.</p>",
             "<h2>Metrics beside the baselines</h2>",
             "<p class=note>Rollouts from frame 0 over the test split; every baseline fitted on the run's training "
-            "split and scored by the same code (<code>pcmgn_jax.eval.metrics</code>). Bold: the best of a column.</p>",
+            "split and scored by the same code (<code>pcmgn_jax.metrics</code>). Bold: the best of a column.</p>",
             summary_html(m)]
     warns = [str(w) for v in (m.get("baselines") or {}).values() for w in v.get("warnings") or []]
     if warns:   # each names its baseline

@@ -6,10 +6,13 @@
     v = ex.view(x, frame=10, show="kriging")  # View: headline text, table rows, flags, Plotly figure dicts
     ex.check(x)                             # the built-in solver at x: Truth (fields, contact force)
 
-:mod:`session` holds the run and the predictions (pure: numbers in, numbers out, no browser),
+:mod:`session` holds the run and the predictions (pure: numbers in, numbers out, no browser; each
+predictor fitted and asked by :mod:`predictors`, the page's text and views by :mod:`page`, the vocabulary
+in :mod:`types`),
 :mod:`figures` turns them into Plotly figure dicts (plain dicts, no plotly import), :mod:`app` wires both
 into a Dash page (needs the ``explore`` extra: ``pip install -e ".[explore]"``).
 """
-from pcmgn_jax.explore.session import Explorer, Parameter, Prediction, RunError, Truth, View
+from pcmgn_jax.explore.session import Explorer
+from pcmgn_jax.explore.types import Parameter, Prediction, RunError, Truth, View
 
 __all__ = ["Explorer", "Parameter", "Prediction", "RunError", "Truth", "View"]

@@ -20,7 +20,8 @@ import traceback
 
 import numpy as np
 
-from pcmgn_jax.explore.session import LABELS, Explorer
+from pcmgn_jax.explore.session import Explorer
+from pcmgn_jax.explore.types import LABELS
 
 PAGE = {"fontFamily": "sans-serif", "margin": "12px 24px", "maxWidth": "1500px"}
 NOTE = {"color": "#555", "fontSize": "13px", "margin": "2px 0"}

@@ -125,7 +125,7 @@ _project_frames = jax.jit(jax.vmap(project_contact, in_axes=(None, None, 0)))
 def project_frames(index: contact_lib.ContactIndex, points, u) -> np.ndarray:
     """:func:`project_contact` of every frame of ``u`` (T, N, 2) [m] on one mesh (float64 NumPy out): the
     projection applied after a rollout, to a field the scan did not produce whole (a baseline's residual
-    plus the baseline, :mod:`pcmgn_jax.eval.residual`)."""
+    plus the baseline, :mod:`pcmgn_jax.surrogates.residual`)."""
     moved = _project_frames(index, jnp.asarray(points, jnp.float32), jnp.asarray(u, jnp.float32))
     return np.asarray(u, np.float64) + (np.asarray(moved, np.float64) - np.asarray(u, np.float32))
 

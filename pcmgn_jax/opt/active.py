@@ -19,8 +19,8 @@ before it stay in the log.
 Surrogates over the parameter rows (design variables, then the case's parameters), each giving a mean
 and a spread per row [MPa]:
 
-- ``kriging``  the GP response surface (:class:`~pcmgn_jax.eval.response_surfaces.Kriging`), its posterior std
-- ``auto``     MOP's choice by leave-one-out CoP (:class:`~pcmgn_jax.eval.response_surfaces.MOP`) for the mean,
+- ``kriging``  the GP response surface (:class:`~pcmgn_jax.surrogates.response_surfaces.Kriging`), its posterior std
+- ``auto``     MOP's choice by leave-one-out CoP (:class:`~pcmgn_jax.surrogates.response_surfaces.MOP`) for the mean,
                the kriging std for the spread; the CoP table goes to the round's log
 - ``mgn``      a trained model's prediction (``base``) plus a GP on the solver's residuals from it: the
                model corrected where the solver has answered, its spread the residual GP's std
@@ -42,8 +42,12 @@ import numpy as np
 from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.opt import acquisition as acq
 from pcmgn_jax.opt.problem import DesignBox
+from pcmgn_jax.surrogates.kinds import choices
+from pcmgn_jax.surrogates.response_surfaces import MOP, ExtrapolationWarning, Kriging
 
-SURROGATES = ("kriging", "auto", "mgn")
+# the loop's surrogates: the kinds with ``active`` (pcmgn_jax/surrogates/kinds.py), fitted here over parameter
+# rows (the solver's answers), and ``auto`` (MOP's mean, kriging's spread)
+SURROGATES = choices("active")
 FORMAT = "pcmgn_jax.active"
 GRID_N = 41          # candidate grid per axis for two design variables (2.5 µm steps over 50-150 µm)
 N_CANDIDATES = 4000  # seeded LHS candidates for more variables
@@ -158,7 +162,6 @@ class Problem:
 def _quiet(fn, *a, **kw):
     """Fit a response surface that does not record queries outside its samples' span: the candidates leave
     the span of a few samples all the time here, by design (the acquisition's std accounts for it)."""
-    from pcmgn_jax.eval.response_surfaces import ExtrapolationWarning
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtrapolationWarning)
         out = fn(*a, **kw)
@@ -170,8 +173,6 @@ def _quiet(fn, *a, **kw):
 def fit_surrogate(kind: str, rows, values, names: Sequence[str], base: Callable | None = None):
     """(predict(rows) -> (mean (Q,), std (Q,)) [MPa], info dict) of surrogate ``kind`` fitted on
     rows (n, P) [SI] and solver values (n,) [MPa] (module docstring); ``base``: rows -> (n,) for ``mgn``."""
-    from pcmgn_jax.eval.response_surfaces import MOP, Kriging
-
     X, y = np.asarray(rows, float), np.asarray(values, float)
     info: dict = {"n_samples": len(y)}
     if kind == "mgn":

@@ -21,13 +21,24 @@ stopped at 12 runs is the first 12 runs of the loop to 24.
 from __future__ import annotations
 
 import functools
+import json
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
+from pcmgn_jax.data.designs import FAMILIES
+from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.opt.active import LoopConfig, Problem, SolverOracle, best_at, run_loop
 from pcmgn_jax.opt.check import solver_preset
+from pcmgn_jax.opt.objectives import MGNObjective
+from pcmgn_jax.opt.problem import DesignBox
+from pcmgn_jax.scene import Scene
+from pcmgn_jax.sim.design_map import DesignMap
+from pcmgn_jax.surrogates.inputs import TrainingScenes, design_of
+from pcmgn_jax.surrogates.mgn import run_splits
+from pcmgn_jax.surrogates.registry import fit
+from pcmgn_jax.surrogates.response_surfaces import objective_table
 
 # the best solver-checked design known in the paper's box on the cpu mesh (issue 26), re-solved by box_problem
 REFERENCE_UM = (150.0, 100.0)
@@ -46,12 +57,11 @@ ROBUST_CASES = ({"ball.radius": 4.5e-3, "ball.velocity": 0.70}, {"ball.radius": 
 
 @functools.lru_cache(maxsize=2)
 def _read_run(workdir: str):
-    from pcmgn_jax.eval.pipeline import run_splits
     return run_splits(workdir)
 
 
 def _splits(workdir):
-    """(cfg, (train, val, test)) of a run (:func:`pcmgn_jax.eval.pipeline.run_splits`), read once per run
+    """(cfg, (train, val, test)) of a run (:func:`pcmgn_jax.surrogates.mgn.run_splits`), read once per run
     directory: a task's problem and its MGN base prediction share them (read-only)."""
     cfg, *splits = _read_run(str(Path(workdir).resolve()))
     return cfg, splits
@@ -61,10 +71,6 @@ def box_problem(workdir, *, reading: str = "area_mean", cache_dir=None) -> tuple
     """The paper's design box (50-150 µm per OCA, 150-250 µm sum) on the run's scene and mesh preset; the
     holdout is the run's test split, the reference the solver at :data:`REFERENCE_UM`. ``cache_dir``:
     solver runs (default RUN/active/solver)."""
-    from pcmgn_jax.eval.response_surfaces import objective_table
-    from pcmgn_jax.eval.surrogates import design_of
-    from pcmgn_jax.opt.problem import DesignBox
-    from pcmgn_jax.scene import Scene
 
     cfg, (train, val, test) = _splits(workdir)
     scene = Scene.from_dict(train[0].meta["scene"])
@@ -84,11 +90,6 @@ def robust_problem(workdir, cases: Sequence[dict] = ROBUST_CASES, *, reading: st
                    cache_dir=None) -> tuple[Problem, dict]:
     """OCA1, OCA2 (50-150 µm, sum 150-250 µm) and POL (30-70 µm) minimising the objective's mean over
     ``cases`` on a scene-family run's data: prior = its training scenes, holdout = its test scenes."""
-    from pcmgn_jax.data.designs import FAMILIES
-    from pcmgn_jax.eval.response_surfaces import objective_table
-    from pcmgn_jax.eval.scene_inputs import TrainingScenes
-    from pcmgn_jax.opt.problem import DesignBox
-    from pcmgn_jax.scene import Scene
 
     cfg, (train, val, test) = _splits(workdir)
     if "scene_params" not in train[0].meta:
@@ -117,20 +118,12 @@ def mgn_base(workdir, problem: Problem, cache_path, *, reading: str = "area_mean
     """rows (n, P) -> (n,) the run's MGN objective [MPa] at each row's design (the box problem: one case),
     memoised in a JSON file at ``cache_path`` (one entry per design, nm keys) so the loop and a resume pay
     each rollout once."""
-    import json
-
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
-    from pcmgn_jax.eval.surrogates import MGNSurrogate
-    from pcmgn_jax.opt.objectives import MGNObjective
-    from pcmgn_jax.scene import Scene
-    from pcmgn_jax.sim.design_map import DesignMap
-
     if len(problem.cases) != 1 or problem.cases[0]:
         raise ValueError("mgn surrogate in the loop: only for the box problem (one drop case)")
     _, (train, _, _) = _splits(workdir)
     scene = Scene.from_dict(train[0].meta["scene"])
     part = scene.part_names.index("OLED")
-    obj = MGNObjective(MGNSurrogate(Path(workdir), train[0]), DesignMap.build(scene, solver_preset(train[0], workdir)),
+    obj = MGNObjective(fit("mgn", train, workdir=Path(workdir)), DesignMap.build(scene, solver_preset(train[0], workdir)),
                        part=part, reading=reading)
     path = Path(cache_path)
     memo = json.loads(path.read_text()) if path.exists() else {}

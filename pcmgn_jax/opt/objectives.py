@@ -1,6 +1,6 @@
 """Surrogate objectives for the optimiser: designs (B, D) [m] in, docs/design.md §8's objective (B,) [MPa] out.
 
-- :class:`FieldObjective` wraps any surrogate of :mod:`pcmgn_jax.eval.surrogates` (designs in, fields
+- :class:`FieldObjective` wraps any surrogate of :mod:`pcmgn_jax.surrogates` (designs in, fields
   out): the objective of its predicted von Mises on each design's own mesh. Results are cached per
   design (rounded to ``resolution`` [m]), so a GA's repeated designs cost nothing and ``n_evals`` counts
   distinct surrogate evaluations. Its gradient is a central finite difference (the regressions are
@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pcmgn_jax import metrics
 from pcmgn_jax.data.trajectory_io import atomic_write_json
-from pcmgn_jax.eval import metrics
 from pcmgn_jax.sim.design_map import DesignMap
 
 
@@ -142,7 +142,7 @@ class FieldObjective:
 
 class SurfaceObjective(FieldObjective):
     """The objective read straight off a response surface of it (``kriging`` | ``mop``,
-    :class:`pcmgn_jax.eval.response_surfaces.ObjectiveSurface` fitted for this reading over the design):
+    :class:`pcmgn_jax.surrogates.surfaces.ObjectiveSurface` fitted for this reading over the design):
     what a DOE tool optimises. Cache, resume and finite-difference gradient as :class:`FieldObjective`."""
 
     def __init__(self, surface, design_map: DesignMap, **kw):
@@ -162,7 +162,7 @@ class SurfaceObjective(FieldObjective):
 class MGNObjective(FieldObjective):
     """The MGN's objective with its exact gradient (see the module docstring).
 
-    ``surrogate`` is a :class:`~pcmgn_jax.eval.surrogates.MGNSurrogate`; values go through its batched
+    ``surrogate`` is a :class:`~pcmgn_jax.surrogates.mgn.MGNSurrogate`; values go through its batched
     rollout, gradients through one jitted ``jax.jacfwd`` of (design -> mesh -> rollout -> objective).
     The objective weights are held at the design's value (their derivative is not taken: for OCA
     designs the OLED section only translates, so its weights do not depend on the design at all).

@@ -13,6 +13,11 @@ from __future__ import annotations
 from pathlib import Path
 
 from pcmgn_jax.lock import hold
+from pcmgn_jax.surrogates.kinds import AUTO, KINDS, choices
+
+# what the optimiser can search on: the kinds with ``optimise`` (pcmgn_jax/surrogates/kinds.py), and
+# ``auto`` (mop, its CoP table in the result)
+SURROGATES = choices("optimise")
 
 
 def result_tag(surrogate: str, method: str, objective: str) -> str:
@@ -22,8 +27,8 @@ def result_tag(surrogate: str, method: str, objective: str) -> str:
 
 
 def run(workdir: str | Path, *, surrogate: str = "mgn", **kw) -> dict:
-    """Optimise the OCA thicknesses of the run in ``workdir`` on ``surrogate`` (mgn | nearest | poly2 | rbf | kriging |
-    mop | auto, auto = mop with its CoP table in the result)
+    """Optimise the OCA thicknesses of the run in ``workdir`` on ``surrogate`` (:data:`SURROGATES`: mgn | nearest |
+    poly2 | rbf | kriging | mop | auto, auto = mop with its CoP table in the result)
     with ``method`` (ga | gradient | slsqp) for the OLED objective ``objective`` (area_mean | node_mean |
     disc_mean | peak, docs/design.md §8) and return the result dict written to RUN/optimize/<tag>.json.
 
@@ -37,7 +42,9 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", **kw) -> dict:
     preset; :class:`pcmgn_jax.mgn.checkpoint.MissingRun` (one line, nothing written) when ``workdir`` is no run
     folder, holds no config.json or (``mgn``) no checkpoint. RUN/optimize is locked while it runs
     (:func:`pcmgn_jax.lock.hold`: one optimisation writes there at a time)."""
-    from pcmgn_jax.mgn.checkpoint import require_run
+    from pcmgn_jax.mgn.checkpoint import require_run   # here, not at the top: `import pcmgn_jax.opt` stays light
+    if surrogate not in SURROGATES:
+        raise ValueError(f"surrogate must be one of {SURROGATES}, got {surrogate!r}")
     require_run(workdir, checkpoint=surrogate == "mgn")
     with hold(Path(workdir) / "optimize", "optimize"):
         return _optimize(workdir, surrogate=surrogate, **kw)
@@ -50,16 +57,19 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
     """:func:`run` once the run is checked and RUN/optimize locked."""
     import numpy as np
 
-    from pcmgn_jax.eval.pipeline import run_splits
+    from pcmgn_jax import metrics
     from pcmgn_jax.data.trajectory_io import atomic_write_json
-    from pcmgn_jax.eval import metrics, plots
-    from pcmgn_jax.eval.surrogates import FieldRegression, MGNSurrogate, design_of
+    from pcmgn_jax.eval import plots
     from pcmgn_jax.opt import search
     from pcmgn_jax.opt.check import solver_objectives, solver_preset
     from pcmgn_jax.opt.objectives import FieldObjective, MGNObjective, SurfaceObjective
     from pcmgn_jax.opt.problem import DesignBox
+    from pcmgn_jax.opt.spread import optimum_spread
     from pcmgn_jax.scene import Scene
     from pcmgn_jax.sim.design_map import DesignMap
+    from pcmgn_jax.surrogates.inputs import design_of
+    from pcmgn_jax.surrogates.mgn import run_splits
+    from pcmgn_jax.surrogates.registry import fit
 
     record = {"workdir": str(workdir), "surrogate": surrogate, "method": method, "objective": objective,
               "pop": pop, "gens": gens, "starts": starts, "iters": iters, "screen": screen, "seed": seed,
@@ -75,14 +85,13 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
     box = DesignBox(dim=len(scene.design_layers))
     dmap = DesignMap.build(scene, preset)
     kw = {"part": part, "reading": objective}
-    if surrogate == "mgn":
-        obj = MGNObjective(MGNSurrogate(run_dir, ref, which=which), dmap, **kw)
-    elif surrogate in ("kriging", "mop", "auto"):   # auto: MOP's choice by leave-one-out CoP (issue 26)
-        from pcmgn_jax.eval.response_surfaces import ObjectiveSurface
-        obj = SurfaceObjective(ObjectiveSurface("kriging" if surrogate == "kriging" else "mop", train,
-                                                readings=(objective,), part=part), dmap, **kw)
+    kind = "mop" if surrogate == AUTO else surrogate   # auto: MOP's choice by leave-one-out CoP (issue 26)
+    if KINDS[kind].family == "mgn":
+        obj = MGNObjective(fit(kind, train, workdir=run_dir, ref=ref, which=which), dmap, **kw)
+    elif KINDS[kind].objective_surface:
+        obj = SurfaceObjective(fit(kind, train, readings=(objective,), part=part, fields=False).objective, dmap, **kw)
     else:
-        obj = FieldObjective(FieldRegression(surrogate, train), dmap, **kw)
+        obj = FieldObjective(fit(kind, train), dmap, **kw)
 
     tag = result_tag(surrogate, method, objective)
     dest = plots.ensure_dir(run_dir / "optimize")
@@ -119,7 +128,6 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
            "n_evals": res["n_evals"], "preset": preset, "units": {"objective": "MPa", "design": "µm"},
            "dataset_best": None if best_d is None else {"design_um": (best_d * 1e6).tolist(), "mpa": best_f},
            "command": command, "args": record, **({"resumed": {"evals_loaded": loaded}} if loaded else {})}
-    from pcmgn_jax.opt.spread import optimum_spread
     spread = optimum_spread(surrogate, obj, x, train, part=part, reading=objective,
                             members=[m for m in ensemble.split(",") if m])
     out.update(predicted_std_mpa=spread["std_mpa"], spread=spread)

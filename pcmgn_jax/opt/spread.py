@@ -15,41 +15,39 @@ Sources, by surrogate:
 """
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
+from pcmgn_jax.opt.objectives import MGNObjective
+from pcmgn_jax.surrogates.inputs import design_of
+from pcmgn_jax.surrogates.kinds import KINDS, names
+from pcmgn_jax.surrogates.registry import fit
+from pcmgn_jax.surrogates.response_surfaces import ExtrapolationWarning, Kriging, objective_table
 
-def _kriging(train, reading, part):
-    from pcmgn_jax.eval.response_surfaces import ObjectiveSurface
-    return ObjectiveSurface("kriging", train, readings=(reading,), part=part)
+SPREAD_OF = names(std=True)[0]   # the kind whose posterior std stands in for those without a spread (kriging)
 
 
 def optimum_spread(surrogate: str, obj, x, train: Sequence, *, part: int, reading: str,
                    members: Sequence[str | Path] = ()) -> dict:
     """{'std_mpa', 'source', ...} at the optimum x (D,) [m] of objective ``obj`` (the module docstring)."""
-    import warnings
-
-    from pcmgn_jax.eval.response_surfaces import ExtrapolationWarning, Kriging, objective_table
-    from pcmgn_jax.eval.surrogates import design_of
-
     x = np.asarray(x, float).reshape(1, -1)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtrapolationWarning)
-        if surrogate == "kriging":
+        if surrogate in KINDS and KINDS[surrogate].std:
             _, sd = obj.surrogate.predict(x, return_std=True)
-            return {"std_mpa": float(sd[reading][0]), "source": "kriging posterior std"}
+            return {"std_mpa": float(sd[reading][0]), "source": f"{surrogate} posterior std"}
         if surrogate != "mgn":
-            _, sd = _kriging(train, reading, part).predict(x, return_std=True)
+            proxy = fit(SPREAD_OF, train, readings=(reading,), part=part, fields=False).objective
+            _, sd = proxy.predict(x, return_std=True)
             return {"std_mpa": float(sd[reading][0]),
                     "source": f"proxy: the kriging std of the same training data ({surrogate} has no spread of its own)"}
         if members:
-            from pcmgn_jax.eval.surrogates import MGNSurrogate
-            from pcmgn_jax.opt.objectives import MGNObjective
             vals = [float(obj(x)[0])]
             for m in members:
-                other = MGNObjective(MGNSurrogate(Path(m), train[0]), obj.map, part=part, reading=reading)
+                other = MGNObjective(fit("mgn", workdir=Path(m), ref=train[0]), obj.map, part=part, reading=reading)
                 vals.append(float(other(x)[0]))
             return {"std_mpa": float(np.std(vals, ddof=1)), "source": f"ensemble of {len(vals)} MGNs",
                     "members_mpa": vals, "members": [str(m) for m in members]}

@@ -37,7 +37,7 @@ def b_matrices(xy: np.ndarray, xi: float, eta: float, axisymmetric: bool):
     """B (E,4,8), integration weight (E,) without the Gauss weight, N (4,) at (xi, eta).
 
     Public: the solver's element operators and the objective's element integration
-    (:func:`pcmgn_jax.eval.metrics.objective_weights`) share this one definition of det J and 2 pi r.
+    (:func:`pcmgn_jax.metrics.objective_weights`) share this one definition of det J and 2 pi r.
     """
     n, dn = shape_functions(xi, eta)
     jac = np.einsum("ak,ekb->eab", dn, xy)  # (E,2,2): d(x,y)/d(xi,eta)

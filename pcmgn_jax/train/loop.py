@@ -6,7 +6,7 @@
   ``lax.scan``; checkpoints, logs and validation happen at chunk boundaries (their intervals are rounded
   up to whole chunks). A contact-buffer overflow grows the buffer and re-runs the chunk.
 - Validation: full rollouts of the validation trajectories, position MAE by
-  :func:`pcmgn_jax.eval.metrics.position_mae_um`; the best one is kept in ``checkpoints/best``. With
+  :func:`pcmgn_jax.metrics.position_mae_um`; the best one is kept in ``checkpoints/best``. With
   ``ema_decay`` > 0 the moving average of the parameters is what is validated and kept as best. With
   ``lambda_pen`` > 0 only validations after the penetration term has switched on (:func:`penalty_on`)
   compete for best; if none did, the final state is kept as best and its meta says
@@ -35,7 +35,7 @@ import numpy as np
 
 from pcmgn_jax import compile_notes
 from pcmgn_jax.config import TrainConfig, check_resume
-from pcmgn_jax.eval.metrics import position_mae_um
+from pcmgn_jax.metrics import position_mae_um
 from pcmgn_jax.mgn import checkpoint
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.normalization import normalize_graph

@@ -11,7 +11,7 @@ Paper section 2.3 (docs/design.md §6), made numerically safe:
    x^6 of a millimetre is 1e-18 and cond(V^T V) = cond(V)^2.
 3. :func:`penetration_depth`, :func:`penetration_loss`: d = y_CG(x) - y_ball(x) at the ball boundary nodes
    inside the overlap of both x ranges; L_pen = mean of (d / length_scale)^2 over nodes with d > 0.
-4. (in :mod:`pcmgn_jax.eval.metrics`) ``signed_distance_to_polyline``, ``penetration_stats``: fit-free evaluation metric (true
+4. (in :mod:`pcmgn_jax.metrics`) ``signed_distance_to_polyline``, ``penetration_stats``: fit-free evaluation metric (true
    Euclidean distance of ball boundary nodes to the CG top polyline, negative = penetration).
 
 Coordinates: x = radius >= 0 (axisymmetric half model, axis at x = 0) or width, y = height, both [m];
@@ -196,7 +196,7 @@ def penetration_depth(ball_xy, panel_xy, *, degree_ball: int = 6, degree_panel: 
     Fit floor: on an exact contact state (gap 0) the two fits still differ by a few tenths of a µm
     inside the contact patch, so ground truth can show d > 0 and a real penetration below ~0.1 µm can be
     hidden by a negative fit error (docs/design.md §6). The fit-free metric
-    (``pcmgn_jax.eval.metrics.penetration_stats``) does not have this floor.
+    (``pcmgn_jax.metrics.penetration_stats``) does not have this floor.
     """
     ball_xy = jnp.asarray(ball_xy)
     panel_xy = jnp.asarray(panel_xy)

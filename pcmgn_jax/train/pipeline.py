@@ -79,8 +79,8 @@ def _run_locked(cfg: TrainConfig, workdir: Path, *, resume: bool) -> dict:
               f"last {len(val)} of {have} trajectories in {root / 'train'} by name"
               + (f"; {unused} in between unused (raise --n_train to use them)" if unused else ""))
     write_data_record(workdir, root, source, train, val)
-    if cfg.residual_of:  # the network learns the baseline's error (pcmgn_jax/eval/residual.py)
-        from pcmgn_jax.eval.residual import residual_splits
+    if cfg.residual_of:  # the network learns the baseline's error (pcmgn_jax/surrogates/residual.py)
+        from pcmgn_jax.surrogates.residual import residual_splits
         train, val = residual_splits(cfg.residual_of, train, val)
     return training.train(cfg, str(workdir), train_trajs=train, val_trajs=val, resume=resume)
 

@@ -29,16 +29,17 @@ import numpy as np
 
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.geometry import roi_boundary_nodes
+from pcmgn_jax.metrics import objective_weights
 from pcmgn_jax.mgn import contact as contact_lib
 from pcmgn_jax.mgn.batching import bucket_size
 from pcmgn_jax.mgn.checkpoint import make_spec
 from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, is_ball, model_inputs
-from pcmgn_jax.mgn.scene_features import across_part_channels
 from pcmgn_jax.mgn.graphs import Topology
 from pcmgn_jax.mgn.hierarchy import level_sizes
 from pcmgn_jax.mgn.inputs import contact_radius, graph_inputs, topology_from_trajectory, with_scene
 from pcmgn_jax.mgn.normalization import Accumulator, Stats, TypedAccumulator, make_stats
 from pcmgn_jax.mgn.rollout import Spec, input_graph
+from pcmgn_jax.mgn.scene_features import across_part_channels
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.train.noise import motion_rms, noise_parts_mask, noise_sigma, perturb
 from pcmgn_jax.train.sampling import pair_table, sample
@@ -150,10 +151,9 @@ def loss_weights(form: Formulation, topology: Topology) -> dict:
 
 def objective_loss_weights(traj, scene: Scene) -> np.ndarray:
     """(N,) float32 nodal weights (sum 1) of the design objective's reading (the default, area mean over
-    the OLED's section under the ball: :func:`pcmgn_jax.eval.metrics.objective_weights`, the same rule
+    the OLED's section under the ball: :func:`pcmgn_jax.metrics.objective_weights`, the same rule
     the evaluation scores) on one trajectory's mesh, for the ``lambda_obj`` term. ValueError when the
     scene has no part named 'OLED'."""
-    from pcmgn_jax.eval.metrics import objective_weights
     if "OLED" not in scene.part_names:
         raise ValueError(f"lambda_obj > 0 needs a part named 'OLED' (the objective's layer); the scene has {list(scene.part_names)}")
     w = objective_weights(traj.points, traj.cells, traj.cell_part, traj.node_part, part=scene.part_names.index("OLED"))

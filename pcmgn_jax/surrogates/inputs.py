@@ -1,9 +1,11 @@
-"""Trajectories to the inputs of a response surface: their scene parameters, checked against training.
+"""What a trajectory gives a surrogate: its design, its scene parameters (checked against training), its parts.
 
+    design_of(t)                                  # (D,) design [m]
+    scene_vector(t)                               # (names, values [SI]) of what distinguishes its scene
     ts = TrainingScenes(train_trajs)              # names, x (B, P) [SI], and what training held fixed
     xq = ts.inputs(test_trajs, note)              # (Q, P) [SI]; note(str) records each departure
 
-A trajectory's scene parameters are :func:`surrogates.scene_vector`'s (``meta['scene_params']`` of a scene
+A trajectory's scene parameters are :func:`scene_vector`'s (``meta['scene_params']`` of a scene
 family, else its design). A query missing one of the training parameters raises ValueError naming it.
 A query whose scene differs from every training scene in a number training held fixed (any number of
 ``meta['scene']``: a layer's thickness or modulus, the ball's density, ...; named 'ball.radius',
@@ -16,9 +18,43 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from pcmgn_jax.eval.surrogates import scene_vector
-
 FIXED_RTOL = 1e-9   # a held-fixed number counts as changed beyond this relative difference
+
+
+def design_of(traj) -> np.ndarray:
+    """(D,) design [m] of a trajectory, in its scene's ``design_layers`` order."""
+    d = traj.meta.get("design")
+    layers = traj.meta.get("scene", {}).get("design_layers")
+    if isinstance(d, dict):
+        return np.array([float(d[k]) for k in (layers or d)])
+    if d is None:
+        raise ValueError(f"trajectory {traj.meta.get('name', '?')}: meta has no 'design'")
+    return np.asarray(d, np.float64)
+
+
+def scene_vector(traj) -> tuple[tuple[str, ...], np.ndarray]:
+    """(names, values [SI]) of what distinguishes a trajectory's scene: meta['scene_params'] of a scene
+    family (ball radius [m], drop speed [m/s], layer thicknesses [m]), else its design (:func:`design_of`)."""
+    params = traj.meta.get("scene_params")
+    if params:
+        names = tuple(sorted(params))
+        return names, np.array([float(params[k]) for k in names])
+    layers = tuple(traj.meta.get("scene", {}).get("design_layers") or ())
+    return layers, design_of(traj)
+
+
+def part_names_of(traj) -> tuple[str, ...]:
+    """A trajectory's part names (0 the ball, then its layers from the top): meta['part_names'], else its scene's."""
+    names = traj.meta.get("part_names")
+    if names is None:
+        names = ["ball"] + [layer["name"] for layer in (traj.meta.get("scene") or {}).get("layers", ())]
+    return tuple(names)
+
+
+def shared_mesh(trajs) -> bool:
+    """True when every trajectory has the same mesh (node count and cells): per-node predictors apply."""
+    ref = trajs[0]
+    return all(t.n_nodes == ref.n_nodes and np.array_equal(t.cells, ref.cells) for t in trajs)
 
 
 def trajectory_labels(trajs: Sequence) -> list[str]:

@@ -1,11 +1,12 @@
-"""``rom``: a field reduced-order model across meshes (a scene family, each scene its own mesh).
+"""The rom family: ``rom``, a field reduced-order model across meshes (a scene family, each scene its own
+mesh), its stack form (:class:`StackRom`) and ``rom_contact`` (:class:`RomContact`).
 
-    r = Rom(train_trajs)                        # trajectories with meta['scene_params']
+    r = fit("rom", train_trajs)                 # trajectories with meta['scene_params'] (registry.fit does the same)
     us, vms = r.predict_trajectories(trajs)     # lists: u (T, N_b, 2) [m], vm (T, N_b) [Pa], each on its mesh
     r.warnings                                  # queries outside the training box (strings for metrics.json)
 
 1. Reference mesh: the FIRST training trajectory's mesh (points, node_part, scene). Every training scene's
-   fields are carried onto it by :func:`surrogates.transfer_fields` (part-relative coordinates, the rule
+   fields are carried onto it by :func:`transfer.transfer_fields` (part-relative coordinates, the rule
    of the ``nearest`` baseline).
 2. Snapshots: per scene the row [u / s_u, vm / s_vm] of every frame and reference node (T·N·3 values);
    s_u [m] and s_vm [Pa] are the RMS of the centred u and vm snapshots (1 where a field never varies),
@@ -14,7 +15,7 @@
    :data:`POD_ENERGY` of sum S², one GP with the kriging kernel on their coefficients over the scene
    parameters scaled to [-1, 1] (:class:`response_surfaces.ParameterBox`).
 4. Prediction: the GP mean at a query's scene parameters, unscaled, carried from the reference mesh to
-   the query's mesh by :func:`surrogates.transfer_fields` (the identity when it is the reference mesh).
+   the query's mesh by :func:`transfer.transfer_fields` (the identity when it is the reference mesh).
 """
 from __future__ import annotations
 
@@ -24,9 +25,10 @@ from typing import Sequence
 
 import numpy as np
 
-from pcmgn_jax.eval.response_surfaces import ParameterBox, PodGP, not_applicable
-from pcmgn_jax.eval.scene_inputs import TrainingScenes, trajectory_labels
-from pcmgn_jax.eval.surrogates import part_names_of, transfer_fields
+from pcmgn_jax.surrogates.correction import rigid_contact
+from pcmgn_jax.surrogates.inputs import TrainingScenes, part_names_of, trajectory_labels
+from pcmgn_jax.surrogates.response_surfaces import ParameterBox, PodGP, not_applicable
+from pcmgn_jax.surrogates.transfer import transfer_fields
 
 POD_ENERGY = 0.9999   # fraction of the centred snapshots' energy (sum of squared singular values) kept
 
@@ -69,6 +71,9 @@ class Rom:
     @property
     def pod_modes(self) -> int:
         return int(self.pod.n_modes)
+
+    def predict(self, designs_m):
+        raise ValueError(f"{self.name}: predicts trajectories (their scene parameters and meshes), not designs")
 
     def _check_frames(self, trajs):
         for label, t in zip(trajectory_labels(trajs), trajs):
@@ -139,6 +144,8 @@ class StackRom:
     def pod_modes(self) -> dict[str, int]:
         return {"/".join(parts[1:]): int(r.pod.n_modes) for parts, r in self.roms.items()}
 
+    predict = Rom.predict
+
     def predict_trajectories(self, trajs: Sequence) -> tuple[list, list]:
         """As :meth:`Rom.predict_trajectories`, each trajectory by the rom of its own layer list."""
         us, vms = [], []
@@ -155,3 +162,34 @@ def fit_rom(train_trajs: Sequence, *, energy: float = POD_ENERGY) -> Rom | Stack
     """A :class:`Rom` over training scenes of one layer list, else a :class:`StackRom`."""
     return Rom(train_trajs, energy=energy) if len({part_names_of(t) for t in train_trajs}) <= 1 \
         else StackRom(train_trajs, energy=energy)
+
+
+class RomContact:
+    """``rom_contact``: the rom's fields with the MGN rollout's hard contact (a rigid ball, the cover glass
+    projected out of it: :func:`correction.rigid_contact`), so a baseline-corrected MGN (``residual_of=rom``)
+    is measured against what the constraint alone gives. ``pod_modes``, ``warnings``, ``fit_seconds``: the rom's."""
+
+    name = "rom_contact"
+
+    def __init__(self, rom: Rom | StackRom):
+        self.rom = rom
+
+    fit_seconds = property(lambda self: self.rom.fit_seconds)
+    warnings = property(lambda self: self.rom.warnings)
+    pod_modes = property(lambda self: self.rom.pod_modes)
+
+    predict = Rom.predict
+
+    def predict_trajectories(self, trajs: Sequence) -> tuple[list, list]:
+        """The rom's fields, the displacement through :func:`correction.rigid_contact` on each query's mesh."""
+        us, vms = self.rom.predict_trajectories(trajs)
+        return [rigid_contact(t, u) for t, u in zip(trajs, us)], vms
+
+
+def fit(kind: str, train_trajs: Sequence, *, energy: float = POD_ENERGY, queries=(), readings=None,
+        part=None) -> Rom | StackRom | RomContact:
+    """``rom`` (:func:`fit_rom`) or ``rom_contact`` (:class:`RomContact` of it) fitted on ``train_trajs``
+    (``queries``, ``readings``, ``part``: every trajectory family takes them; the rom answers any mesh and reading)."""
+    rom = fit_rom(train_trajs, energy=energy)
+    return RomContact(rom) if kind == "rom_contact" else rom
+

@@ -4,14 +4,10 @@
     mean, std = k.predict(xq, return_std=True)         # {quantity: (Q,) or (Q, M)} each, y's units
     m = MOP(x, {"area_mean": y}, names=names)          # best of linear / quadratic / rbf / kriging
     m.report()                                         # the CoP of every candidate and the choice
-    s = ObjectiveSurface("mop", train_trajs)           # the OLED objective readings [MPa] over the scene
-    s.predict_trajectories(test_trajs)                 # {reading: (B,) [MPa]}
-    f = FieldSurface("kriging", train_trajs)           # one shared mesh, like surrogates.FieldRegression:
-    u, vm = f.predict(designs_m)                       # (B, T, N, 2) [m], (B, T, N) [Pa]
 
-Inputs are a trajectory's scene parameters (:mod:`scene_inputs`: ``meta['scene_params']`` of a scene
-family, else the design; what training held fixed is checked there too), scaled to [-1, 1] over the
-training box; a parameter constant over the training samples is left out of the inputs
+The surfaces over trajectories (the ``kriging`` and ``mop`` kinds: the objective readings over the scene
+parameters, the fields over the design) are :mod:`pcmgn_jax.surrogates.surfaces`. Inputs are scaled to
+[-1, 1] over the training box; a parameter constant over the training samples is left out of the inputs
 (:class:`ParameterBox`). Every fit is float64. A query outside the training range of a parameter is
 answered, and recorded: an :class:`ExtrapolationWarning` and a line in the surface's ``warnings`` (a list
 of strings for metrics.json).
@@ -19,7 +15,7 @@ of strings for metrics.json).
 Candidates (each fitted per quantity; a quantity is a scalar (B,) or a whole field (B, M)):
 
 - ``linear``     least squares in the scaled inputs: 1 + D coefficients
-- ``quadratic``  least squares on poly2's features (:func:`surrogates.poly2_features`): (D + 1)(D + 2) / 2
+- ``quadratic``  least squares on poly2's features (:func:`regression.poly2_features`): (D + 1)(D + 2) / 2
 - ``rbf``        ``scipy.interpolate.RBFInterpolator``, thin-plate spline with a linear tail
 - ``kriging``    a Gaussian process (scikit-learn, zero prior mean, kernel :func:`gp_kernel`, seeded
                  restarts); the M outputs of a quantity are centred and share one kernel (:class:`PodGP`)
@@ -38,9 +34,8 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from pcmgn_jax.eval.metrics import OBJECTIVES, oled_objective_of
-from pcmgn_jax.eval.scene_inputs import TrainingScenes, trajectory_labels
-from pcmgn_jax.eval.surrogates import FieldRegression, poly2_features
+from pcmgn_jax.metrics import OBJECTIVES, oled_objective_of
+from pcmgn_jax.surrogates.regression import poly2_features
 
 CANDIDATES = ("linear", "quadratic", "rbf", "kriging")   # simplest first (MOP's tie-break order)
 GP_RESTARTS = 3          # optimiser restarts of the kernel hyperparameters
@@ -328,59 +323,3 @@ def fit_surface(kind: str, x, quantities: Mapping[str, np.ndarray], *, names: Se
     if kind not in SURFACES:
         raise ValueError(f"response surface must be one of {tuple(SURFACES)}, got {kind!r}")
     return SURFACES[kind](x, quantities, names=names)
-
-
-class ObjectiveSurface:
-    """``kind`` 'kriging' or 'mop' of the OLED objective readings [MPa] over the training trajectories'
-    scene parameters (:class:`scene_inputs.TrainingScenes`); ``part``: the OLED part id (default: found by name)."""
-
-    def __init__(self, kind: str, train_trajs: Sequence, *, readings: Sequence[str] = OBJECTIVES,
-                 part: int | None = None):
-        if not train_trajs:
-            raise ValueError(f"{kind}: a response surface needs training trajectories")
-        self.name, self.scenes = kind, TrainingScenes(train_trajs)
-        self.names = self.scenes.names
-        self.model = fit_surface(kind, self.scenes.x, objective_table(train_trajs, readings, part=part),
-                                 names=self.names)
-        self.fit_seconds, self.warnings = self.model.fit_seconds, self.model.warnings
-
-    def predict(self, x, labels=None, **kw):
-        """{reading: (Q,) [MPa]} at scene parameters x (Q, P) [SI] (``names`` order)."""
-        return self.model.predict(x, labels, **kw)
-
-    def predict_trajectories(self, trajs, **kw):
-        """{reading: (B,) [MPa]} at each trajectory's scene parameters (kriging: ``return_std=True`` too)."""
-        return self.model.predict(self.scenes.inputs(trajs, self.model.box.note), trajectory_labels(trajs), **kw)
-
-
-class FieldSurface:
-    """``kind`` 'kriging' or 'mop' of the fields of training trajectories on one shared mesh, per field
-    (u: every frame, node and component; vm: every frame and node) over the design [m], behind
-    FieldRegression's interface: ``predict(designs_m) -> (u (B, T, N, 2) [m], vm (B, T, N) [Pa])``."""
-
-    def __init__(self, kind: str, train_trajs: Sequence):
-        base = FieldRegression("none", train_trajs)     # checks the shared topology
-        self.name, self.shape = kind, base.shape        # (T, N, 2)
-        d = train_trajs[0].meta.get("design")
-        names = train_trajs[0].meta.get("scene", {}).get("design_layers") or \
-            (list(d) if isinstance(d, dict) else [f"design[{i}]" for i in range(base.x.shape[1])])
-        B = len(train_trajs)
-        u = np.stack([np.asarray(t.displacement, np.float64) for t in train_trajs]).reshape(B, -1)
-        vm = np.stack([np.asarray(t.von_mises, np.float64) for t in train_trajs]).reshape(B, -1)
-        self.model = fit_surface(kind, base.x, {"u": u, "vm": vm}, names=names)
-        self.fit_seconds, self.warnings = self.model.fit_seconds, self.model.warnings
-
-    def _shaped(self, got):
-        B = len(got["u"])
-        return got["u"].reshape((B,) + self.shape), got["vm"].reshape((B,) + self.shape[:2])
-
-    def predict(self, designs_m) -> tuple[np.ndarray, np.ndarray]:
-        """Designs (B, D) [m] -> (u (B, T, N, 2) [m], vm (B, T, N) [Pa])."""
-        labels = [f"design {i}" for i in range(len(np.atleast_2d(designs_m)))]
-        return self._shaped(self.model.predict(designs_m, labels))
-
-    def predict_std(self, designs_m) -> tuple[np.ndarray, np.ndarray]:
-        """kriging only: the posterior std of u [m] and vm [Pa] at designs (B, D) [m], shaped as predict's."""
-        if self.name != "kriging":
-            raise ValueError(f"predict_std: {self.name!r} has no posterior std (kriging has)")
-        return self._shaped(self.model.predict(designs_m, return_std=True)[1])

@@ -1,0 +1,113 @@
+"""The predictor kinds: the one list (:data:`KINDS`) and the interface every fitted kind offers (:class:`Surrogate`).
+
+    from pcmgn_jax.surrogates.registry import fit
+    s = fit("rom", train)                      # any kind of KINDS (registry.fit: which family fits it)
+    us, vms = s.predict_trajectories(test)     # fields on each query's own mesh: lists (T, N, 2) [m], (T, N) [Pa]
+    s.fit_seconds, s.warnings
+
+Every list of predictors in the project is a subset of :data:`KINDS` chosen by one of its fields
+(:func:`names`): evaluate's baselines (``baseline``), the explorer's predictors (``explore``), the
+optimiser's surrogates (``optimise``), the active loop's (``active``), the bases a ``residual_of`` run
+can correct (``residual_base``). This module imports nothing of the library (the run config validates
+``residual_of`` against it); the fitting lives in the family modules, bound in :mod:`registry`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, Sequence, runtime_checkable
+
+
+@dataclass(frozen=True)
+class Kind:
+    """One predictor kind: how it is fitted (``family``: a module of this package, :data:`registry.FAMILIES`)
+    and where it is used.
+
+    ``fields``: where it predicts fields: 'any' (each query on its own mesh), 'shared' (one shared mesh
+    of training and queries), '' (no fields: objective readings only). ``objective_surface``: it predicts
+    the objective readings directly (a response surface), not through fields. ``std``: its objective comes
+    with a posterior std. ``rank``: the explorer's preference (lower first: its default predictor and the
+    order of the field figures). ``floor``: a reference floor (zero fields), never a default."""
+
+    name: str
+    label: str                  # what the explorer's page calls it
+    family: str                 # 'mgn' | 'regression' | 'surface' | 'rom' (registry.FAMILIES)
+    fields: str = "any"
+    objective_surface: bool = False
+    std: bool = False
+    baseline: bool = True       # fitted on the training split and scored beside the model by evaluate
+    explore: bool = True        # offered by the explorer
+    curve: bool = False         # drawn beside the MGN in a learning curve (eval/learning_curve.py)
+    optimise: bool = False      # a surrogate of the design optimiser (opt/pipeline.py)
+    active: bool = False        # a surrogate of the active loop (opt/active.py)
+    residual_base: bool = False  # a baseline a residual_of run can learn the correction of
+    rank: int = 99
+    floor: bool = False
+
+
+KINDS: dict[str, Kind] = {k.name: k for k in (
+    Kind("mgn", "MGN (the run's model)", "mgn", baseline=False, optimise=True, active=True, rank=0),
+    Kind("none", "nothing moves", "regression", rank=7, floor=True),
+    Kind("nearest", "nearest training design", "regression", optimise=True, rank=6, curve=True),
+    Kind("poly2", "per-node quadratic", "regression", fields="shared", optimise=True, rank=4),
+    Kind("rbf", "per-node RBF", "regression", fields="shared", optimise=True, rank=5),
+    Kind("kriging", "kriging", "surface", fields="shared", objective_surface=True, std=True, optimise=True,
+         active=True, rank=1, curve=True),
+    Kind("mop", "MOP", "surface", fields="shared", objective_surface=True, optimise=True, rank=2, curve=True),
+    Kind("rom", "POD reduced-order model", "rom", residual_base=True, rank=3, curve=True),
+    # the rom with the MGN rollout's hard contact (surrogates.correction.rigid_contact): what the constraint
+    # alone gives, beside a baseline-corrected MGN (residual_of=rom); scored by evaluate only
+    Kind("rom_contact", "POD reduced-order model + the rollout's contact", "rom", explore=False, rank=8),
+)}
+
+
+def names(**where) -> tuple[str, ...]:
+    """The kinds (in :data:`KINDS` order) whose fields equal ``where``: ``names(baseline=True)``."""
+    for key in where:
+        if key not in Kind.__dataclass_fields__:
+            raise ValueError(f"kinds: no field {key!r} (fields: {list(Kind.__dataclass_fields__)})")
+    return tuple(n for n, k in KINDS.items() if all(getattr(k, f) == v for f, v in where.items()))
+
+
+def by_rank(kinds) -> list[str]:
+    """``kinds`` (names) in the order of preference of their ``rank`` (the explorer's default first)."""
+    return sorted(kinds, key=lambda k: KINDS[k].rank)
+
+
+AUTO = "auto"   # the optimiser's and the active loop's extra choice: MOP's pick by CoP (the loop: with kriging's std)
+
+
+def choices(use: str) -> tuple[str, ...]:
+    """What a user may name for ``use`` ('optimise' | 'active'): its kinds, then :data:`AUTO`."""
+    if use not in ("optimise", "active"):
+        raise ValueError(f"choices: use must be 'optimise' or 'active', got {use!r}")
+    return names(**{use: True}) + (AUTO,)
+
+
+def kind(name: str) -> Kind:
+    """The :class:`Kind` called ``name``; ValueError naming it and the registered kinds otherwise."""
+    if name not in KINDS:
+        raise ValueError(f"no predictor kind {name!r}: the registered kinds are {tuple(KINDS)} "
+                         "(pcmgn_jax/surrogates/kinds.py)")
+    return KINDS[name]
+
+
+@runtime_checkable
+class Surrogate(Protocol):
+    """What a fitted kind offers (a method that does not apply raises ValueError saying why).
+
+    - ``predict_trajectories(trajs)`` -> (u list of (T, N_b, 2) [m], vm list of (T, N_b) [Pa]), each on the
+      query trajectory's own mesh, at its design / scene parameters
+    - ``predict(designs_m)`` -> (u (B, T, N, 2) [m], vm (B, T, N) [Pa]) at designs (B, D) [m] (the
+      thicknesses of the scene's design layers) on the training mesh (or each design's own mesh: mgn)
+    - ``objectives(trajs, return_std=False)`` -> {reading: (B,) [MPa]} (and stds): the OLED objective
+      readings at the trajectories' scenes (response surfaces; field kinds score their fields instead)
+    - ``fit_seconds`` [s], ``warnings`` (queries outside the training box so far, strings for metrics.json)
+    """
+
+    name: str
+    fit_seconds: float
+    warnings: list
+
+    def predict_trajectories(self, trajs: Sequence): ...
+
+    def predict(self, designs_m): ...

@@ -1,0 +1,42 @@
+"""``fit(kind, train, ...)``: every predictor kind of :data:`~pcmgn_jax.surrogates.kinds.KINDS` fitted one way.
+
+    s = fit("kriging", train, readings=("area_mean",), fields=False)   # a Surrogate (kinds.Surrogate)
+    s = fit("mgn", train, workdir="runs/cpu", ref=test[0])             # the run's model
+
+Evaluation (:mod:`pcmgn_jax.eval.baselines`), the optimiser (:mod:`pcmgn_jax.opt.pipeline`), the active loop,
+the residual mode (:mod:`residual`) and the explorer fit their predictors here. A kind's ``family``
+names the module that fits it (:data:`FAMILIES`). Every family fitted on trajectories takes ``queries``
+(the trajectories to be predicted), ``readings`` (the objective readings, default all) and ``part`` (the
+OLED part id, default found by name), and uses them where they matter; other options a family does not
+take are refused (TypeError):
+
+- ``regression`` (none, nearest, poly2, rbf): one shared mesh of training and ``queries``, or ``none`` /
+  ``nearest`` across meshes
+- ``surface`` (kriging, mop): ``fields`` (fit the field surface too; default: on a shared mesh)
+- ``rom`` (rom, rom_contact): ``energy`` (the POD's kept energy fraction)
+- ``mgn``: ``workdir`` (the run), ``ref``, ``which``, ``batch``, ``cfg`` (:func:`mgn.fit`)
+
+To add a predictor: a :class:`~pcmgn_jax.surrogates.kinds.Kind` row in :data:`KINDS` (its name, label, family
+and where it is used) and, for a new family, a module with ``fit(kind, train, **options)`` returning an
+object with the :class:`~pcmgn_jax.surrogates.kinds.Surrogate` methods, named in :data:`FAMILIES`.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+from pcmgn_jax.surrogates import mgn, regression, rom, surfaces
+from pcmgn_jax.surrogates.kinds import KINDS, Kind, Surrogate, kind, names
+
+__all__ = ["FAMILIES", "KINDS", "Kind", "Surrogate", "fit", "kind", "names"]
+
+FAMILIES = {"regression": regression.fit, "surface": surfaces.fit, "rom": rom.fit, "mgn": mgn.fit}
+
+
+def fit(name: str, train: Sequence = (), **options) -> Surrogate:
+    """The kind ``name`` fitted on the training trajectories ``train`` (``options``: the family's, module
+    docstring). ValueError naming ``name`` when it is no registered kind; a kind that does not apply to
+    these trajectories raises ValueError saying why."""
+    family = kind(name).family
+    if family == "mgn":
+        options.setdefault("fit_base", fit)   # a residual_of run's baseline, fitted by this registry
+    return FAMILIES[family](name, train, **options)
