@@ -54,9 +54,9 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
     as JSON."""
     from experiments.calculix_runs import _builtin, _ccx
     from experiments.objective_convergence import mesh_for
+    from pcmgn_jax import metrics
     from pcmgn_jax.data.exporters.calculix import CalculixSettings
     from pcmgn_jax.data.trajectory_io import atomic_write_json
-    from pcmgn_jax.eval import metrics
     from pcmgn_jax.eval.calculix_check import impact_figures, section_weights
     from pcmgn_jax.scene import default_scene
     from pcmgn_jax.sim.mesh import mesh_spec

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from experiments.objective_convergence import mesh_for
-from pcmgn_jax.eval import metrics
+from pcmgn_jax import metrics
 from pcmgn_jax.eval.calculix_check import section_weights
 from pcmgn_jax.scene import default_scene
 from pcmgn_jax.sim.mesh import build_mesh, graded_coords, mesh_spec, refined, roi

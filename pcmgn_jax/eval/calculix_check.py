@@ -86,7 +86,7 @@ def section_weights(points, cells, cell_part, *, part: int, x_end: float) -> np.
     """(N,) nodal weights (summing to 1) of the area mean over the section of ``part`` at 0 <= x <= ``x_end`` [m]
     exactly: a cell that straddles x_end counts with its part at x <= x_end, the bilinear shape functions
     integrated exactly over the clipped rectangle. The objective's ``area_mean``
-    (:func:`pcmgn_jax.eval.metrics.objective_weights`) keeps the cells wholly at x <= 3 mm instead, so its section
+    (:func:`pcmgn_jax.metrics.objective_weights`) keeps the cells wholly at x <= 3 mm instead, so its section
     ends at the mesh's last node under 3 mm, which moves with the grading; with ``x_end`` on a node the two agree.
     Needs the part's cells to be axis-aligned rectangles (the panel's layers) reaching x_end; ValueError otherwise."""
     pts = np.asarray(points, np.float64)
