@@ -271,7 +271,7 @@ def _backend_started() -> bool:
     command line does (pcmgn_jax.cli), does not."""
     if "jax" not in sys.modules:
         return False
-    from jax._src import xla_bridge   # no public form of this question
+    from jax._src import xla_bridge  # no public form of this question
     return xla_bridge.backends_are_initialized()
 
 

@@ -116,8 +116,8 @@ def _mesh_build_s(ref) -> float:
     meta = ref.meta
     if meta.get("source") != "solver" or "solver" not in meta:
         return 0.0
-    from pcmgn_jax.sim.mesh import build_mesh, roi
     from pcmgn_jax.scene import Scene
+    from pcmgn_jax.sim.mesh import build_mesh, roi
     spec = _spec_from_meta(meta)
     scene = Scene.from_dict(meta["scene"])
     t0 = time.perf_counter()
@@ -172,9 +172,9 @@ def transfer(src_points, src_cells, src_cell_part, field, dst_points, dst_node_p
 
 
 def solver_point(preset_name: str, test_trajs, *, label: str | None = None) -> dict:
+    from pcmgn_jax.scene import Scene
     from pcmgn_jax.sim import solver
     from pcmgn_jax.sim.mesh import roi
-    from pcmgn_jax.scene import Scene
 
     spec = solver_spec(preset_name)
     scenes = [Scene.from_dict(t.meta["scene"]) for t in test_trajs]
@@ -305,8 +305,8 @@ def report(points, *, command: str, json_path, md_path, png_path, extra: dict | 
 
 def main(argv=None) -> dict:
     a = cli.parse(SpeedVsErrorArgs, argv, description=__doc__, prog="python -m benchmarks.speed_vs_error")
-    from pcmgn_jax.data.cache import load_split
     from pcmgn_jax.config import TrainConfig
+    from pcmgn_jax.data.cache import load_split
 
     runs = [r for r in a.runs.split(",") if r]
     presets = [p for p in a.solver_presets.split(",") if p]

@@ -64,8 +64,8 @@ def trained_point(workdir: Path, test, *, batch: int, repeats: int, which: str, 
     from benchmarks.speed_vs_error import _mesh_build_s, errors
     from pcmgn_jax import metrics
     from pcmgn_jax.eval.baselines import objective_scores
-    from pcmgn_jax.surrogates.mgn import MGNSurrogate
     from pcmgn_jax.scene import Scene
+    from pcmgn_jax.surrogates.mgn import MGNSurrogate
 
     mgn = MGNSurrogate(workdir, test[0], which=which, batch=batch)
     t0 = time.perf_counter()
@@ -98,9 +98,9 @@ def _design_points_s(test) -> float:
     """Host time [s] per design to place a new design's nodes: the affine design map of the OCA box
     (:class:`pcmgn_jax.sim.design_map.DesignMap`, built once per scene, as the optimiser and the explorer
     use it; rebuilding the whole mesh per design costs ~0.7 s here and is not needed in this box)."""
-    from pcmgn_jax.surrogates.inputs import design_of
     from pcmgn_jax.scene import Scene
     from pcmgn_jax.sim.design_map import DesignMap
+    from pcmgn_jax.surrogates.inputs import design_of
     scene = Scene.from_dict(test[0].meta["scene"])
     dmap = DesignMap.build(scene, test[0].meta["solver"]["preset"])
     designs = np.stack([design_of(t) for t in test])

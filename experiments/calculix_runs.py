@@ -113,7 +113,7 @@ def write_report(out: Path, cases: list[dict], args, command: str) -> list[str]:
                 lines.append(f"| {k} [{unit}] | {c['theory'][k] * s:.2f} | {c['figures']['calculix'][k] * s:.2f} "
                              f"({pct(c['vs_theory']['calculix'][k])}) | {c['figures']['builtin'][k] * s:.2f} "
                              f"({pct(c['vs_theory']['builtin'][k])}) |")
-            lines += [f"", f"Hertz: {c['n_nodes_2d']} nodes, penalty factor {c['penalty_factor']}, frames of "
+            lines += ["", f"Hertz: {c['n_nodes_2d']} nodes, penalty factor {c['penalty_factor']}, frames of "
                       f"{c['output_dt_s'] * 1e6:.3f} µs; ccx {c['ccx_wall_s'] or float('nan'):.0f} s, built-in "
                       f"{c['builtin_wall_s']:.0f} s; goal (CalculiX within 5 % of theory) "
                       f"{'met' if c['goal_met'] else 'missed'}.", ""]
@@ -149,7 +149,7 @@ def write_report(out: Path, cases: list[dict], args, command: str) -> list[str]:
                                                          for k, v in rank.items()),
                   "", "Goals (peak force, contact duration, objective readings within 5 %): " + ", ".join(
                       f"{c['label']} {'met' if c['goal_met'] else 'missed'}" for c in panel),
-                  f"CalculiX wall time per design [s]: " + ", ".join(f"{c['label']} {c['ccx_wall_s'] or float('nan'):.0f}"
+                  "CalculiX wall time per design [s]: " + ", ".join(f"{c['label']} {c['ccx_wall_s'] or float('nan'):.0f}"
                                                                   for c in panel)]
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / "check.json", {"command": command, "args": dict(vars(args)) if hasattr(args, "__dict__")

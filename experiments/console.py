@@ -85,7 +85,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _error(f"cannot import the {PACKAGE} package: install the project (pip install -e .) "
                           "or run `python -m experiments.console` from the repository root")
         return _error(f"pcmgn {name}: experiments/{name}.py is not in this checkout")
-    from pcmgn_jax import cli      # imports jax: only when a command runs, not for --help
+    from pcmgn_jax import cli  # imports jax: only when a command runs, not for --help
     module = importlib.import_module(f"{PACKAGE}.{name}")
     # the entry points read sys.argv[1:] where argv is empty (to record their command): give them their own
     saved, sys.argv = sys.argv, [f"pcmgn {name}", *rest]

@@ -32,8 +32,14 @@ from typing import Annotated, Any, Sequence, TypeVar
 
 import tyro
 
-from pcmgn_jax.config import (FORMULATION_FIELDS, TrainConfig, check_resume, config_diff, resolve_formulation,
-                              scene_feature_names)
+from pcmgn_jax.config import (
+    FORMULATION_FIELDS,
+    TrainConfig,
+    check_resume,
+    config_diff,
+    resolve_formulation,
+    scene_feature_names,
+)
 from pcmgn_jax.presets import PRESETS
 
 __all__ = ["TrainArgs", "check_resume", "config_diff", "given_flags", "normalize_argv", "parse", "parse_config",

@@ -21,7 +21,6 @@ import jax.numpy as jnp
 import numpy as np
 
 
-
 def _check(pred, true, name):
     pred, true = np.asarray(pred, np.float64), np.asarray(true, np.float64)
     if pred.shape != true.shape:

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fixtures.helpers import drop_last_column, make_synthetic_trajectory
 from fixtures.ansys_files import write_cdb, write_results
+from fixtures.helpers import drop_last_column, make_synthetic_trajectory
 from fixtures.synthetic import assert_same
 from pcmgn_jax.data import importers as imp
 from pcmgn_jax.data.exporters import ExportError, export_trajectory

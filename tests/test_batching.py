@@ -5,9 +5,7 @@ import numpy as np
 import pytest
 
 from fixtures.helpers import CompileCounter, drop_last_column, make_synthetic_trajectory
-from pcmgn_jax.mgn import batching
-from pcmgn_jax.mgn import contact as contact_lib
-from pcmgn_jax.mgn import rollout as rl
+from pcmgn_jax.mgn import batching, contact as contact_lib, rollout as rl
 from pcmgn_jax.mgn.formulation import FORMULATIONS
 from pcmgn_jax.mgn.inputs import topology_from_trajectory
 from pcmgn_jax.mgn.model import EncodeProcessDecode

@@ -165,8 +165,8 @@ def test_speed_vs_error_baseline_points_score_like_the_evaluation(tiny_trajs, tm
 def test_speed_vs_error_solver_points():
     """Solver at the reference mesh reproduces it (error ~0); a coarser mesh is interpolated."""
     from benchmarks.speed_vs_error import solver_point
-    from pcmgn_jax.sim import solver
     from pcmgn_jax.scene import default_scene
+    from pcmgn_jax.sim import solver
     scene = dataclasses.replace(default_scene(), n_frames=2)
     trajs = solver.solve_designs(scene, np.array([[80e-6, 120e-6]]), preset="tiny")
     same = solver_point("tiny", trajs)

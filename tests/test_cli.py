@@ -3,8 +3,8 @@ import pytest
 
 from pcmgn_jax import cli
 from pcmgn_jax.config import TrainConfig
-from pcmgn_jax.presets import PRESETS
 from pcmgn_jax.mgn.formulation import FORMULATIONS
+from pcmgn_jax.presets import PRESETS
 
 
 def test_paper_style_flags():

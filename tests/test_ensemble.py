@@ -55,9 +55,9 @@ def test_an_optimum_carries_its_spread(tiny_trajs):
     """The residual-GP spread of a model optimum (a stand-in model off the truth by a known function) and
     the kriging posterior std; every spread is finite and >= 0, and a perfect model has a ~0 residual."""
     from pcmgn_jax.metrics import oled_objective_of
-    from pcmgn_jax.surrogates.surfaces import ObjectiveSurface
-    from pcmgn_jax.surrogates.inputs import design_of
     from pcmgn_jax.opt.spread import optimum_spread
+    from pcmgn_jax.surrogates.inputs import design_of
+    from pcmgn_jax.surrogates.surfaces import ObjectiveSurface
     train = tiny_trajs[:3]
     truth = {float(design_of(t)[0]): float(oled_objective_of(t, part=1)) for t in train}
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from fixtures.synthetic import synthetic_trajectory
-from pcmgn_jax.eval.export import export_comparison
 from pcmgn_jax.data.trajectory_io import write_trajectory
+from pcmgn_jax.eval.export import export_comparison
 
 
 def test_export_fields_and_errors(tmp_path):

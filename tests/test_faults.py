@@ -19,8 +19,7 @@ import pytest
 
 from fixtures.helpers import make_synthetic_trajectory, tiny_config
 from pcmgn_jax import cli, lock
-from pcmgn_jax.data import dataset as ds
-from pcmgn_jax.data import splits
+from pcmgn_jax.data import dataset as ds, splits
 from pcmgn_jax.data.trajectory_io import TrajectoryFileError, trajectory_paths, write_trajectory
 from pcmgn_jax.mgn import checkpoint
 from pcmgn_jax.train import loop as training

@@ -5,6 +5,8 @@ import numpy as np
 import pytest
 
 from pcmgn_jax.sim import fem
+
+
 def distorted_grid(nx=4, ny=3, lx=2e-3, ly=1e-3, x0=0.0, y0=0.0, amp=0.25, seed=0):
     """Structured nx x ny quad grid [m] with interior nodes moved randomly by up to ``amp``
     element sizes (all quads stay convex). Returns points, CCW cells, boundary mask."""

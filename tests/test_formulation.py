@@ -6,8 +6,16 @@ import numpy as np
 import pytest
 
 from fixtures.helpers import DT, make_synthetic_trajectory
-from pcmgn_jax.mgn.formulation import (FORMULATIONS, TARGETS, Formulation, add_noise, integrate, is_ball,
-                                       previous_displacement, training_sample)
+from pcmgn_jax.mgn.formulation import (
+    FORMULATIONS,
+    TARGETS,
+    Formulation,
+    add_noise,
+    integrate,
+    is_ball,
+    previous_displacement,
+    training_sample,
+)
 
 
 def _sample(form, traj, t):

@@ -175,9 +175,9 @@ def test_optimize_objective_compiles_once_over_population_sizes(tiny_run, tiny_t
     new designs compile nothing."""
     from types import SimpleNamespace
 
-    from pcmgn_jax.surrogates.mgn import MGNSurrogate
     from pcmgn_jax.opt.objectives import MGNObjective
     from pcmgn_jax.sim.design_map import DesignMap
+    from pcmgn_jax.surrogates.mgn import MGNSurrogate
     _, workdir, _ = tiny_run
     ref = tiny_trajs[1]
     jac = np.zeros((1,) + ref.points.shape)

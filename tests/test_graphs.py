@@ -104,7 +104,6 @@ def test_mesh_receivers_sorted_alone_and_in_a_union():
     """The model sums mesh messages with indices_are_sorted=True: quad_edges and the padded disjoint
     union (offset designs, padding edges on the padding node) keep the mesh receivers ascending."""
     from fixtures.helpers import drop_last_column, make_synthetic_trajectory
-
     from pcmgn_jax.mgn import batching
     trajs = [make_synthetic_trajectory(0.9), drop_last_column(make_synthetic_trajectory(1.2))]
     trajs = trajs + trajs[::-1]
@@ -143,11 +142,9 @@ def test_graph_inputs_are_what_training_surrogates_and_objectives_build():
     from types import SimpleNamespace
 
     from fixtures.helpers import drop_last_column, make_synthetic_trajectory, tiny_config
-
-    from pcmgn_jax.surrogates.inputs import design_of
-
-    from pcmgn_jax.surrogates.mgn import MGNSurrogate
     from pcmgn_jax.mgn.inputs import graph_inputs, with_scene
+    from pcmgn_jax.surrogates.inputs import design_of
+    from pcmgn_jax.surrogates.mgn import MGNSurrogate
     from pcmgn_jax.train.setup import contact_positions, graph_for, prepare
 
     trajs = [make_synthetic_trajectory(0.9), drop_last_column(make_synthetic_trajectory(1.1)),

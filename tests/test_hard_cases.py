@@ -23,16 +23,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from fixtures.helpers import one_union
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.eval import evaluate as evaluation
 from pcmgn_jax.metrics import penetration_stats
-from pcmgn_jax.mgn import checkpoint
-from pcmgn_jax.mgn import contact as contact_lib
+from pcmgn_jax.mgn import checkpoint, contact as contact_lib
 from pcmgn_jax.mgn.rollout import rollout_checked
 from pcmgn_jax.scene import Scene, default_scene
 from pcmgn_jax.sim.solver import solve_designs
 from pcmgn_jax.train import loop as training
-from fixtures.helpers import one_union
 from pcmgn_jax.train.sampling import pair_table
 from pcmgn_jax.train.setup import prepare
 from pcmgn_jax.train.step import loss_fn

@@ -11,7 +11,6 @@ from collections import deque
 from typing import NamedTuple
 
 import grimp
-import pytest
 
 
 class Cycle(NamedTuple):

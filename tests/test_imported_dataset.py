@@ -16,8 +16,7 @@ import pytest
 
 from fixtures.helpers import drop_last_column, make_synthetic_trajectory
 from pcmgn_jax import cli
-from pcmgn_jax.data import dataset as ds
-from pcmgn_jax.data import splits
+from pcmgn_jax.data import dataset as ds, splits
 from pcmgn_jax.data.trajectory_io import write_trajectory
 
 

@@ -11,8 +11,8 @@ import pytest
 from fixtures.ansys_files import node_numbers, write_cdb, write_results
 from fixtures.synthetic import PART_NAMES, assert_same, synthetic_trajectory
 from pcmgn_jax.data import importers as imp
-from pcmgn_jax.scene import Layer, Scene
 from pcmgn_jax.data.trajectory_io import read_trajectory, write_trajectory
+from pcmgn_jax.scene import Layer, Scene
 
 SCENE = Scene(layers=(Layer("CG", 77e9, 0.21, 0.5e-3, 2500.0), Layer("PLATE", 68.9e9, 0.33, 0.5e-3, 2700.0)),
               design_layers=(), contact_pairs=(("ball", "CG"),))

@@ -7,9 +7,8 @@ import functools
 import numpy as np
 import pytest
 
-from pcmgn_jax.sim import fem
-from pcmgn_jax.sim import mesh as M
 from pcmgn_jax.scene import default_scene
+from pcmgn_jax.sim import fem, mesh as M
 
 PRESETS = ("tiny", "cpu", "paper")
 DESIGNS = [(40e-6, 40e-6), (40e-6, 160e-6), (100e-6, 100e-6), (160e-6, 40e-6), (160e-6, 160e-6)]

@@ -4,11 +4,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pcmgn_jax.mgn import contact
-from pcmgn_jax.mgn import graphs
-from pcmgn_jax.mgn.inputs import topology_from_trajectory
 from pcmgn_jax import cli
 from pcmgn_jax.config import TrainConfig
+from pcmgn_jax.mgn import contact, graphs
+from pcmgn_jax.mgn.inputs import topology_from_trajectory
 from pcmgn_jax.mgn.model import EncodeProcessDecode
 
 

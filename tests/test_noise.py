@@ -66,9 +66,8 @@ def test_rigid_ball_gets_one_shared_draw_and_keys_matter():
 @pytest.mark.slow  # ~15 s: noise is off in the default formulation (the default suite's 10-minute budget)
 def test_training_loss_runs_the_noise(tiny_trajs):
     """The training step's loss changes with the key exactly when noise is configured."""
-    from fixtures.helpers import tiny_config
+    from fixtures.helpers import one_union, tiny_config
     from pcmgn_jax.train.loop import init_params
-    from fixtures.helpers import one_union
     from pcmgn_jax.train.sampling import pair_table
     from pcmgn_jax.train.setup import prepare
     from pcmgn_jax.train.step import loss_fn

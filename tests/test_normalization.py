@@ -68,9 +68,9 @@ def test_a_parts_own_material_is_normalised_across_parts(tiny_trajs, tmp_path):
     """``material`` is one number per part: with ``per_part`` normalisation it still takes the all-node
     statistics (a per-part normaliser would send it to 0 on every training node), so the normalised
     channel tells the parts apart, and a run with the layers known only by it trains to a finite loss."""
-    from pcmgn_jax.mgn.scene_features import material_rows
     from pcmgn_jax.mgn.normalization import normalize_graph
     from pcmgn_jax.mgn.rollout import input_graph
+    from pcmgn_jax.mgn.scene_features import material_rows
     from pcmgn_jax.train import loop as training
 
     cfg = tiny_config(scene_features="material", part_identity="material", noise_std=0.0, num_steps=20,

@@ -250,9 +250,9 @@ def test_ga_resumes_after_a_kill_with_the_same_result(tmp_path):
 def test_mgn_objective_gradient_matches_finite_differences(tiny_run, tiny_trajs):
     """Exact forward-mode gradient of (design -> mesh -> rollout -> objective) on the tiny synthetic run
     (design: the CG thickness; the CG top and the ball move with it) against central differences."""
-    from pcmgn_jax.surrogates.mgn import MGNSurrogate
     from pcmgn_jax.opt.objectives import MGNObjective
     from pcmgn_jax.sim.design_map import DesignMap
+    from pcmgn_jax.surrogates.mgn import MGNSurrogate
     _, workdir, _ = tiny_run
     ref = tiny_trajs[1]
     jac = np.zeros((1,) + ref.points.shape)

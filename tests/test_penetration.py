@@ -4,8 +4,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pcmgn_jax.metrics import penetration_stats, signed_distance_to_polyline
 from pcmgn_jax.geometry import boundary_nodes
+from pcmgn_jax.metrics import penetration_stats, signed_distance_to_polyline
 from pcmgn_jax.train.penetration import penetration_depth, penetration_loss, poly_fit_eval
 
 INTERVAL = (-2e-5, 1.02e-3)  # [m] fixed fit interval around x in [0, 1 mm]

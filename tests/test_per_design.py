@@ -102,9 +102,8 @@ def test_multi_frame_loss_is_the_mean_of_its_frames_losses(tiny_trajs):
     losses (each the per-frame network's loss of that frame: same network, one pass each)."""
     from fixtures.helpers import tiny_config
     from pcmgn_jax.train.loop import init_params
-    from pcmgn_jax.train.setup import prepare
     from pcmgn_jax.train.sampling import sample_frames, union_batch
-    from pcmgn_jax.train.setup import union_sizes
+    from pcmgn_jax.train.setup import prepare, union_sizes
     from pcmgn_jax.train.step import loss_fn
 
     trajs = tiny_trajs[:2]

@@ -8,9 +8,9 @@ matplotlib.use("Agg")  # files only, as the entry points choose
 
 import numpy as np
 import pytest
-from fixtures.helpers import make_synthetic_trajectory
 from matplotlib.colors import LogNorm
 
+from fixtures.helpers import make_synthetic_trajectory
 from pcmgn_jax import metrics
 from pcmgn_jax.eval import plots
 

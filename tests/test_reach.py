@@ -15,13 +15,11 @@ import pytest
 
 from fixtures.helpers import CompileCounter, drop_last_column, make_synthetic_trajectory, tiny_config
 from pcmgn_jax.config import TrainConfig
-from pcmgn_jax.mgn import batching
-from pcmgn_jax.mgn import contact as contact_lib
-from pcmgn_jax.mgn import rollout as rl
+from pcmgn_jax.mgn import batching, contact as contact_lib, rollout as rl
 from pcmgn_jax.mgn.attention import PhysicsAttention
 from pcmgn_jax.mgn.formulation import FORMULATIONS, Formulation
-from pcmgn_jax.mgn.inputs import topology_from_trajectory
 from pcmgn_jax.mgn.hierarchy import adjacency, build_levels
+from pcmgn_jax.mgn.inputs import topology_from_trajectory
 from pcmgn_jax.mgn.model import EncodeProcessDecode, global_block_steps
 from pcmgn_jax.mgn.normalization import normalize_graph
 from pcmgn_jax.mgn.reach import contact_graph, contact_node, hop_distances, processor_reach, reach_report

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from fixtures.helpers import make_synthetic_trajectory, tiny_config
+from pcmgn_jax.mgn.formulation import is_ball
 from pcmgn_jax.surrogates import correction, residual
 from pcmgn_jax.surrogates.rom import Rom
-from pcmgn_jax.mgn.formulation import is_ball
 
 
 @pytest.fixture(scope="module")

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from fixtures.helpers import drop_last_column, make_synthetic_trajectory
-from pcmgn_jax.surrogates import response_surfaces as rs
-from pcmgn_jax.surrogates import surfaces
+from pcmgn_jax.surrogates import response_surfaces as rs, surfaces
 from pcmgn_jax.surrogates.regression import FieldRegression
 from pcmgn_jax.surrogates.rom import POD_ENERGY, Rom
 
@@ -195,6 +194,6 @@ def test_evaluation_baselines_score_every_kind(tiny_trajs, family):
     assert "shared topology" in b["poly2"]["not_applicable"]
     assert "not_applicable" in b["kriging"]   # no OLED for the objective, no shared mesh for the fields
     assert np.isfinite(b["rom"]["position_mae_um"])
-    assert any("fast" in w for w in b["rom"]["warnings"]) 
+    assert any("fast" in w for w in b["rom"]["warnings"])
     with pytest.raises(ValueError, match="baseline must be one of"):
         baseline_metrics(train, far, lambda u, v: {}, kinds=("krigging",))

@@ -7,6 +7,8 @@ import pytest
 
 from fixtures.helpers import CompileCounter, drop_last_column
 from pcmgn_jax.mgn import rollout as rl
+
+
 def _args(t):
     return t.points, t.displacement[0], t.velocity[0], t.von_mises[0]
 
@@ -58,8 +60,8 @@ def test_evaluate_scores_model_and_baselines(tiny_run, tiny_trajs):
     values are checked by hand (nothing moves = mean |u_true|; nearest design = that trajectory's fields)."""
     import json
 
-    from pcmgn_jax.eval import evaluate as evaluation
     from pcmgn_jax import metrics
+    from pcmgn_jax.eval import evaluate as evaluation
     from pcmgn_jax.surrogates.mgn import MGNSurrogate
     _, workdir, _ = tiny_run
     train, test = tiny_trajs[:2], tiny_trajs[2:]

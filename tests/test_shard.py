@@ -14,8 +14,7 @@ import numpy as np
 import pytest
 from test_dataset import FakeSolver
 
-from pcmgn_jax.data import dataset as ds
-from pcmgn_jax.data import shards
+from pcmgn_jax.data import dataset as ds, shards
 from pcmgn_jax.data.trajectory_io import read_sidecar, read_trajectory
 from pcmgn_jax.scene import default_scene
 

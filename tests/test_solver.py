@@ -10,9 +10,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from pcmgn_jax.sim import fem
-from pcmgn_jax.sim import solver
 from pcmgn_jax.scene import default_scene
+from pcmgn_jax.sim import fem, solver
 from pcmgn_jax.sim.solver import SolverError, SolverSettings, simulate
 
 VECTORISED = SolverSettings(designs_per_call=2)  # both designs in one compiled call

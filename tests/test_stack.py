@@ -11,8 +11,14 @@ import numpy as np
 import pytest
 
 from pcmgn_jax.config import TrainConfig
-from pcmgn_jax.data.stack import (BALL_RANGES, E3_RADIUS, STACK_FAMILIES, range_warnings, stack_layer_count,
-                                  stack_warnings)
+from pcmgn_jax.data.stack import (
+    BALL_RANGES,
+    E3_RADIUS,
+    STACK_FAMILIES,
+    range_warnings,
+    stack_layer_count,
+    stack_warnings,
+)
 from pcmgn_jax.presets import STACK_FEATURES
 from pcmgn_jax.scene import default_scene
 

@@ -11,8 +11,7 @@ import pytest
 
 from experiments import study
 from pcmgn_jax import cli
-from pcmgn_jax.studies import ablation, cells
-from pcmgn_jax.studies import paper as studies
+from pcmgn_jax.studies import ablation, cells, paper as studies
 
 
 @pytest.fixture(autouse=True)

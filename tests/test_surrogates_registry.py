@@ -5,8 +5,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fixtures.helpers import drop_last_column, make_synthetic_trajectory
 
+from fixtures.helpers import drop_last_column, make_synthetic_trajectory
 from pcmgn_jax.surrogates.kinds import KINDS, Surrogate, choices, kind, names
 from pcmgn_jax.surrogates.registry import FAMILIES, fit
 

@@ -50,7 +50,7 @@ def test_summary_names_the_best_baseline_and_the_ratio():
     text = summary_table(rows)
     best_pos = min(v["position_mae_um"] for n, v in rows["a"].items() if n != "MGN" and "position_mae_um" in v)
     name = next(n for n, v in rows["a"].items() if n != "MGN" and v.get("position_mae_um") == best_pos)
-    assert f"| a | " in text and f"0.3 / {best_pos:.3g} ({name}): {0.3 / best_pos:.2g}×" in text
+    assert "| a | " in text and f"0.3 / {best_pos:.3g} ({name}): {0.3 / best_pos:.2g}×" in text
 
 
 def test_a_corrected_mgn_is_named_and_not_mixed_with_a_plain_one():

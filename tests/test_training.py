@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 
 from fixtures.helpers import CompileCounter, tiny_config
-from pcmgn_jax.mgn import checkpoint
-from pcmgn_jax.mgn import rollout as rl
+from pcmgn_jax.mgn import checkpoint, rollout as rl
 from pcmgn_jax.train import loop as training
 from pcmgn_jax.train.sampling import gather_unions, pair_table, sample_ids
 from pcmgn_jax.train.step import train_chunk
+
+
 def test_loss_halves(tiny_run):
     _, workdir, _ = tiny_run
     recs = [json.loads(line) for line in (workdir / "metrics.jsonl").read_text().splitlines()]
@@ -156,6 +157,7 @@ def test_objective_term_is_the_squared_section_mean_error(tiny_trajs):
     the section costs c^2; scatter that averages to zero over the section costs nothing (the node MSE
     charges both alike). The weights are the evaluation's own objective weights on the OLED."""
     import dataclasses
+
     from fixtures.helpers import one_union, tiny_config
     from pcmgn_jax.mgn.normalization import normalize_target
     from pcmgn_jax.scene import default_scene

@@ -11,6 +11,8 @@ import pytest
 
 from fixtures.synthetic import assert_same, synthetic_trajectory
 from pcmgn_jax.data import trajectory_io as tio
+
+
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_round_trip_exact(tmp_path, dtype):
     traj = synthetic_trajectory(dtype=dtype, meta={"energy": {"max_rel_drift": 1e-3}})

@@ -37,7 +37,9 @@ from pcmgn_jax.data.exporters.calculix import (
     calculix_mesh,
     write_inp,
 )
-from pcmgn_jax.data.importers.d3plot import von_mises_from_tensor   # (s_rr, s_zz, s_tt, s_rz, s_rt, s_tz): normals, then shears
+from pcmgn_jax.data.importers.d3plot import (
+    von_mises_from_tensor,  # (s_rr, s_zz, s_tt, s_rz, s_rt, s_tz): normals, then shears
+)
 from pcmgn_jax.data.importers.errors import InputFileError
 from pcmgn_jax.data.importers.frd import FrdResult, read_frd
 from pcmgn_jax.data.trajectory_io import SI_UNITS

@@ -39,9 +39,15 @@ from typing import Any
 import numpy as np
 
 from pcmgn_jax.data import shards
-from pcmgn_jax.data.designs import (DESIGN_HIGH, DESIGN_LOW, FAMILIES, SceneFamily, lhs_designs,
-                                    parse_designs, parse_scene_params)
-from pcmgn_jax.data.stack import StackFamily
+from pcmgn_jax.data.designs import (
+    DESIGN_HIGH,
+    DESIGN_LOW,
+    FAMILIES,
+    SceneFamily,
+    lhs_designs,
+    parse_designs,
+    parse_scene_params,
+)
 from pcmgn_jax.data.layout import (
     DATASET_FORMAT,
     GENERATE,
@@ -56,6 +62,7 @@ from pcmgn_jax.data.layout import (
     load_manifest,
     split_stems,
 )
+from pcmgn_jax.data.stack import StackFamily
 from pcmgn_jax.data.trajectory_io import (
     TrajectoryFileError,
     atomic_write_json,

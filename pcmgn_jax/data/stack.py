@@ -33,7 +33,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from pcmgn_jax.presets import PRESETS
-from pcmgn_jax.scene import Ball, Layer, Scene
+from pcmgn_jax.scene import Layer, Scene
 
 # slot: (name, material class, nominal thickness [m], nominal E [Pa], nu, density [kg/m^3], kind)
 # kind: 'fixed' (every stack), 'pol' (absent in a stack without polarizer), 'extra' (at most one per stack)

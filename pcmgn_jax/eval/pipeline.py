@@ -32,7 +32,7 @@ def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str =
     run's rollout contact projection ("" = the run's); ``residual_ball``: a residual run's ball override ("" =
     the run's); ``split``: ``val`` scores the run's validation trajectories instead (RUN/eval/val unless
     ``name``), where a rollout setting is chosen without looking at the test split."""
-    from pcmgn_jax.config import TrainConfig   # here, not at the top: `import pcmgn_jax.eval` stays light
+    from pcmgn_jax.config import TrainConfig  # here, not at the top: `import pcmgn_jax.eval` stays light
     from pcmgn_jax.data.splits import load_directory, load_splits
     from pcmgn_jax.eval import evaluate as evaluation
     from pcmgn_jax.mgn.checkpoint import require_run

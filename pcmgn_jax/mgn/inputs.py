@@ -28,15 +28,15 @@ from typing import NamedTuple
 import numpy as np
 
 from pcmgn_jax.mgn import contact as contact_lib
-from pcmgn_jax.mgn.hierarchy import build_levels
 from pcmgn_jax.mgn.graphs import (
     ROLES,
     Topology,
     make_topology,
-    role_types,
     n_parts_of,
+    role_types,
     with_scene_features,
 )
+from pcmgn_jax.mgn.hierarchy import build_levels
 from pcmgn_jax.mgn.scene_features import scene_feature_rows
 from pcmgn_jax.scene import Scene
 

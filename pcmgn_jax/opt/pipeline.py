@@ -42,7 +42,7 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", **kw) -> dict:
     preset; :class:`pcmgn_jax.mgn.checkpoint.MissingRun` (one line, nothing written) when ``workdir`` is no run
     folder, holds no config.json or (``mgn``) no checkpoint. RUN/optimize is locked while it runs
     (:func:`pcmgn_jax.lock.hold`: one optimisation writes there at a time)."""
-    from pcmgn_jax.mgn.checkpoint import require_run   # here, not at the top: `import pcmgn_jax.opt` stays light
+    from pcmgn_jax.mgn.checkpoint import require_run  # here, not at the top: `import pcmgn_jax.opt` stays light
     if surrogate not in SURROGATES:
         raise ValueError(f"surrogate must be one of {SURROGATES}, got {surrogate!r}")
     require_run(workdir, checkpoint=surrogate == "mgn")

@@ -11,9 +11,9 @@ from typing import Any
 
 import numpy as np
 
+from pcmgn_jax.scene import Ball, Layer, Scene
 from pcmgn_jax.sim import solver
 from pcmgn_jax.sim.mesh import MeshSpec
-from pcmgn_jax.scene import Ball, Layer, Scene
 
 TARGETS = {
     # name: (E [Pa], nu, density [kg/m^3])

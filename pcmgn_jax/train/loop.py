@@ -36,8 +36,7 @@ import numpy as np
 from pcmgn_jax import compile_notes
 from pcmgn_jax.config import TrainConfig, check_resume
 from pcmgn_jax.metrics import position_mae_um
-from pcmgn_jax.mgn import checkpoint
-from pcmgn_jax.mgn import contact as contact_lib
+from pcmgn_jax.mgn import checkpoint, contact as contact_lib
 from pcmgn_jax.mgn.normalization import normalize_graph
 from pcmgn_jax.mgn.rollout import input_graph, rollout_designs
 from pcmgn_jax.train.resume import resume_point

@@ -20,11 +20,9 @@ the ball sits above the panel. All public inputs and outputs are SI metres excep
 """
 from __future__ import annotations
 
-
 import jax
 import jax.numpy as jnp
 from jax.scipy.linalg import solve_triangular
-
 
 __all__ = [
     "legendre_basis",

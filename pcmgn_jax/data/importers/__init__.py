@@ -81,20 +81,45 @@ frame discovery, node matching), ``series`` (meshio time series), ``d3plot`` (LS
 """
 from __future__ import annotations
 
-from pcmgn_jax.data.importers.ansys_text import (FRAME_KEYS, RESULT_KINDS, AnsysTable, import_ansys_text,
-                                                 read_ansys_table)
+from pcmgn_jax.data.importers.ansys_text import (
+                                                 FRAME_KEYS,
+                                                 RESULT_KINDS,
+                                                 AnsysTable,
+                                                 import_ansys_text,
+                                                 read_ansys_table,
+)
 from pcmgn_jax.data.importers.build import build_trajectory, fixed_mask, node_part
 from pcmgn_jax.data.importers.cdb import fortran_layout, read_cdb
-from pcmgn_jax.data.importers.d3plot import (D3plotPart, d3plot_parts, decode_title, import_d3plot,
-                                             read_d3plot_mesh, von_mises_from_tensor)
+from pcmgn_jax.data.importers.d3plot import (
+                                                 D3plotPart,
+                                                 d3plot_parts,
+                                                 decode_title,
+                                                 import_d3plot,
+                                                 read_d3plot_mesh,
+                                                 von_mises_from_tensor,
+)
 from pcmgn_jax.data.importers.errors import InputFileError
 from pcmgn_jax.data.importers.meshes import is_mapdl_file, read_mesh, read_meshio_mesh
 from pcmgn_jax.data.importers.parts import ImportedMesh, Mesh, parse_parts
-from pcmgn_jax.data.importers.runs import (ImportReport, apply_roi, find_runs, import_ansys_dataset,
-                                           import_ansys_run, run_settings)
+from pcmgn_jax.data.importers.runs import (
+                                                 ImportReport,
+                                                 apply_roi,
+                                                 find_runs,
+                                                 import_ansys_dataset,
+                                                 import_ansys_run,
+                                                 run_settings,
+)
 from pcmgn_jax.data.importers.series import import_meshio_series
-from pcmgn_jax.data.importers.units import (ANSYS_UNIT_SYSTEMS, LENGTH_UNITS, STRESS_UNITS, TIME_UNITS,
-                                            length_factor, stress_factor, time_factor, velocity_factor)
+from pcmgn_jax.data.importers.units import (
+                                                 ANSYS_UNIT_SYSTEMS,
+                                                 LENGTH_UNITS,
+                                                 STRESS_UNITS,
+                                                 TIME_UNITS,
+                                                 length_factor,
+                                                 stress_factor,
+                                                 time_factor,
+                                                 velocity_factor,
+)
 
 __all__ = ["ANSYS_UNIT_SYSTEMS", "AnsysTable", "D3plotPart", "FRAME_KEYS", "ImportReport", "ImportedMesh",
            "InputFileError", "apply_roi", "find_runs", "import_ansys_dataset", "import_ansys_run", "run_settings",

@@ -14,8 +14,7 @@ import numpy as np
 
 from pcmgn_jax.data.importers.build import build_trajectory
 from pcmgn_jax.data.importers.errors import InputFileError
-from pcmgn_jax.data.importers.parts import (ImportedMesh, assign_parts, finish_mesh, part_specs,
-                                            resolve_part_names)
+from pcmgn_jax.data.importers.parts import ImportedMesh, assign_parts, finish_mesh, part_specs, resolve_part_names
 from pcmgn_jax.data.importers.units import length_factor, stress_factor, time_factor
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.trajectory import Trajectory

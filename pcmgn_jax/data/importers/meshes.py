@@ -10,8 +10,7 @@ import numpy as np
 
 from pcmgn_jax.data.importers.cdb import has_nblock, read_cdb
 from pcmgn_jax.data.importers.errors import InputFileError
-from pcmgn_jax.data.importers.parts import (ImportedMesh, assign_parts, finish_mesh, part_specs,
-                                            resolve_part_names)
+from pcmgn_jax.data.importers.parts import ImportedMesh, assign_parts, finish_mesh, part_specs, resolve_part_names
 from pcmgn_jax.data.importers.units import length_factor
 from pcmgn_jax.scene import Scene
 

@@ -39,8 +39,13 @@ from pcmgn_jax.data.importers.ansys_text import import_ansys_text
 from pcmgn_jax.data.importers.errors import InputFileError
 from pcmgn_jax.data.importers.meshes import read_mesh
 from pcmgn_jax.data.importers.parts import parse_parts
-from pcmgn_jax.data.trajectory_io import (TrajectoryFileError, read_sidecar, read_trajectory, to_jsonable,
-                                          write_trajectory)
+from pcmgn_jax.data.trajectory_io import (
+    TrajectoryFileError,
+    read_sidecar,
+    read_trajectory,
+    to_jsonable,
+    write_trajectory,
+)
 from pcmgn_jax.geometry import RoiCropError
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.trajectory import Trajectory, crop_trajectory

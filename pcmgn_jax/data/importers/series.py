@@ -15,6 +15,7 @@ from pcmgn_jax.data.importers.units import length_factor, stress_factor, velocit
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.trajectory import Trajectory
 
+
 def import_meshio_series(files: str | os.PathLike | Sequence[str | os.PathLike], *,
                          scene: Scene | Mapping | None = None, part_names: Sequence[str] | None = None,
                          parts: Mapping[str, Any] | None = None, part_field: str | None = None,
