@@ -207,7 +207,8 @@ def test_zero_shot_scenes_change_the_models_inputs_where_it_can_see_them():
 
     def inputs(names=("layer_thickness",), **change):
         base = default_scene()
-        layers = tuple(dataclasses.replace(l, **change[l.name]) if l.name in change else l for l in base.layers)
+        layers = tuple(dataclasses.replace(lay, **change[lay.name]) if lay.name in change else lay
+                       for lay in base.layers)
         scene = dataclasses.replace(base, layers=layers)
         g = graph_inputs(build_mesh(scene, "tiny"), scene.to_dict(), scene_features=names)
         return g.points, np.asarray(g.topology.scene_features), np.asarray(g.topology.node_type)
@@ -281,7 +282,8 @@ def test_contact_top_origin_measures_height_from_the_contact_layer_per_graph():
 
     def design(plate):
         base = default_scene()
-        layers = tuple(dataclasses.replace(l, thickness=plate) if l.name == "PLATE" else l for l in base.layers)
+        layers = tuple(dataclasses.replace(lay, thickness=plate) if lay.name == "PLATE" else lay
+                       for lay in base.layers)
         scene = dataclasses.replace(base, layers=layers)
         return graph_inputs(build_mesh(scene, "tiny"), scene.to_dict())
 

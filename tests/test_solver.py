@@ -76,7 +76,9 @@ def _run_bar(analysis, constrained, speed, n_long=400, n_wide=2, h=10e-6, r0=0.0
         # no contact: one slave over a two-node master segment with zero stiffness
         slaves=np.array([idx[-1, 0]]), masters=idx[0, :2], k_slave=np.zeros((1, 1)),
         shared_rows=np.ones(n, bool), dtype=jnp.float32)
-    node_major = lambda x: jnp.asarray(x.T[:, None, :], jnp.float32)  # (N,2) -> (2,1,N)
+
+    def node_major(x):  # (N,2) -> (2,1,N)
+        return jnp.asarray(x.T[:, None, :], jnp.float32)
     us, _, _, es, _ = solver._run(arrays, node_major(u0), node_major(v0), jnp.full((1,), dt, jnp.float32),
                                   layout=layout, n_frames=frames, n_sub=n_sub,
                                   rigid_x=analysis == "plane_strain")

@@ -177,7 +177,7 @@ def test_objective_term_is_the_squared_section_mean_error(tiny_trajs):
     trajs = tiny_trajs[:2]
     setup = prepare(tiny_config(), trajs)
     batch = one_union(setup, trajs, [(0, 3), (1, 4)])
-    topo, (node_graph, n_graph) = batch.graph.topology, batch.graph.layout.segments
+    topo, (_, n_graph) = batch.graph.topology, batch.graph.layout.segments
     # stand-in section weights: the first 6 nodes of each graph, 1/6 each
     first = np.zeros(batch.u.shape[0], np.float32)
     for g, start in enumerate(np.concatenate([[0], np.cumsum(batch.graph.layout.n_node)[:-1]])[:2]):

@@ -129,7 +129,8 @@ def _table(head: Sequence[str], rows: Sequence[Sequence[str]], *, cls: str = "")
     """An HTML table; ``head`` is plain text (escaped here), ``rows`` cells are HTML already (a cell
     ``(html, n)`` spans n columns)."""
     th = "".join(f"<th>{e(h)}</th>" for h in head)
-    td = lambda c: f'<td colspan={c[1]} class=span>{c[0]}</td>' if isinstance(c, tuple) else f"<td>{c}</td>"
+    def td(c):
+        return f'<td colspan={c[1]} class=span>{c[0]}</td>' if isinstance(c, tuple) else f"<td>{c}</td>"
     body = "".join("<tr>" + "".join(map(td, r)) + "</tr>" for r in rows)
     return f'<table class="{cls}"><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>'
 

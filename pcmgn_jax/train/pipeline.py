@@ -125,8 +125,9 @@ def write_data_record(workdir, root, source: str, train, val) -> None:
     from pcmgn_jax.data.trajectory_io import atomic_write_json
     if jax.process_index() != 0:
         return
-    item = lambda t: {"name": t.meta.get("name"), "sha256": t.meta.get("source_sha256"),
-                      "source": t.meta.get("source"), "n_nodes": int(t.n_nodes)}
+    def item(t):
+        return {"name": t.meta.get("name"), "sha256": t.meta.get("source_sha256"),
+                "source": t.meta.get("source"), "n_nodes": int(t.n_nodes)}
     Path(workdir).mkdir(parents=True, exist_ok=True)
     atomic_write_json(Path(workdir) / "data.json", {
         "format": "pcmgn_jax.run_data", "format_version": 1, "dataset_dir": str(Path(root).resolve()),

@@ -199,7 +199,8 @@ def compute_stats(spec: Spec, trajs, topology, index, sigma, *, max_frames: int 
     acc = {"node": TypedAccumulator(T, n_node), "mesh": TypedAccumulator(T, 6), "contact": Accumulator(3),
            "motion": TypedAccumulator(T, 2), "stress": TypedAccumulator(T, 1), "ball": Accumulator(2)}
     key = jax.random.PRNGKey(seed)
-    f32 = lambda d: {k: np.asarray(v, np.float32) for k, v in d.items()}
+    def f32(d):
+        return {k: np.asarray(v, np.float32) for k, v in d.items()}
     for n, (i, t) in enumerate(pairs):
         topo = topos[i]
         node_type = np.asarray(topo.node_type)
@@ -318,7 +319,8 @@ def union_sizes(graphs: Sequence[GraphParts], *, per_union: int, capacity: int) 
     """The one static size of a training union of ``per_union`` graphs: room for ``per_union`` copies of
     the dataset's largest graph (a step may draw it that often), bucketed
     (:func:`pcmgn_jax.mgn.batching.bucket_size`)."""
-    top = lambda vals: per_union * max(vals)
+    def top(vals):
+        return per_union * max(vals)
     return UnionSizes(nodes=bucket_size(top([g.topology.n_node for g in graphs]) + 1, 64),
                       edges=bucket_size(top([len(g.topology.mesh_senders) for g in graphs]), 256),
                       slots=per_union,

@@ -116,7 +116,6 @@ def loss_fn(params, spec: TrainSpec, stats: Stats, batch, key, step=None):
     if spec.sim.formulation.processor == "per_design":
         return _loss_per_design(params, spec, stats, batch, key, step)
     sim = spec.sim
-    form = sim.formulation
     g = batch.graph
     topology, layout, index, points = g.topology, g.layout, g.index, g.points
     node_graph, n_graph = layout.segments
