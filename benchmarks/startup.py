@@ -16,11 +16,11 @@ time at which the first call of each compiled computation returned):
 
 Three conditions (``--conditions``), in this order, each a new process, command by command (training first,
 then the solver; each command with a cache folder of its own): ``off`` (``PCMGN_JAX_CACHE=0``), ``cold`` (an
-empty cache folder) and ``warm`` (the same folder, filled by the cold run). Before the first, one untimed training process (cache off; ``--no_prime``: none) builds the dataset's
-read cache and warms the OS file cache. The XLA compile seconds of each first call
-are reported beside (``xla_s``; ~0 when the program came from the cache). ``--data``: a dataset folder of the
-preset (made with the solver when missing; default a temporary folder). The JSON is rewritten after every
-measurement; ``--budget_s`` skips what is not started in time, saying so.
+empty cache folder) and ``warm`` (the same folder, filled by the cold run). Before the first, one untimed training
+process (cache off; ``--no_prime``: none) builds the dataset's read cache and warms the OS file cache. The XLA compile
+seconds of each first call are reported beside (``xla_s``; ~0 when the program came from the cache). ``--data``: a
+dataset folder of the preset (made with the solver when missing; default a temporary folder). The JSON is rewritten
+after every measurement; ``--budget_s`` skips what is not started in time, saying so.
 """
 from __future__ import annotations
 

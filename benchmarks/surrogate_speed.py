@@ -13,10 +13,11 @@ area mean) relative error [%] (:func:`pcmgn_jax.eval.baselines.objective_scores`
 
 Timings are warm: every path runs once untimed (compilation; its time is reported apart), then the
 median of ``--repeats`` runs. Per design, MGN = rollout wall time / designs + placing the design's nodes
-(host: the OCA box's affine design map, as the optimiser does; a family scene builds its ROI mesh); solver = the batched ``solver.simulate`` of the same designs (host prepare + scan) / designs.
-``ratio`` = solver / MGN. The same network with the ball state as a node input (processor every frame,
-the formulation before ``processor='per_design'``) is timed beside it when the run is per-design:
-``mgn_per_frame_s_per_design`` (same sizes; timing only, its outputs are not the trained model's).
+(host: the OCA box's affine design map, as the optimiser does; a family scene builds its ROI mesh); solver = the batched
+``solver.simulate`` of the same designs (host prepare + scan) / designs. ``ratio`` = solver / MGN. The same network with
+the ball state as a node input (processor every frame, the formulation before ``processor='per_design'``) is timed
+beside it when the run is per-design: ``mgn_per_frame_s_per_design`` (same sizes; timing only, its outputs are not the
+trained model's).
 """
 from __future__ import annotations
 

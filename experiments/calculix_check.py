@@ -8,9 +8,9 @@ For each design (default: the paper's two optima, physics-constrained (145.207, 
 built-in solver with the same contact penalty, on the same mesh; pcmgn_jax/eval/calculix_check.py reads both
 the same way: contact force per 4 µs interval, contact duration, peak cover-glass von Mises, the OLED
 objective's readings, and the fields at three frames. --hertz adds the Hertz case (sim/hertz.py's scene and
-mesh) against theory (expensive in ccx; not part of the default run). The built-in solver also runs at its production penalty (factor 1) to show how much the
-penalty moves each figure. Writes OUT/check.json and OUT/check.md. Heavy: run it under
-``flock /tmp/heavy.lock nice -n 5``.
+mesh) against theory (expensive in ccx; not part of the default run). The built-in solver also runs at its production
+penalty (factor 1) to show how much the penalty moves each figure. Writes OUT/check.json and OUT/check.md. Heavy: run it
+under ``flock /tmp/heavy.lock nice -n 5``.
 """
 from __future__ import annotations
 

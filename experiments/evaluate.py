@@ -6,11 +6,11 @@
 
 Rolls the model out from frame 0 of each trajectory and scores it beside the baselines fitted on the
 run's training split (nothing moves, nearest training design, per-node quadratic and RBF regression over
-the design, kriging and MOP response surfaces, a POD reduced-order model: pcmgn_jax.eval.baselines). A baseline that needs the training mesh says so (``not_applicable``) when the data's mesh
-differs. Writes RUN/eval[/NAME]/metrics.json (same keys either way) and PNG plots.
-The run's splits come from its config's dataset directory by pcmgn_jax.data.splits.load_splits, for a
-generated or an imported (manifest-less) dataset alike: test = the first n_test of DIR/test.
-The pipeline is pcmgn_jax.eval.run (pcmgn_jax/eval/pipeline.py); this module parses flags and prints.
+the design, kriging and MOP response surfaces, a POD reduced-order model: pcmgn_jax.eval.baselines). A baseline that
+needs the training mesh says so (``not_applicable``) when the data's mesh differs. Writes RUN/eval[/NAME]/metrics.json
+(same keys either way) and PNG plots. The run's splits come from its config's dataset directory by
+pcmgn_jax.data.splits.load_splits, for a generated or an imported (manifest-less) dataset alike: test = the first n_test
+of DIR/test. The pipeline is pcmgn_jax.eval.run (pcmgn_jax/eval/pipeline.py); this module parses flags and prints.
 """
 import sys
 from dataclasses import dataclass

@@ -16,8 +16,8 @@ With ``--lambda_pen`` > 0 the best checkpoint is chosen among validations after 
 (``--lambda_start``); if there were none, the final state is kept and the run says so.
 
 ``--dataset_dir DIR`` (pcmgn_jax.data.layout.dataset_source, pcmgn_jax.data.splits.prepare_dataset): a directory
-that does not exist or holds a generator manifest gets the preset's designs from the solver (resumable); with a manifest,
-the sizes it records are used unless --n_train / --n_val / --n_test say otherwise
+that does not exist or holds a generator manifest gets the preset's designs from the solver (resumable); with a
+manifest, the sizes it records are used unless --n_train / --n_val / --n_test say otherwise
 (pcmgn_jax.train.pipeline.fit_to_dataset); a directory of
 trajectory files without a manifest (``DIR/train/*.json|.h5|.xdmf``, ``DIR/test/...``, e.g. from
 ``python -m experiments.import_ansys --exports EXPORTS --out DIR``) is trained on as it is: ``--n_train``

@@ -11,8 +11,8 @@ before any JAX computation) sets
 - ``jax_compilation_cache_dir`` to ``$PCMGN_JAX_CACHE_DIR``, else ``$XDG_CACHE_HOME/pcmgn_jax/jax``,
   else ``~/.cache/pcmgn_jax/jax``;
 - ``jax_persistent_cache_min_compile_time_secs`` to :data:`MIN_COMPILE_S` = 0 (JAX's default, 1 s, would
-  skip the many sub-second compiles of a start-up, which add up to seconds) and ``jax_persistent_cache_min_entry_size_bytes``
-  to 0 (no size floor);
+  skip the many sub-second compiles of a start-up, which add up to seconds) and
+  ``jax_persistent_cache_min_entry_size_bytes`` to 0 (no size floor);
 - ``jax_persistent_cache_enable_xla_caches`` to ``xla_gpu_per_fusion_autotune_cache_dir``: on a GPU,
   XLA's per-fusion autotuning results go to a folder inside the cache (JAX creates it; other backends
   have no such cache and ignore it).

@@ -180,7 +180,8 @@ class TrainConfig:
         """The formulation a rollout's ``lax.scan`` runs (:func:`pcmgn_jax.mgn.checkpoint.make_spec`): the
         run's, except that with ``residual_of`` the contact projection leaves the scan (the network's panel
         output is then a residual, not a position); it acts on the corrected field once the baseline is
-        added (:meth:`pcmgn_jax.surrogates.mgn.MGNSurrogate.rollout_trajectories`, :func:`pcmgn_jax.surrogates.correction.rigid_contact`)."""
+        added (:meth:`pcmgn_jax.surrogates.mgn.MGNSurrogate.rollout_trajectories`,
+        :func:`pcmgn_jax.surrogates.correction.rigid_contact`)."""
         if self.residual_of:
             return self.formulation.replace(contact_projection=False)
         return self.formulation

@@ -19,8 +19,8 @@ steps pays it once per K steps).
 
 The freed scratch buffer is then reused by the next call with its pages already mapped: no faults.
 Cost: the process keeps its peak heap (RSS does not shrink after a large call). It must run before
-XLA's threads first allocate, i.e. before the first JAX computation; the entry points call it (``experiments/__init__.py``,
-``benchmarks/__init__.py``, ``tests/conftest.py``); importing the library does not.
+XLA's threads first allocate, i.e. before the first JAX computation; the entry points call it
+(``experiments/__init__.py``, ``benchmarks/__init__.py``, ``tests/conftest.py``); importing the library does not.
 Opt out with the environment variable ``PCMGN_KEEP_HEAP=0``. No-op off glibc.
 """
 from __future__ import annotations

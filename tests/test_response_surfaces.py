@@ -169,8 +169,8 @@ def test_zero_shot_scene_is_named(family):
 def test_evaluation_baselines_score_every_kind(tiny_trajs, family):
     """baseline_metrics: every kind answers (numbers) or says why not, scored by the caller's own function;
     kriging/mop score the objective directly (the synthetic objective is linear in the design: MOP exact)
- and their field surfaces on a shared mesh (the synthetic panel has no OLED: fields only); across meshes only rom gives fields, and a zero-shot or
-    out-of-box query is listed under ``warnings``."""
+    and their field surfaces on a shared mesh (the synthetic panel has no OLED: fields only); across meshes only rom
+    gives fields, and a zero-shot or out-of-box query is listed under ``warnings``."""
     from pcmgn_jax import metrics
     from pcmgn_jax.eval.baselines import BASELINES, baseline_metrics
 

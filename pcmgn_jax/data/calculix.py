@@ -170,8 +170,8 @@ def frd_trajectory(frd: str | os.PathLike, scene: Scene, preset: str | MeshSpec,
                    crop: bool = True, meta: dict[str, Any] | None = None) -> tuple[Trajectory, dict[str, Any]]:
     """The .frd of ``scene`` at ``preset`` -> (trajectory [SI], extra) where extra holds the full-mesh
     ``force_N`` (T-1,) per frame interval (:func:`ball_force`) and both stress readings' full-mesh von Mises
-    ``von_mises_full`` {reading: (T, N)}, the full ``mesh`` and the crop's ``node_map``. The frames must be the scene's (0, output_dt, ... n_frames x
-    output_dt); InputFileError otherwise."""
+    ``von_mises_full`` {reading: (T, N)}, the full ``mesh`` and the crop's ``node_map``. The frames must be the scene's
+    (0, output_dt, ... n_frames x output_dt); InputFileError otherwise."""
     if stress not in STRESS_READINGS:
         raise ValueError(f"calculix: stress must be one of {STRESS_READINGS}, got {stress!r}")
     where = str(frd)

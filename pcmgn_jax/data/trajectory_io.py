@@ -22,8 +22,8 @@ Atomicity (:func:`pcmgn_jax.atomic.atomic_dir`): every file is first written int
 directory next to the target (``.NAME.tmp-XXXX/``, under its final name, because the XDMF refers to
 its HDF5 file by base name), fsynced, then moved in with ``os.replace``: first an old sidecar is
 removed, then the HDF5 and XDMF are replaced, then the sidecar. A run killed at any point leaves
-either no sidecar or a sidecar whose hash does not match, and :func:`read_trajectory` refuses both. The XDMF refers to the HDF5 file by a
-relative name, so a folder of trajectories can be moved or copied freely.
+either no sidecar or a sidecar whose hash does not match, and :func:`read_trajectory` refuses both. The XDMF refers to
+the HDF5 file by a relative name, so a folder of trajectories can be moved or copied freely.
 
 Note on meshio: ``meshio.xdmf.TimeSeriesWriter`` opens its HDF5 file as ``Path(filename).stem + ".h5"``
 relative to the *current working directory*, not next to the XDMF file; :class:`_XdmfWriter` fixes

@@ -13,8 +13,8 @@ MGN), so every predictor is measured by one definition (:mod:`pcmgn_jax.metrics`
 - ``poly2``, ``rbf``: per-node regressions of the fields over the design (one shared mesh only)
 - ``kriging``, ``mop``: response surfaces of the OLED objective readings over the scene parameters
   (:class:`~pcmgn_jax.surrogates.surfaces.ObjectiveSurface`; any meshes), scored directly on the objective; on
-  one shared mesh also of the fields (:class:`~pcmgn_jax.surrogates.surfaces.FieldSurface`), whose objective is kept under
-  ``fields_oled_objective*``; ``mop`` adds ``mop`` (the chosen candidate and every candidate's CoP per reading)
+  one shared mesh also of the fields (:class:`~pcmgn_jax.surrogates.surfaces.FieldSurface`), whose objective is kept
+  under ``fields_oled_objective*``; ``mop`` adds ``mop`` (the chosen candidate and every candidate's CoP per reading)
 - ``rom``: POD of the fields on a reference mesh + a GP on the coefficients (:mod:`pcmgn_jax.surrogates.rom`;
   any meshes of one layer list; training stacks of several: one rom per layer list, refusing a query whose
   layer list no training scene has)

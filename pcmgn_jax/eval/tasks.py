@@ -8,7 +8,8 @@ Tasks (:data:`TASKS`): (a) the paper's box (``cpu`` test split), (b) the scene f
 training held fixed); ``T.VARIANT`` keys (``d.cg_thin``) give a task one table per variant. A task
 with no metrics is listed as not measured. Per predictor and metric: the
 mean over the given seeds' files (the baselines are deterministic, so their seeds agree), with the
-MGN's range over the seeds in brackets, and the worst design's error where metrics.json has it (``*_max``). Lower is better for every metric.
+MGN's range over the seeds in brackets, and the worst design's error where metrics.json has it (``*_max``). Lower is
+better for every metric.
 """
 from __future__ import annotations
 

@@ -35,10 +35,10 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
   carries the rigid ball's vertical displacement and velocity as 2 extra channels, and the layers predict their
   total displacement from the reference and their stress *at the input's time* as a function of the
   ball's state and the geometry (a rollout moves the ball on, then evaluates the panel at the ball's
-  new state, :func:`pcmgn_jax.mgn.rollout.step`): the panel's fields are a map of the ball's motion, not a second dynamical system, so they
-  cannot drift). The map is well posed where the panel's lowest eigenperiod is far below the contact
-  time (docs/design.md §5.1; the measurement: docs/results/surrogate.md). The ball stays the one dynamical state (its
-  acceleration is integrated). Needs ``rigid_ball`` and ``panel_target='total_displacement'``.
+  new state, :func:`pcmgn_jax.mgn.rollout.step`): the panel's fields are a map of the ball's motion, not a second
+  dynamical system, so they cannot drift). The map is well posed where the panel's lowest eigenperiod is far below the
+  contact time (docs/design.md §5.1; the measurement: docs/results/surrogate.md). The ball stays the one dynamical state
+  (its acceleration is integrated). Needs ``rigid_ball`` and ``panel_target='total_displacement'``.
 - ``contact_projection``: after every rollout step, the contact layer's top-surface nodes that the
   network put inside the rigid ball are moved down onto the ball's lower surface (the polyline of its
   downward-facing surface nodes, interpolated at each node's x; :func:`pcmgn_jax.mgn.rollout.project_contact`).
@@ -57,18 +57,18 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
   the processor is the branch, the ball state the trunk input). :mod:`pcmgn_jax.mgn.rollout` runs the
   processor once before the scan; the training loss sees the same network (processor + decoder) per
   sample, so training costs what it did.
-- ``scene_features``: scene parameters given to every node as extra input channels (after the velocity),
-  normalised like the other node channels (per node type with ``per_part``): ``ball_radius`` [m] sets the
-  rigid ball's mass (∝ R³) and curvature, which the region-of-interest graph (the ball's lowest 0.5 mm)
-  cannot show; ``ball_velocity`` [m/s] (the impact speed) is available but redundant: the speed is
-  already the ball's velocity state; ``layer_thickness`` [m] (one channel per layer; the default
-  formulation's) states the design outright: the mesh shows each layer's thickness only as the
-  reference positions of its nodes, and the OLED's stress depends on the OCA thicknesses several layers
-  and message-passing hops away (docs/results/surrogate.md). Constant channels (a layer that no design changes) normalise
-  to 0. Layer-only features are 0 on the contact pair's nodes (ball and cover glass, :func:`pcmgn_jax.mgn.scene_features.scene_feature_rows`).
-  ``material`` (3 channels, :func:`~pcmgn_jax.mgn.scene_features.material_rows`) is each node's own part's [log10 E, nu, log10 rho],
-  normalised over all nodes (:func:`~pcmgn_jax.mgn.scene_features.across_part_channels`); with ``part_identity='material'`` the layers'
-  one-hot columns stay unset, so a layer is known by its material and geometry (docs/design.md §5).
+- ``scene_features``: scene parameters given to every node as extra input channels (after the velocity), normalised like
+  the other node channels (per node type with ``per_part``): ``ball_radius`` [m] sets the rigid ball's mass (∝ R³) and
+  curvature, which the region-of-interest graph (the ball's lowest 0.5 mm) cannot show; ``ball_velocity`` [m/s] (the
+  impact speed) is available but redundant: the speed is already the ball's velocity state; ``layer_thickness`` [m] (one
+  channel per layer; the default formulation's) states the design outright: the mesh shows each layer's thickness only
+  as the reference positions of its nodes, and the OLED's stress depends on the OCA thicknesses several layers and
+  message-passing hops away (docs/results/surrogate.md). Constant channels (a layer that no design changes) normalise to
+  0. Layer-only features are 0 on the contact pair's nodes (ball and cover glass,
+  :func:`pcmgn_jax.mgn.scene_features.scene_feature_rows`). ``material`` (3 channels,
+  :func:`~pcmgn_jax.mgn.scene_features.material_rows`) is each node's own part's [log10 E, nu, log10 rho], normalised
+  over all nodes (:func:`~pcmgn_jax.mgn.scene_features.across_part_channels`); with ``part_identity='material'`` the
+  layers' one-hot columns stay unset, so a layer is known by its material and geometry (docs/design.md §5).
 - ``origin``: where the node features' positions are measured from: ``mesh`` (the mesh's coordinates, y
   from the plate's bottom), ``contact_top`` (y from the contact layer's top surface), so a layer below the
   contact that changes thickness does not move the contact zone to heights training never saw, or
@@ -76,9 +76,9 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
   a plate every training scene shares, the same features as ``mesh`` up to a constant, which the
   per-part normaliser removes (:func:`pcmgn_jax.mgn.graphs.origin_height`, docs/design.md §5).
   ``stack_thickness`` is ``layer_thickness`` on every node, the contact pair's included: with
-  ``contact_top`` the ball's height no longer tells it how thick the stack below is, so it is told. Node channels, not a graph-level global, because the local processor has
-  no global block and every node of a scene carries the same value (a broadcast global); empty (the
-  default) for single-scene datasets, where the channel would be constant.
+  ``contact_top`` the ball's height no longer tells it how thick the stack below is, so it is told. Node channels, not a
+  graph-level global, because the local processor has no global block and every node of a scene carries the same value
+  (a broadcast global); empty (the default) for single-scene datasets, where the channel would be constant.
 - ``reach``: how far a node sees within one processor pass (docs/design.md §5.3): ``local`` (the
   paper: ``message_passing_steps`` mesh hops), ``multiscale`` (a bi-stride V-cycle over ``reach_levels``
   coarse levels after every 4th local step and the last, :mod:`pcmgn_jax.mgn.multiscale`) or ``attention``

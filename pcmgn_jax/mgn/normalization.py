@@ -3,8 +3,8 @@
 Statistics are per channel *and per node type* (rows: node types, the last one the fixed nodes), so a
 formulation can normalise each part on its own scale (``per_part``) or all parts on one scale
 (``global``, the paper: every row then holds the same all-node statistics). Node channels that are
-one number per part (a part's own material) use the all-node statistics in every row either way. Mesh-edge statistics are
-indexed by the edge's receiver type; contact edges have one row (they join two parts). A multi-scale
+one number per part (a part's own material) use the all-node statistics in every row either way. Mesh-edge statistics
+are indexed by the edge's receiver type; contact edges have one row (they join two parts). A multi-scale
 graph's coarse-level edges (:func:`pcmgn_jax.mgn.graphs.level_edges`) are normalised with the mesh-edge
 statistics of their receiver's mesh node (a coarse edge spans ~2^l mesh edges: its length channel reads
 O(2^l), which its level's own encoder takes in).

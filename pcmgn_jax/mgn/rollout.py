@@ -363,9 +363,9 @@ def rollout_designs(spec: Spec, n_steps: int, params, stats, designs, *, batch_s
 
     designs: sequence of dicts with ``topology``, ``index`` (its ContactIndex), ``points`` (N_g, 2) [m],
     ``u0``, ``v0`` (N_g, 2), ``vm0`` (N_g,), and optionally (every design or none) ``ball_u``, ``ball_v``
-    (n_steps, N_g, 2): a given ball path (:func:`rollout_union`'s ``ball_path``). A grown contact buffer is kept for the following batches.
-    ``compiled``: size buckets (:meth:`GraphBatch.bucket`) already compiled; a batch of a new bucket runs
-    once untimed first (compilation, buffer sizing) and its bucket is added. ``seconds`` times the
+    (n_steps, N_g, 2): a given ball path (:func:`rollout_union`'s ``ball_path``). A grown contact buffer is kept for the
+    following batches. ``compiled``: size buckets (:meth:`GraphBatch.bucket`) already compiled; a batch of a new bucket
+    runs once untimed first (compilation, buffer sizing) and its bucket is added. ``seconds`` times the
     rollouts only (host-side batching and splitting excluded). ``note``: the name in the console line
     printed while a new size bucket compiles (:mod:`pcmgn_jax.compile_notes`).
     """

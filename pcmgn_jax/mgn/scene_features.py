@@ -103,8 +103,8 @@ def scene_feature_values(scene: dict, names, design=None):
 def scene_feature_rows(scene: dict, names, node_type, design=None):
     """(N, k) float32 per-node scene features [SI], in ``names`` order: every node carries its scene's
     :func:`scene_feature_values`, except that the layer-only features (:data:`LAYER_ONLY_FEATURES`) are 0
-    on the nodes of the contact pair (the ball and the layer it touches, :func:`pcmgn_jax.mgn.contact.contact_parts`): the
-    bodies that touch learn the contact from the contact and their local geometry, and the design is
+    on the nodes of the contact pair (the ball and the layer it touches, :func:`pcmgn_jax.mgn.contact.contact_parts`):
+    the bodies that touch learn the contact from the contact and their local geometry, and the design is
     stated where the response is read out far from it (the OLED); with them on the ball too, its
     rollout drifts (docs/results/surrogate.md). ``material``: each node's own part's
     (:func:`material_rows`), on every node.

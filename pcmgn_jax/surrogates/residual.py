@@ -23,8 +23,9 @@ and rolls out, the part of the fields the baseline gets wrong:
 - **rollout**: the network's panel output plus the baseline's fields at the same frame (the baseline
   fitted on the whole training split). The rigid ball follows the baseline's ball trajectory
   (:func:`ball_path`; ``residual_ball='baseline'``, the default) and the network's panel map is read along
-  it, or moves by the network's own acceleration (``residual_ball='network'``). The contact projection, when the formulation has it, acts on that
-  sum, not inside the scan (:attr:`TrainConfig.scan_formulation <pcmgn_jax.config.TrainConfig>`).
+  it, or moves by the network's own acceleration (``residual_ball='network'``). The contact projection, when the
+  formulation has it, acts on that sum, not inside the scan
+  (:attr:`TrainConfig.scan_formulation <pcmgn_jax.config.TrainConfig>`).
 
 The network sees what it always sees (geometry, scene features, the ball's state), not the baseline's
 field: it learns the baseline's error as a function of the scene. Where the correction has nothing to

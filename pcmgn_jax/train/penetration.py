@@ -2,8 +2,8 @@
 
 Paper section 2.3 (docs/design.md §6), made numerically safe:
 
-1. (in :mod:`pcmgn_jax.geometry`) ``boundary_nodes`` (host, NumPy, once per reference mesh): ball bottom nodes and cover-glass (CG) top
-   nodes, sorted by reference x, plus a fixed fit interval ``[x_lo, x_hi]``.
+1. (in :mod:`pcmgn_jax.geometry`) ``boundary_nodes`` (host, NumPy, once per reference mesh): ball bottom nodes and
+   cover-glass (CG) top nodes, sorted by reference x, plus a fixed fit interval ``[x_lo, x_hi]``.
 2. :func:`poly_fit_eval` (jittable, differentiable): least-squares polynomial of a static degree. x is mapped
    to t in [-1, 1] on the fixed interval, the basis is Legendre (orthogonal on [-1, 1]), y is centred and
    scaled, and the problem is solved by a Householder QR of the (ridge-augmented) design matrix. The
@@ -11,8 +11,8 @@ Paper section 2.3 (docs/design.md §6), made numerically safe:
    x^6 of a millimetre is 1e-18 and cond(V^T V) = cond(V)^2.
 3. :func:`penetration_depth`, :func:`penetration_loss`: d = y_CG(x) - y_ball(x) at the ball boundary nodes
    inside the overlap of both x ranges; L_pen = mean of (d / length_scale)^2 over nodes with d > 0.
-4. (in :mod:`pcmgn_jax.metrics`) ``signed_distance_to_polyline``, ``penetration_stats``: fit-free evaluation metric (true
-   Euclidean distance of ball boundary nodes to the CG top polyline, negative = penetration).
+4. (in :mod:`pcmgn_jax.metrics`) ``signed_distance_to_polyline``, ``penetration_stats``: fit-free evaluation metric
+   (true Euclidean distance of ball boundary nodes to the CG top polyline, negative = penetration).
 
 Coordinates: x = radius >= 0 (axisymmetric half model, axis at x = 0) or width, y = height, both [m];
 the ball sits above the panel. All public inputs and outputs are SI metres except where a name says

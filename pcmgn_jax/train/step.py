@@ -17,8 +17,8 @@ means in the paper). L_obj,g (``lambda_obj`` > 0) is the squared error of the OL
 mean von Mises of this frame, in the OLED's normalised units (one std per node type: the weighted mean of
 the normalised errors is the section mean's error over that std): the node-wise MSE weighs a coherent
 bias over the section no more than scatter, and the objective is exactly such a mean
-(:func:`pcmgn_jax.train.setup.objective_loss_weights`). The step's loss is the mean of loss_g over the real graphs of the batch: padding
-changes neither the loss nor its gradient, and a graph's loss does not depend on the other graphs.
+(:func:`pcmgn_jax.train.setup.objective_loss_weights`). The step's loss is the mean of loss_g over the real graphs of
+the batch: padding changes neither the loss nor its gradient, and a graph's loss does not depend on the other graphs.
 Noise is drawn per node from the graph's id (:func:`pcmgn_jax.train.noise.sample_noise`), so it does
 not depend on the union either.
 """

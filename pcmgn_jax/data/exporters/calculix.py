@@ -229,7 +229,8 @@ def inp_text(scene: Scene, mesh: Mesh, settings: CalculixSettings = CalculixSett
 def write_inp(path: str | os.PathLike, scene: Scene, preset: str | MeshSpec,
               settings: CalculixSettings = CalculixSettings()) -> dict[str, Any]:
     """Write ``scene`` on the preset's mesh as ``path`` (.inp, atomically); return a summary: node counts (the
-    2D mesh's and the wedge's), the element count, part names, the penalty [Pa/m], the increment [s] and the frame count."""
+    2D mesh's and the wedge's), the element count, part names, the penalty [Pa/m], the increment [s] and the frame
+    count."""
     mesh = calculix_mesh(scene, preset)
     text = inp_text(scene, mesh, settings, title=f"pcmgn_jax scene, design {scene.design}")
     write_text_atomic(path, text)

@@ -77,7 +77,8 @@ metres); the rule is ``pcmgn_jax.geometry.roi_crop``, shared with the generator'
 Modules: ``units`` (unit factors), ``parts`` (ImportedMesh, part mapping), ``cdb`` (MAPDL archives and
 input files), ``meshes`` (meshio meshes, ``read_mesh`` dispatch), ``ansys_text`` (Mechanical text tables,
 frame discovery, node matching), ``series`` (meshio time series), ``d3plot`` (LS-DYNA), ``build``
-(node parts / types, Trajectory assembly), ``errors`` (InputFileError, text reading), ``runs`` (folders of runs -> a dataset folder).
+(node parts / types, Trajectory assembly), ``errors`` (InputFileError, text reading), ``runs`` (folders of runs -> a
+dataset folder).
 """
 from __future__ import annotations
 

@@ -29,8 +29,8 @@ class ImportedMesh:
     external element numbers; node_sets: name -> external node numbers (components / node sets);
     part_names: names indexed by part id; source: the file; dropped_node_ids: external numbers of
     nodes dropped on purpose (midside nodes of 8-node quads, nodes only of skipped or unmapped
-    elements): result tables may list them and they are ignored there; analysis: 'axisymmetric' | 'plane_strain' | None as declared by the file
-    (MAPDL KEYOPT(3)); notes: what was skipped or assumed, one line each.
+    elements): result tables may list them and they are ignored there; analysis: 'axisymmetric' | 'plane_strain' | None
+    as declared by the file (MAPDL KEYOPT(3)); notes: what was skipped or assumed, one line each.
     """
 
     node_ids: np.ndarray
