@@ -43,11 +43,13 @@ class MgnVsTorchArgs(common.Outputs):
     repeats: int = 15                 # timed calls of each (median)
     warmup: int = 3                   # untimed calls first
     scan: int = 10                    # train steps per dispatch of the lax.scan variant
-    threads: int = 0                  # torch threads (0 = all usable cores, which is what XLA's CPU client uses; to limit both, run under taskset)
+    # torch threads (0 = all usable cores, which is what XLA's CPU client uses; to limit both, run under taskset)
+    threads: int = 0
     compile: Literal["on", "off"] = "on"   # also time torch.compile
     torch: bool = True                # the PyTorch side (--no_torch: JAX only)
     torch_1thread: bool = True        # the extra single-thread PyTorch variants (--no_torch_1thread: skip them)
-    profile: bool = False             # op-kind breakdown of the JAX forward and train step (jax.profiler trace; benchmarks.common.profile_ops)
+    # op-kind breakdown of the JAX forward and train step (jax.profiler trace; benchmarks.common.profile_ops)
+    profile: bool = False
 
 
 def prepare_jax(g: dict, a) -> tuple[dict, dict]:

@@ -45,7 +45,9 @@ class SpeedVsErrorArgs(common.Outputs):
     dataset: str = ""            # dataset dir (default: the first run's)
     n_test: int = 0              # held-out designs (0 = the run config's n_test)
     which: Literal["best", "periodic"] = "best"   # checkpoint
-    baselines: str = ""          # comma-separated design-space baselines fitted on the training split (none, nearest, poly2, rbf: pcmgn_jax.surrogates), timed like the surrogates
+    # comma-separated design-space baselines fitted on the training split (none, nearest, poly2, rbf:
+    # pcmgn_jax.surrogates), timed like the surrogates
+    baselines: str = ""
     n_train: int = 0             # training designs the baselines fit (0 = the run config's n_train)
     png: str | None = None       # the plot (default: the JSON's path with .png)
 

@@ -46,7 +46,8 @@ class StartupArgs(common.Outputs):
     preset: PresetName = "cpu"            # training preset (its data preset is generated if missing)
     data: str = ""                        # the preset's dataset folder (default: a temporary one)
     conditions: str = ",".join(CONDITIONS)  # comma list of off, cold, warm (in this order; warm needs cold before it)
-    prime: bool = True                    # one untimed training process first (the dataset's read cache; --no_prime when a run has trained on --data already)
+    # one untimed training process first (the dataset's read cache; --no_prime when a run has trained on --data already)
+    prime: bool = True
     budget_s: float = 900.0               # seconds for the whole benchmark
 
 

@@ -31,8 +31,10 @@ from pcmgn_jax.surrogates.kinds import choices
 
 @dataclass(frozen=True)
 class ActiveArgs:
-    workdir: str                                                # training run (its data, mesh preset, test split; mgn: its model)
-    task: Literal["box", "robust"] = "box"                      # box: the paper's two OCAs; robust: OCA1, OCA2, POL over drop cases
+    # training run (its data, mesh preset, test split; mgn: its model)
+    workdir: str
+    # box: the paper's two OCAs; robust: OCA1, OCA2, POL over drop cases
+    task: Literal["box", "robust"] = "box"
     surrogate: Literal[choices("active")] = "kriging"           # what predicts the objective and its spread
     acquisition: Literal["ei", "lcb", "mean"] = "ei"            # how the next design is picked
     budget: int = 16                                            # solver runs in the loop (designs x drop cases)
@@ -44,7 +46,8 @@ class ActiveArgs:
     compare: bool = False                                       # run the strategy comparison of the box task
     budgets: str = "8,12,16,24"                                 # --compare: budgets
     seeds: str = "0,1"                                          # --compare: seeds
-    strategies: str = "lhs+mop,gp-ei,auto-ei,mgn-ei"            # --compare: strategies (pcmgn_jax.opt.active_tasks.STRATEGIES)
+    # --compare: strategies (pcmgn_jax.opt.active_tasks.STRATEGIES)
+    strategies: str = "lhs+mop,gp-ei,auto-ei,mgn-ei"
     progress: bool = True                                       # progress bars (--no_progress: off)
 
 

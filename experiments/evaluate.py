@@ -26,10 +26,14 @@ class EvaluateArgs:
     which: Literal["best", "periodic"] = "best"  # checkpoint: best validation or latest periodic
     data: str = ""                             # directory of trajectory files ("" = the run's test split)
     name: str = ""                             # output RUN/eval/NAME ("" = the --data folder's name)
-    split: Literal["test", "val"] = "test"     # val: score the run's validation trajectories (RUN/eval/val): choose rollout settings there, not on test
+    # val: score the run's validation trajectories (RUN/eval/val): choose rollout settings there, not on test
+    split: Literal["test", "val"] = "test"
     contact_projection: Literal["", "on", "off"] = ""  # override the run's rollout contact projection ("" = the run's)
-    residual_ball: Literal["", "baseline", "network"] = ""  # a residual_of run: who moves the rigid ball in the rollouts ("" = the run's residual_ball)
-    mgn_spread: bool = False                   # also roll out the training split: a GP of the MGN's objective residuals gives each prediction a ± (metrics.json mgn_spread)
+    # a residual_of run: who moves the rigid ball in the rollouts ("" = the run's residual_ball)
+    residual_ball: Literal["", "baseline", "network"] = ""
+    # also roll out the training split: a GP of the MGN's objective residuals gives each prediction a ± (metrics.json
+    # mgn_spread)
+    mgn_spread: bool = False
 
 
 def main(argv=None) -> int:

@@ -27,7 +27,8 @@ class ExploreArgs:
     port: int = 8050                               # port of the page
     which: Literal["best", "periodic"] = "best"    # MGN checkpoint
     mgn: bool = True                               # load the run's MGN (--no_mgn: baselines only)
-    mgn_spread: bool = False                       # the MGN's ± (a GP of its residuals on the training scenes; one rollout per training scene at load)
+    # the MGN's ± (a GP of its residuals on the training scenes; one rollout per training scene at load)
+    mgn_spread: bool = False
     objective: Literal["area_mean", "node_mean", "disc_mean", "peak"] = "area_mean"  # reading (docs/design.md §8)
 
 

@@ -41,23 +41,34 @@ from pcmgn_jax.scene import Scene, default_scene
 @dataclass(frozen=True)
 class GenerateArgs:
     out: str                                   # dataset directory
-    preset: PresetName = "cpu"                 # mesh resolution / frame count / scene family (pcmgn_jax.presets.PRESETS)
-    n_train: int | None = None                 # training trajectories, validation excluded (as in experiments.train); None: the preset's (tiny 3, cpu 12, paper 100)
-    n_val: int | None = None                   # validation trajectories, written to the train split after the n_train; None: the preset's (tiny 1, cpu 2, paper 5)
+    # mesh resolution / frame count / scene family (pcmgn_jax.presets.PRESETS)
+    preset: PresetName = "cpu"
+    # training trajectories, validation excluded (as in experiments.train); None: the preset's (tiny 3, cpu 12,
+    # paper 100)
+    n_train: int | None = None
+    # validation trajectories, written to the train split after the n_train; None: the preset's (tiny 1, cpu 2, paper 5)
+    n_val: int | None = None
     n_test: int | None = None                  # LHS test designs; None: the preset's (tiny 2, cpu 6, paper 50)
     seed: int = 0                              # LHS seed
     low_um: float = DESIGN_LOW * 1e6           # LHS lower bound [µm]
     high_um: float = DESIGN_HIGH * 1e6         # LHS upper bound [µm]
     designs: str | None = None                 # explicit designs in µm, e.g. "40,40;40,160" (instead of LHS)
-    scene_params: str | None = None            # a scene family's explicit scenes, SI: "ball.radius=3.5e-3,ball.velocity=0.8,OCA1=40e-6,OCA2=160e-6,POL=25e-6;..." (may leave its box)
+    # a scene family's explicit scenes,
+    # SI: "ball.radius=3.5e-3,ball.velocity=0.8,OCA1=40e-6,OCA2=160e-6,POL=25e-6;..." (may leave its box)
+    scene_params: str | None = None
     split: str | None = None                   # split name for --designs (None: extrap)
     scene: str | None = None                   # scene file (.toml/.json); default: the paper's scene
     batch: int = 0                             # designs per solver batch (0: 8 on CPU, 64 on an accelerator)
     progress: bool = True                      # progress bar (--no_progress: off)
-    shard: str | None = None                   # K/N: only shard K (0-based, 0..N-1) of N; writes a manifest part, not the manifest
-    merge: bool = False                        # solve nothing: verify every trajectory of the shards, write the manifest
-    pool: str | None = None                    # A,B,...: solve nothing; pool A's and B's train splits and A's test split into OUT
-    stack_split: Literal["e1", "e2", "e3"] | None = None  # stack presets: e1 train/test alike, e2 train 5 & 7 layers / test 6, e3 test balls of radius 6.5-7.5 mm (pcmgn_jax.data.stack.PLANS); None: OUT's manifest's plan, else e1
+    # K/N: only shard K (0-based, 0..N-1) of N; writes a manifest part, not the manifest
+    shard: str | None = None
+    # solve nothing: verify every trajectory of the shards, write the manifest
+    merge: bool = False
+    # A,B,...: solve nothing; pool A's and B's train splits and A's test split into OUT
+    pool: str | None = None
+    # stack presets: e1 train/test alike, e2 train 5 & 7 layers / test 6, e3 test balls of radius 6.5-7.5
+    # mm (pcmgn_jax.data.stack.PLANS); None: OUT's manifest's plan, else e1
+    stack_split: Literal["e1", "e2", "e3"] | None = None
 
 
 def preset_sizes(preset: str) -> tuple[int, int, int]:

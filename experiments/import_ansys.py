@@ -42,21 +42,29 @@ class Args:
     """Import ANSYS Mechanical text exports and a mesh into one trajectory file (OUT.xdmf/.h5/.json), or a
     folder of such runs (--exports) into a dataset folder."""
 
-    mesh: Optional[str] = None  # one run: .cdb archive, Workbench input file (.dat with an NBLOCK) or meshio-readable mesh with part groups
+    # one run: .cdb archive, Workbench input file (.dat with an NBLOCK) or meshio-readable mesh with part groups
+    mesh: Optional[str] = None
     results: Optional[str] = None  # one run: folder of exported tables (deformation_x_000.txt, ...)
     out: str = ""  # one run: output path stem (writes OUT.xdmf, OUT.h5, OUT.json); with --exports: the dataset folder
-    exports: Optional[str] = None  # a dataset: folder EXPORTS/<split>/<run>/ of run folders (model.cdb + results/ [+ scene.json, run.json])
+    # a dataset: folder EXPORTS/<split>/<run>/ of run folders (model.cdb + results/ [+ scene.json, run.json])
+    exports: Optional[str] = None
     scene: Optional[str] = None  # scene file (.toml/.json): part names, materials, analysis, design
     part_names: Optional[str] = None  # comma list of part names by id if no --scene
-    parts: Optional[str] = None  # part map "ball=1,CG=2+8,OCA1=OCA_1" (int: material number, str: component / cell set); default: by name
+    # part map "ball=1,CG=2+8,OCA1=OCA_1" (int: material number, str: component / cell set); default: by name
+    parts: Optional[str] = None
     output_dt: Optional[float] = None  # frame interval [s] if no times.txt
-    length_unit: Optional[str] = None  # mesh length unit (m, mm, um, ...); required for archives without /UNITS; meshio meshes: default m
+    # mesh length unit (m, mm, um, ...); required for archives without /UNITS; meshio meshes: default m
+    length_unit: Optional[str] = None
     fixed: Optional[str] = None  # fixed nodes: bottom | none | node component name (default bottom)
     location_tol: Optional[float] = None  # max |location - mesh| [m]
     ignore_unmapped: bool = False  # drop cells that belong to no part
-    roi_radius: Optional[float] = None  # ROI: keep cells within this radius [m] of the contact (axisymmetric x <= r; plane strain |x - x_c| <= r, x_c = the ball's lowest node); unset: no limit
-    roi_depth: Optional[float] = None  # ROI: keep panel cells within this depth [m] below the panel top; unset: full thickness
-    roi_ball_height: Optional[float] = None  # ROI: keep ball cells within this height [m] above the ball's lowest point; unset: whole ball
+    # ROI: keep cells within this radius [m] of the contact (axisymmetric x <= r; plane strain |x - x_c| <= r, x_c = the
+    # ball's lowest node); unset: no limit
+    roi_radius: Optional[float] = None
+    # ROI: keep panel cells within this depth [m] below the panel top; unset: full thickness
+    roi_depth: Optional[float] = None
+    # ROI: keep ball cells within this height [m] above the ball's lowest point; unset: whole ball
+    roi_ball_height: Optional[float] = None
     progress: bool = True  # with --exports: progress bar (--no_progress: off)
 
 

@@ -29,19 +29,25 @@ from pcmgn_jax.surrogates.kinds import choices
 @dataclass(frozen=True)
 class OptimizeArgs:
     workdir: str                                            # training run (config.json; checkpoints for mgn)
-    surrogate: Literal[choices("optimise")] = "mgn"  # what predicts the objective (kriging/mop: a response surface of the objective itself; auto: mop, its CoP table in the result)
+    # what predicts the objective (kriging/mop: a response surface of the objective itself; auto: mop, its CoP table in
+    # the result)
+    surrogate: Literal[choices("optimise")] = "mgn"
     method: Literal["ga", "gradient", "slsqp"] = "ga"       # pymoo GA, multi-start projected gradient, or scipy SLSQP
     objective: Literal["area_mean", "node_mean", "disc_mean", "peak"] = "area_mean"  # reading (docs/design.md §8)
     pop: int = 100                                          # GA population (paper: 100)
     gens: int = 50                                          # GA generations (paper: 50)
     starts: int = 4                                         # gradient / slsqp: starting designs (seeded LHS)
-    iters: int = 20                                         # gradient: evaluations per start; slsqp: iterations per start
-    screen: int = 0                                         # slsqp: screen this many seeded designs (values only), start from the best
+    # gradient: evaluations per start; slsqp: iterations per start
+    iters: int = 20
+    # slsqp: screen this many seeded designs (values only), start from the best
+    screen: int = 0
     seed: int = 0                                           # GA / starts seed
-    grid: int = -1                                          # objective map: n x n surrogate grid; -1: 21 (mgn: 7); 0: none
+    # objective map: n x n surrogate grid; -1: 21 (mgn: 7); 0: none
+    grid: int = -1
     which: Literal["best", "periodic"] = "best"             # mgn checkpoint
     check: bool = True                                      # re-run the solver at the optimum (--no_check: off)
-    ensemble: str = ""                                      # mgn: other runs (comma-separated) whose models give the optimum's spread
+    # mgn: other runs (comma-separated) whose models give the optimum's spread
+    ensemble: str = ""
     progress: bool = True                                   # progress bars (--no_progress: off)
 
 

@@ -21,8 +21,11 @@ from pcmgn_jax import cli
 
 @dataclass(frozen=True)
 class TasksArgs:
-    manifest: str = ""             # TOML file with a [tasks] table: "T" = ["metrics.json", ...] (e.g. results/tasks.toml)
-    task: tuple[str, ...] = ()     # T=metrics.json[,metrics.json...] ... (T: a | b | c | d, or T.VARIANT such as d.cg_thin), space-separated after one --task
+    # TOML file with a [tasks] table: "T" = ["metrics.json", ...] (e.g. results/tasks.toml)
+    manifest: str = ""
+    # T=metrics.json[,metrics.json...] ... (T: a | b | c | d, or T.VARIANT such as d.cg_thin), space-separated after
+    # one --task
+    task: tuple[str, ...] = ()
     out: str = ""                  # Markdown file to write ("" = print only)
     note: tuple[str, ...] = field(default_factory=tuple)   # lines to put under the title (budgets, what is missing)
 

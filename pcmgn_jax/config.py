@@ -40,9 +40,12 @@ class TrainConfig:
     preset: PresetName = "cpu"       # which preset filled the defaults (pcmgn_jax.presets.PRESETS)
     data_preset: PresetName = "cpu"  # mesh/solver preset handed to dataset.ensure_dataset (a preset's own name)
     dataset_dir: str = ""            # dataset root; "" -> data/<data_preset>
-    n_train: int = 12                # training trajectories, validation excluded (the train split holds n_train + n_val); with --dataset_dir of a generated dataset: its manifest's unless given
+    # training trajectories, validation excluded (the train split holds n_train + n_val); with --dataset_dir of a
+    # generated dataset: its manifest's unless given
+    n_train: int = 12
     n_val: int = 2                   # held out from the train split for the validation rollout (after the n_train)
-    n_test: int = 6                  # test trajectories (evaluation); with --dataset_dir of a generated dataset: its manifest's test count unless given
+    # test trajectories (evaluation); with --dataset_dir of a generated dataset: its manifest's test count unless given
+    n_test: int = 6
     data_seed: int = 0               # seed of the Latin-hypercube designs for dataset generation
     # ---- graph ------------------------------------------------------------------------------
     contact_radius: float = 0.0      # r_w [m]; 0 -> auto: 1.5 x median CG top-surface side length
@@ -52,14 +55,29 @@ class TrainConfig:
     mlp_layers: int = 2              # hidden layers per MLP
     message_passing_steps: int = 8   # processor blocks
     # ---- formulation: what the model predicts (pcmgn_jax/mgn/formulation.py; docs/design.md §5) -----
-    formulation: Formulation = FORMULATIONS["default"]  # the formulation's fields are flags of their own (--ball_target, --panel_target, --rigid_ball, --normalization, --features, --loss_weighting, --scene_features, --panel_model, --contact_projection, --processor); --formulation=paper|default|dynamic|realtime selects the base
-    formulation_name: str = "default"  # the FORMULATIONS entry the formulation started from (paper | default | dynamic); a record: `formulation` is the truth
+
+    # the formulation's fields are flags of their own (--ball_target, --panel_target, --rigid_ball, --normalization,
+    # --features, --loss_weighting, --scene_features, --panel_model, --contact_projection, --processor);
+    # --formulation=paper|default|dynamic|realtime selects the base
+    formulation: Formulation = FORMULATIONS["default"]
+    # the FORMULATIONS entry the formulation started from (paper | default | dynamic); a record: `formulation` is the
+    # truth
+    formulation_name: str = "default"
     # ---- loss -------------------------------------------------------------------------------
     lambda_pen: float = 0.0          # weight of the penetration term (0 = vanilla MGN; paper: 10)
-    lambda_obj: float = 0.0          # weight of the objective term: per graph, the squared error of the OLED's objective-section mean von Mises (normalised; docs/design.md §7); 0 = off
-    residual_of: ResidualBase = ""            # "" (the network predicts the fields) | rom: the network predicts what the named baseline gets wrong (the panel's displacement and every node's von Mises minus the baseline's, out-of-fold on the training scenes); a rollout adds the baseline back (pcmgn_jax/surrogates/residual.py; docs/design.md §5.2)
-    residual_ball: ResidualBall = "baseline"  # with residual_of, where a rollout's rigid ball goes: baseline (the baseline's ball trajectory; the network corrects the panel's fields along it) | network (the network's own ball dynamics); rollout-only (evaluate --residual_ball overrides)
-    lambda_start: float = 0.0        # fraction of training before the penetration term switches on (then a 10 % linear ramp; 0 = from step 0, the paper)
+    # weight of the objective term: per graph, the squared error of the OLED's objective-section mean von
+    # Mises (normalised; docs/design.md §7); 0 = off
+    lambda_obj: float = 0.0
+    # "" (the network predicts the fields) | rom: the network predicts what the named baseline gets wrong (the panel's
+    # displacement and every node's von Mises minus the baseline's, out-of-fold on the training scenes); a rollout adds
+    # the baseline back (pcmgn_jax/surrogates/residual.py; docs/design.md §5.2)
+    residual_of: ResidualBase = ""
+    # with residual_of, where a rollout's rigid ball goes: baseline (the baseline's ball trajectory; the network
+    # corrects the panel's fields along it) | network (the network's own ball dynamics);
+    # rollout-only (evaluate --residual_ball overrides)
+    residual_ball: ResidualBall = "baseline"
+    # fraction of training before the penetration term switches on (then a 10 % linear ramp; 0 = from step 0, the paper)
+    lambda_start: float = 0.0
     poly_ball: int = 6               # polynomial degree of the ball boundary fit (penetration term)
     poly_panel: int = 5              # polynomial degree of the cover-glass fit (penetration term)
     pen_x_max: float = 1e-3          # [m] boundary nodes with reference x <= this enter the fits
@@ -67,17 +85,22 @@ class TrainConfig:
     noise_std: float = 0.0           # Gaussian noise on the input displacement [m], all noised nodes (paper: 3e-7)
     noise_rel: float = 0.0           # used when noise_std = 0: sigma per part = noise_rel x its RMS motion per frame
     noise_parts: NoiseParts = "none"  # none | ball | panel | all
-    pushforward: bool = False        # inputs of the noise_parts = the model's own one-step prediction (no gradient through it)
-    frames_per_sample: int = 0       # frames of each sample's trajectory decoded from its one processor pass per step (the sample's and F-1 more, evenly spread); > 1 needs processor='per_design'; 0 = auto: 8 with processor='per_design', else 1
+    # inputs of the noise_parts = the model's own one-step prediction (no gradient through it)
+    pushforward: bool = False
+    # frames of each sample's trajectory decoded from its one processor pass per step (the sample's and F-1 more, evenly
+    # spread); > 1 needs processor='per_design'; 0 = auto: 8 with processor='per_design', else 1
+    frames_per_sample: int = 0
     # ---- optimisation -----------------------------------------------------------------------
     seed: int = 0                    # model init, data order and noise
     learning_rate: float = 1e-3      # Adam initial learning rate (paper)
-    ema_decay: float = 0.0           # >0: validate and keep as "best" the exponential moving average of the parameters (Polyak), e.g. 0.998
+    # >0: validate and keep as "best" the exponential moving average of the parameters (Polyak), e.g. 0.998
+    ema_decay: float = 0.0
     lr_decay_rate: float = 0.1       # exponential decay: lr = lr0 * rate ** (step / lr_decay_steps)
     lr_decay_steps: int = 0          # 0 -> total number of steps (lr ends at lr0 * rate)
     epochs: int = 20                 # passes over all (trajectory, frame) pairs
     num_steps: int = 0               # >0 overrides epochs: total optimiser steps
-    batch_graphs: int = 1            # graphs per step over all devices (any meshes: one padded disjoint union per device); paper: 1
+    # graphs per step over all devices (any meshes: one padded disjoint union per device); paper: 1
+    batch_graphs: int = 1
     steps_per_dispatch: int = 25     # optimiser steps per jitted call (lax.scan)
     devices: int = 1                 # data-parallel devices splitting each batch (0 = all); divides batch_graphs
     # ---- bookkeeping ------------------------------------------------------------------------

@@ -2,8 +2,8 @@
 
 A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
 
-- the **target** of the moving nodes (model outputs [a_x, a_y] per node; the third output is the von
-  Mises stress of the next frame, for every formulation):
+- the **target** of the moving nodes (model outputs [a_x, a_y] per node; the third output is the von Mises stress of the
+  next frame, for every formulation):
 
   ======================  ==============================  ======================================
   target                  a (physical, SI)                update (u: displacement [m], v: velocity)
@@ -17,46 +17,41 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
 
   with v_t = (u_t - u_{t-1}) / dt the frame-averaged velocity (the solver's velocity at t = 0), which is
   also the model's velocity input, in training and in a rollout alike.
-- ``rigid_ball``: the ball (part 0) moves as one rigid body. Its nodes all carry the ball's mean
-  displacement and velocity; the network predicts the ball's single acceleration (or other target) as
-  an attention-weighted mean of its per-node outputs (a softmax over a 4th output channel of the ball
-  nodes), so the nodes that see the contact drive the whole body.
-- ``normalization``: ``global`` (the paper: one mean/std per channel over all nodes) or ``per_part``
-  (one mean/std per channel and node type, so the 2 MPa OLED and the 700 MPa cover glass are both O(1)).
-- ``features``: ``paper`` (nodes [one-hot, world position, velocity], mesh edges [u_ij, |u_ij|, x_ij,
-  |x_ij|]) or ``strain`` (nodes [one-hot, reference position, displacement, velocity], mesh edges
-  [u_ij/|u_ij|, |u_ij|, (u_s - u_r)/|u_ij|, stretch (|x_ij| - |u_ij|)/|u_ij|]: the deformation is a
-  channel of its own instead of 0.01 % of x_ij).
-- ``loss_weighting``: ``nodes`` (the paper: mean over nodes) or ``parts`` (mean over parts of each
-  part's node mean, so 388 ball nodes or the big plate do not outvote the 30 µm OLED).
-- ``panel_model``: ``dynamic`` (the layers' own displacement and velocity are inputs, their target is
-  integrated frame by frame: errors accumulate over a rollout) or ``quasi_static`` (the layers are
-  drawn at their reference configuration in the graph, so their state is never an input; every node
-  carries the rigid ball's vertical displacement and velocity as 2 extra channels, and the layers predict their
-  total displacement from the reference and their stress *at the input's time* as a function of the
-  ball's state and the geometry (a rollout moves the ball on, then evaluates the panel at the ball's
-  new state, :func:`pcmgn_jax.mgn.rollout.step`): the panel's fields are a map of the ball's motion, not a second
-  dynamical system, so they cannot drift). The map is well posed where the panel's lowest eigenperiod is far below the
-  contact time (docs/design.md §5.1; the measurement: docs/results/surrogate.md). The ball stays the one dynamical state
-  (its acceleration is integrated). Needs ``rigid_ball`` and ``panel_target='total_displacement'``.
-- ``contact_projection``: after every rollout step, the contact layer's top-surface nodes that the
-  network put inside the rigid ball are moved down onto the ball's lower surface (the polyline of its
-  downward-facing surface nodes, interpolated at each node's x; :func:`pcmgn_jax.mgn.rollout.project_contact`).
-  The ball is rigid, so where its surface is is known exactly; a hard constraint makes the fit-free
-  penetration the facet sagitta (h^2 / 8R, ~0.02 µm at the `cpu` mesh's 25 µm) instead of whatever the
-  network left, without the penetration term's cost to the fit. Rollouts only: the training
-  loss sees the network's raw output (``lambda_pen`` still penalises it there if set). Stresses are not
-  changed.
-- ``processor``: ``per_frame`` (the ball state is a node input, so the whole network runs every frame)
-  or ``per_design`` (``quasi_static`` only: the graph is drawn with the ball at its reference too, so
-  the encoder and the message-passing processor see only the design and run **once per design**; the
-  ball's state [u_ball,y, v_ball,y] goes straight to the decoder, a per-node MLP on [latent, ball
-  state], which is all a rollout evaluates per frame: ~1/50 of the per-frame network's cost). A
-  quasi-static panel's fields are a map of the ball's state given the design (see ``panel_model``);
-  this draws that map as "the design's latent field, read out at the ball's state" (DeepONet-like:
-  the processor is the branch, the ball state the trunk input). :mod:`pcmgn_jax.mgn.rollout` runs the
-  processor once before the scan; the training loss sees the same network (processor + decoder) per
-  sample, so training costs what it did.
+- ``rigid_ball``: the ball (part 0) moves as one rigid body. Its nodes all carry the ball's mean displacement and
+  velocity; the network predicts the ball's single acceleration (or other target) as an attention-weighted mean of its
+  per-node outputs (a softmax over a 4th output channel of the ball nodes), so the nodes that see the contact drive the
+  whole body.
+- ``normalization``: ``global`` (the paper: one mean/std per channel over all nodes) or ``per_part`` (one mean/std per
+  channel and node type, so the 2 MPa OLED and the 700 MPa cover glass are both O(1)).
+- ``features``: ``paper`` (nodes [one-hot, world position, velocity], mesh edges [u_ij, |u_ij|, x_ij, |x_ij|]) or
+  ``strain`` (nodes [one-hot, reference position, displacement, velocity], mesh edges [u_ij/|u_ij|, |u_ij|, (u_s -
+  u_r)/|u_ij|, stretch (|x_ij| - |u_ij|)/|u_ij|]: the deformation is a channel of its own instead of 0.01 % of x_ij).
+- ``loss_weighting``: ``nodes`` (the paper: mean over nodes) or ``parts`` (mean over parts of each part's node mean, so
+  388 ball nodes or the big plate do not outvote the 30 µm OLED).
+- ``panel_model``: ``dynamic`` (the layers' own displacement and velocity are inputs, their target is integrated frame
+  by frame: errors accumulate over a rollout) or ``quasi_static`` (the layers are drawn at their reference configuration
+  in the graph, so their state is never an input; every node carries the rigid ball's vertical displacement and velocity
+  as 2 extra channels, and the layers predict their total displacement from the reference and their stress *at the
+  input's time* as a function of the ball's state and the geometry (a rollout moves the ball on, then evaluates the
+  panel at the ball's new state, :func:`pcmgn_jax.mgn.rollout.step`): the panel's fields are a map of the ball's motion,
+  not a second dynamical system, so they cannot drift). The map is well posed where the panel's lowest eigenperiod is
+  far below the contact time (docs/design.md §5.1; the measurement: docs/results/surrogate.md). The ball stays the one
+  dynamical state (its acceleration is integrated). Needs ``rigid_ball`` and ``panel_target='total_displacement'``.
+- ``contact_projection``: after every rollout step, the contact layer's top-surface nodes that the network put inside
+  the rigid ball are moved down onto the ball's lower surface (the polyline of its downward-facing surface nodes,
+  interpolated at each node's x; :func:`pcmgn_jax.mgn.rollout.project_contact`). The ball is rigid, so where its surface
+  is is known exactly; a hard constraint makes the fit-free penetration the facet sagitta (h^2 / 8R, ~0.02 µm at the
+  `cpu` mesh's 25 µm) instead of whatever the network left, without the penetration term's cost to the fit. Rollouts
+  only: the training loss sees the network's raw output (``lambda_pen`` still penalises it there if set). Stresses are
+  not changed.
+- ``processor``: ``per_frame`` (the ball state is a node input, so the whole network runs every frame) or ``per_design``
+  (``quasi_static`` only: the graph is drawn with the ball at its reference too, so the encoder and the message-passing
+  processor see only the design and run **once per design**; the ball's state [u_ball,y, v_ball,y] goes straight to the
+  decoder, a per-node MLP on [latent, ball state], which is all a rollout evaluates per frame: ~1/50 of the per-frame
+  network's cost). A quasi-static panel's fields are a map of the ball's state given the design (see ``panel_model``);
+  this draws that map as "the design's latent field, read out at the ball's state" (DeepONet-like: the processor is the
+  branch, the ball state the trunk input). :mod:`pcmgn_jax.mgn.rollout` runs the processor once before the scan; the
+  training loss sees the same network (processor + decoder) per sample, so training costs what it did.
 - ``scene_features``: scene parameters given to every node as extra input channels (after the velocity), normalised like
   the other node channels (per node type with ``per_part``): ``ball_radius`` [m] sets the rigid ball's mass (∝ R³) and
   curvature, which the region-of-interest graph (the ball's lowest 0.5 mm) cannot show; ``ball_velocity`` [m/s] (the
@@ -69,26 +64,24 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
   :func:`~pcmgn_jax.mgn.scene_features.material_rows`) is each node's own part's [log10 E, nu, log10 rho], normalised
   over all nodes (:func:`~pcmgn_jax.mgn.scene_features.across_part_channels`); with ``part_identity='material'`` the
   layers' one-hot columns stay unset, so a layer is known by its material and geometry (docs/design.md §5).
-- ``origin``: where the node features' positions are measured from: ``mesh`` (the mesh's coordinates, y
-  from the plate's bottom), ``contact_top`` (y from the contact layer's top surface), so a layer below the
-  contact that changes thickness does not move the contact zone to heights training never saw, or
-  ``support_top`` (y from the bottom layer's top), so the plate's thickness moves nothing above it: with
-  a plate every training scene shares, the same features as ``mesh`` up to a constant, which the
-  per-part normaliser removes (:func:`pcmgn_jax.mgn.graphs.origin_height`, docs/design.md §5).
-  ``stack_thickness`` is ``layer_thickness`` on every node, the contact pair's included: with
-  ``contact_top`` the ball's height no longer tells it how thick the stack below is, so it is told. Node channels, not a
-  graph-level global, because the local processor has no global block and every node of a scene carries the same value
-  (a broadcast global); empty (the default) for single-scene datasets, where the channel would be constant.
-- ``reach``: how far a node sees within one processor pass (docs/design.md §5.3): ``local`` (the
-  paper: ``message_passing_steps`` mesh hops), ``multiscale`` (a bi-stride V-cycle over ``reach_levels``
-  coarse levels after every 4th local step and the last, :mod:`pcmgn_jax.mgn.multiscale`) or ``attention``
-  (a physics-attention block over ``reach_slices`` learned slices with ``reach_heads`` heads at the same
-  places, :mod:`pcmgn_jax.mgn.attention`). The hyper-parameters are ignored by ``local``.
+- ``origin``: where the node features' positions are measured from: ``mesh`` (the mesh's coordinates, y from the plate's
+  bottom), ``contact_top`` (y from the contact layer's top surface), so a layer below the contact that changes thickness
+  does not move the contact zone to heights training never saw, or ``support_top`` (y from the bottom layer's top), so
+  the plate's thickness moves nothing above it: with a plate every training scene shares, the same features as ``mesh``
+  up to a constant, which the per-part normaliser removes (:func:`pcmgn_jax.mgn.graphs.origin_height`, docs/design.md
+  §5). ``stack_thickness`` is ``layer_thickness`` on every node, the contact pair's included: with ``contact_top`` the
+  ball's height no longer tells it how thick the stack below is, so it is told. Node channels, not a graph-level global,
+  because the local processor has no global block and every node of a scene carries the same value (a broadcast global);
+  empty (the default) for single-scene datasets, where the channel would be constant.
+- ``reach``: how far a node sees within one processor pass (docs/design.md §5.3): ``local`` (the paper:
+  ``message_passing_steps`` mesh hops), ``multiscale`` (a bi-stride V-cycle over ``reach_levels`` coarse levels after
+  every 4th local step and the last, :mod:`pcmgn_jax.mgn.multiscale`) or ``attention`` (a physics-attention block over
+  ``reach_slices`` learned slices with ``reach_heads`` heads at the same places, :mod:`pcmgn_jax.mgn.attention`). The
+  hyper-parameters are ignored by ``local``.
 
-Noise (training): Gaussian n on the input displacement of the noised nodes (one shared sample for a
-rigid ball); the velocity input is derived from the noisy displacement (v~ = v + n/dt, as in a
-rollout), and the target is corrected so the update from the noisy input lands on the clean next frame
-(:func:`noise_correction`).
+Noise (training): Gaussian n on the input displacement of the noised nodes (one shared sample for a rigid ball); the
+velocity input is derived from the noisy displacement (v~ = v + n/dt, as in a rollout), and the target is corrected so
+the update from the noisy input lands on the clean next frame (:func:`noise_correction`).
 """
 from __future__ import annotations
 
