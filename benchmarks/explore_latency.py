@@ -91,7 +91,8 @@ def main(argv=None) -> int:
             ["kriging alone", result["kriging_move"]["median_s"], result["kriging_move"]["max_s"]]]
     md = (f"# explorer response time per slider move: {args.workdir}\n\n"
           f"{first.n_nodes} nodes x {first.n_frames} frames; predictors {', '.join(ex.available)}; "
-          f"load {load_s:.1f} s; MGN rollout {ex.mgn_seconds if ex.mgn_seconds is None else round(ex.mgn_seconds, 3)} s; "
+          f"load {load_s:.1f} s; "
+          f"MGN rollout {ex.mgn_seconds if ex.mgn_seconds is None else round(ex.mgn_seconds, 3)} s; "
           f"{args.moves} moves, warm; goal <= {GOAL_S} s\n\n"
           + common.md_table(["what", "median [s]", "max [s]"], rows)
           + f"\ncommand: `{result['command']}`\n")

@@ -255,7 +255,8 @@ def main(argv=None) -> dict:
                 result["device"] = result["device"] or out["device"]
                 result["machine"] = result["machine"] or out["machine"]
                 _fractions(result)
-        for row in _rows({part: result[part], "matmul": result.get("matmul")}, SimpleNamespace(**{**vars(a), "parts": part})):
+        for row in _rows({part: result[part], "matmul": result.get("matmul")},
+                         SimpleNamespace(**{**vars(a), "parts": part})):
             print(" | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in row), flush=True)
         save()
     save()

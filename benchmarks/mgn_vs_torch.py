@@ -288,8 +288,8 @@ def main(argv=None) -> dict:
             ratios["train_step_best_any_threads_torch_over_jax"] >= 2)
     machine = common.machine_info(threads if have_torch else None)
     from pcmgn_jax import heap
-    machine.update(keep_heap=heap.applied(), threads=threads, matmul_1024_gflops_jax=mm_jax, matmul_1024_gflops_jax_after=mm_jax2,
-                   matmul_1024_gflops_torch=mm_torch)
+    machine.update(keep_heap=heap.applied(), threads=threads, matmul_1024_gflops_jax=mm_jax,
+                   matmul_1024_gflops_jax_after=mm_jax2, matmul_1024_gflops_torch=mm_torch)
     config = dict(nodes_requested=a.nodes, layers=a.layers, latent=a.latent, mlp_layers=a.mlp_layers,
                   repeats=a.repeats, warmup=a.warmup, command=cli.command_line("benchmarks.mgn_vs_torch", argv), **gi)
     result = dict(jax=jres, torch=tres, config=config, ratios=ratios, flops=flops, machine=machine)
@@ -300,7 +300,8 @@ def main(argv=None) -> dict:
           f"torch {machine.get('torch')}; dense matmul 1024² f32: jnp.dot {peak:.1f} GFLOP/s"
           + (f", torch.mm {mm_torch:.1f} GFLOP/s" if mm_torch else "") + "\n"]
     rows = [["JAX (jit)", jres["forward_ms"], jres["train_step_ms"], 1.0, 1.0,
-             f"{100 * jres['forward_fraction_of_matmul_peak']:.0f}% / {100 * jres['train_step_fraction_of_matmul_peak']:.0f}%"],
+             f"{100 * jres['forward_fraction_of_matmul_peak']:.0f}% / "
+             f"{100 * jres['train_step_fraction_of_matmul_peak']:.0f}%"],
             [f"JAX (lax.scan, {a.scan} steps/dispatch)", "", jres["train_step_scan_ms"], "",
              jres["train_step_ms"] / jres["train_step_scan_ms"], ""]]
     if tres:

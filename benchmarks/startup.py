@@ -95,7 +95,8 @@ def measure(kind: str, a, data: Path, work: Path, env: dict, timeout: float) -> 
     notes = _notes(log)
     for name, label in events.items():
         n = _first(notes, label)
-        out[name] = None if n is None else {"s": n["time"] - t0, "first_call_s": n["seconds"], "xla_s": n["xla_seconds"]}
+        out[name] = None if n is None else {"s": n["time"] - t0, "first_call_s": n["seconds"],
+                                            "xla_s": n["xla_seconds"]}
     return out
 
 
@@ -115,7 +116,8 @@ def main(argv=None) -> dict:
     md_path = Path(a.md) if a.md else path.with_suffix(".md")
     work = Path(tempfile.mkdtemp(prefix="pcmgn-startup-"))
     data = Path(a.data) if a.data else work / "data"
-    base_env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
+    base_env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep)
+                                                            if p])
     result: dict = {"config": {"preset": a.preset, "data": str(data), "budget_s": a.budget_s,
                                "command": cli.command_line("benchmarks.startup", argv)},
                     "machine": {**common.machine_info(), "jax_backend": "(not used by the measuring process)"},
@@ -154,10 +156,12 @@ def main(argv=None) -> dict:
                 env["PCMGN_JAX_CACHE"] = "0"
             else:
                 env["PCMGN_JAX_CACHE_DIR"] = str(cache)
-            if a.prime and cond == conditions[0] and kind == "train":  # prime: the dataset's read cache, the OS file cache
+            # prime: the dataset's read cache, the OS file cache
+            if a.prime and cond == conditions[0] and kind == "train":
                 measure(kind, a, data, work, {**env, "PCMGN_JAX_CACHE": "0"}, left())
             if left() < 5:
-                result["skipped"].append({"what": f"{cond} {kind}", "why": f"{max(left(), 0):.0f} s of the budget left"})
+                result["skipped"].append({"what": f"{cond} {kind}",
+                                          "why": f"{max(left(), 0):.0f} s of the budget left"})
                 save()
                 continue
             r = measure(kind, a, data, work, env, left())

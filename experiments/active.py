@@ -105,7 +105,8 @@ def _main(args: ActiveArgs, command: str) -> int:
     log = run_loop(problem, cfg, path, base=base, progress=args.progress,
                    meta={"command": command, **ctx})
     best = log["rounds"][-1]["best"]
-    line = f"best solver value {best['mpa']:.4f} MPa at {best['design_um']} µm after {log['rounds'][-1]['solver_runs']} runs"
+    line = (f"best solver value {best['mpa']:.4f} MPa at {best['design_um']} µm "
+            f"after {log['rounds'][-1]['solver_runs']} runs")
     if "gap_pct" in best:
         line += f" ({best['gap_pct']:+.2f} % from the reference {problem.reference['mpa']:.4f} MPa)"
     print(line)

@@ -1,6 +1,6 @@
 """The built-in solver against CalculiX on the same mesh: Hertz, then the paper's panel (issue 43).
 
-  python -m experiments.calculix_check --preset tiny --out results/calculix          # needs ccx (apt install calculix-ccx)
+  python -m experiments.calculix_check --preset tiny --out results/calculix   # needs ccx (apt install calculix-ccx)
 
 For each design (default: the paper's two optima, physics-constrained (145.207, 99.322) µm and vanilla
 (100.364, 149.635) µm, and the corner (50, 100) µm of the design box) the scene runs in CalculiX

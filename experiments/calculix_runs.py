@@ -54,7 +54,8 @@ def hertz_case(out: Path, args) -> dict[str, Any]:
                                growth=args.hertz_growth)
     window = scene.ball.gap / 0.62631 + 1.4 * theory["contact_time_s"]
     scene = dataclasses.replace(scene, output_dt=window / args.hertz_frames, n_frames=args.hertz_frames)
-    settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=args.hertz_penalty_factor,
+    settings = CalculixSettings(increments_per_frame=args.increments_per_frame,
+                                penalty_factor=args.hertz_penalty_factor,
                                 min_increment_ratio=args.hertz_min_increment_ratio)
     tc, fc, wall_c = _ccx(out / "runs" / "hertz", scene, spec, settings, args.timeout_s)
     tb, fb, wall_b, _ = _builtin(scene, spec, args.hertz_penalty_factor)
@@ -121,7 +122,8 @@ def write_report(out: Path, cases: list[dict], args, command: str) -> list[str]:
     if panel:
         keys = (("peak_force_N", "peak force [N]", 1.0), ("contact_duration_s", "contact [µs]", 1e6),
                 ("peak_cg_von_mises_mpa", "peak CG vM [MPa]", 1.0), ("objective_area_mean_mpa", "area mean [MPa]", 1.0),
-                ("objective_node_mean_mpa", "node mean [MPa]", 1.0), ("max_ball_approach_um", "ball approach [µm]", 1.0))
+                ("objective_node_mean_mpa", "node mean [MPa]", 1.0),
+                ("max_ball_approach_um", "ball approach [µm]", 1.0))
         lines += ["| design [µm] | code | " + " | ".join(k[1] for k in keys) + " |", "|---|---|" + "---|" * len(keys)]
         for c in panel:
             d = f"{c['design_um'][0]:.1f}, {c['design_um'][1]:.1f}"
@@ -149,8 +151,8 @@ def write_report(out: Path, cases: list[dict], args, command: str) -> list[str]:
                                                          for k, v in rank.items()),
                   "", "Goals (peak force, contact duration, objective readings within 5 %): " + ", ".join(
                       f"{c['label']} {'met' if c['goal_met'] else 'missed'}" for c in panel),
-                  "CalculiX wall time per design [s]: " + ", ".join(f"{c['label']} {c['ccx_wall_s'] or float('nan'):.0f}"
-                                                                  for c in panel)]
+                  "CalculiX wall time per design [s]: " + ", ".join(
+                      f"{c['label']} {c['ccx_wall_s'] or float('nan'):.0f}" for c in panel)]
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / "check.json", {"command": command, "args": dict(vars(args)) if hasattr(args, "__dict__")
                                            else dataclasses.asdict(args), "cases": cases})
@@ -169,7 +171,8 @@ def plot_forces(check_json: str | Path, png: str | Path) -> None:
     for ax, c in zip(axes[0], panel):
         for code, style in (("builtin", "-"), ("calculix", "--")):
             f = np.asarray(c["force_N"][code])
-            ax.plot((np.arange(len(f)) + 0.5) * c.get("output_dt_s", 4e-6) * 1e6, f, style, label="built-in" if code == "builtin" else "CalculiX")
+            ax.plot((np.arange(len(f)) + 0.5) * c.get("output_dt_s", 4e-6) * 1e6, f, style,
+                    label="built-in" if code == "builtin" else "CalculiX")
         ax.set_title(f"{c['design_um'][0]:.1f} / {c['design_um'][1]:.1f} µm", fontsize=9)
         ax.set_xlabel("t [µs]")
     axes[0][0].set_ylabel("contact force [N]")

@@ -4,7 +4,7 @@
   python -m experiments.generate --n_train 100 --n_val 5 --n_test 50 --out data/paper --preset paper --seed 0
   python -m experiments.generate --out data/paper --preset paper --designs "40,40;40,160;160,40;160,160" --split extrap
   python -m experiments.generate --out data/family --preset family --split extrap \
-      --scene_params "ball.radius=3.5e-3,ball.velocity=0.8,OCA1=40e-6,OCA2=160e-6,POL=25e-6"   # outside the family's box
+      --scene_params "ball.radius=3.5e-3,ball.velocity=0.8,OCA1=40e-6,OCA2=160e-6,POL=25e-6"  # outside the family's box
   python -m experiments.generate --preset paper --out data/paper --shard 3/8     # one task of an array job
   python -m experiments.generate --preset paper --out data/paper --merge         # after all shards: the manifest
   python -m experiments.generate --out data/family48 --pool data/family,data/family_extra   # solve nothing: pool
@@ -87,8 +87,8 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         scene = Scene.load(args.scene) if args.scene else default_scene()
         if args.designs and args.preset in FAMILIES:
-            raise ValueError(f"--designs: preset {args.preset!r} is a scene family; give its scenes with --scene_params "
-                             f"({', '.join(FAMILIES[args.preset].names)}, SI)")
+            raise ValueError(f"--designs: preset {args.preset!r} is a scene family; give its scenes with "
+                             f"--scene_params ({', '.join(FAMILIES[args.preset].names)}, SI)")
         designs = parse_designs(args.designs, dim=len(scene.design_layers)) if args.designs else None
         if args.scene_params is not None:
             if args.preset not in FAMILIES or designs is not None:

@@ -31,7 +31,8 @@ def main(argv=None) -> int:
     specs = cli.keyed_json_files(args.point, "point")
     bad = [n for n in specs if not n.isdigit()]
     if bad or not specs:
-        raise ValueError(f"--point: give N=metrics.json[,...] with N a whole number of solver runs (got {bad or 'none'})")
+        raise ValueError(f"--point: give N=metrics.json[,...] with N a whole number of solver runs "
+                         f"(got {bad or 'none'})")
     points = {int(n): files for n, files in specs.items()}
     paths = {int(n): [str(p) for p in fs] for n, fs in files.items()}
     rows = curve_rows(points)

@@ -40,7 +40,8 @@ class SeriesArgs:
     ccx_penalty_factor: float = 0.1
     """the contact penalty factor of the CalculiX rows, in both codes"""
     ccx_elements: str = "C3D8"
-    """CalculiX's elements, each a row: C3D8 (full integration, the built-in Q4's counterpart), C3D8I (incompatible modes)"""
+    """CalculiX's elements, each a row: C3D8 (full integration, the built-in Q4's counterpart), C3D8I
+    (incompatible modes)"""
     increments_per_frame: int = 2
     """ccx's largest increment = output_dt / this"""
     timeout_s: float = 7200.0
@@ -64,7 +65,8 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
     design = [float(v) * 1e-6 for v in args.design.split(",")]
     penalty = args.penalty_factor if code == "builtin" else args.ccx_penalty_factor
     tag = f"{code}_{element}" if code == "calculix" else code
-    cache = Path(args.out) / "rows" / f"{name.replace(':', '-')}_{tag}_{'_'.join(args.design.split(','))}_p{penalty:g}.json"
+    design_tag = "_".join(args.design.split(","))
+    cache = Path(args.out) / "rows" / f"{name.replace(':', '-')}_{tag}_{design_tag}_p{penalty:g}.json"
     if cache.is_file():
         return json.loads(cache.read_text())
     scene = default_scene().with_design(*design)
@@ -135,7 +137,8 @@ def plot(rows: list[dict], png: str, section_x_mm: float) -> None:
             ax.plot([r["roi_nodes"] for r in sel], [r[k] for r in sel], marker, label=label)
             if code == "builtin":
                 for r in sel:
-                    ax.annotate(r["mesh"], (r["roi_nodes"], r[k]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+                    ax.annotate(r["mesh"], (r["roi_nodes"], r[k]), fontsize=7, xytext=(3, 3),
+                                textcoords="offset points")
             ax.set_title(title, fontsize=9)
     for ax in axes:
         ax.set_xscale("log")
@@ -168,7 +171,8 @@ def main(argv=None) -> int:
     for name, code, element in todo:
         rows.append(row(args, name, code, element or "C3D8"))
         r = rows[-1]
-        print(f"{name:10s} {code:20s} area {r['objective_area_mean_mpa']:.4f} fixed {r['objective_fixed_section_mpa']:.4f} "
+        print(f"{name:10s} {code:20s} area {r['objective_area_mean_mpa']:.4f} "
+              f"fixed {r['objective_fixed_section_mpa']:.4f} "
               f"node {r['objective_node_mean_mpa']:.4f} force {r['peak_force_N']:.3f} N", flush=True)
         report(args, rows, command)   # after every row: a long run keeps what it has
     print("\n".join(report(args, rows, command)))

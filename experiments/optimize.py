@@ -62,7 +62,8 @@ def main(argv: list[str] | None = None) -> int:
     command = cli.command_line("experiments.optimize", argv)
     out = run(**asdict(args), command=command)
     line = (f"{args.surrogate} {args.method}: optimum {np.round(np.asarray(out['optimum_um']), 1).tolist()} µm, "
-            f"predicted {out['predicted_mpa']:.4f} ± {out['predicted_std_mpa']:.4f} MPa ({out['spread']['source']}) in {out['search_seconds']:.1f} s ({out['n_evals']} evaluations)")
+            f"predicted {out['predicted_mpa']:.4f} ± {out['predicted_std_mpa']:.4f} MPa ({out['spread']['source']}) "
+            f"in {out['search_seconds']:.1f} s ({out['n_evals']} evaluations)")
     if args.check:
         best = out["dataset_best"]
         line += (f"; solver {out['solver_mpa']:.4f} MPa (error {out['rel_error_pct']:.2f} %); best dataset "

@@ -2,7 +2,8 @@
 ``experiments.optimize``, best solver-checked optimum first, beside the best of the dataset's own
 solver-evaluated designs; each row's command is listed under the table.
 
-  python -m experiments.optimize_table --files 'results/optimize/*.json,results/optimize/first_training/*.json' --out results/optimize/table.md
+  python -m experiments.optimize_table --files 'results/optimize/*.json,results/optimize/first_training/*.json' \
+      --out results/optimize/table.md
 
 A row names its file relative to the folder all the files share, so results of two models in two folders
 (the same file names) stay apart; a surrogate's fingerprint (its parameters' hash) follows its name.

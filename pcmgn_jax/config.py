@@ -132,7 +132,7 @@ class TrainConfig:
             bad("ema_decay", "must be in [0, 1) (0 = no parameter average)")
         if not 0 <= self.lambda_start < 1:
             bad("lambda_start", "must be in [0, 1) (a fraction of the training steps)")
-        if self.contact_radius < 0 or self.noise_std < 0 or self.noise_rel < 0 or self.lambda_pen < 0 or self.lambda_obj < 0:
+        if any(v < 0 for v in (self.contact_radius, self.noise_std, self.noise_rel, self.lambda_pen, self.lambda_obj)):
             bad("contact_radius/noise_std/noise_rel/lambda_pen/lambda_obj", "must be >= 0")
         if self.residual_of not in RESIDUAL_BASES:
             bad("residual_of", f"must be one of {RESIDUAL_BASES} ('' = the network predicts the fields themselves)")

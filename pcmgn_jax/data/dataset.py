@@ -232,7 +232,8 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
 
 
 def _generate(root: Path, plan: dict[str, tuple[np.ndarray, dict[str, Any]]], *, scene: Scene,
-              family: SceneFamily | None, preset: str, batch: int, progress: bool, solve_fn, shard, merge: bool) -> Path:
+              family: SceneFamily | None, preset: str, batch: int, progress: bool, solve_fn, shard,
+              merge: bool) -> Path:
     """:func:`ensure_dataset` once its arguments are checked and the dataset's lock is held."""
     man = load_manifest(root)
     manifest_path = root / MANIFEST
@@ -314,8 +315,8 @@ def _generate(root: Path, plan: dict[str, tuple[np.ndarray, dict[str, Any]]], *,
             groups = [chunk]
             # a short last batch is padded with copies of its last design (results dropped) where the solver
             # would compile a call of another size for it (an accelerator); one batch alone is not
-            pad = (batch - len(chunk) if family is None and len(batches) > 1 and call_size(len(chunk)) != call_size(batch)
-                   else 0)
+            pad = (batch - len(chunk)
+                   if family is None and len(batches) > 1 and call_size(len(chunk)) != call_size(batch) else 0)
             t0 = time.perf_counter()
             try:
                 results = [_solve_checked(solve, scene, chunk, preset, family, pad=pad)]

@@ -131,7 +131,8 @@ def pool_datasets(sources, out_dir: str | os.PathLike, *, progress=None) -> Path
                 raise DatasetError(f"{folder}: no trajectory files to pool (split {split!r} of {src})")
             stems += found
         plan += [(stem, out / split / f"{split}_{i:04d}") for i, stem in enumerate(stems)]
-        extra = sorted({p.stem for p in (out / split).glob("*.json")} - {t.name for _, t in plan if t.parent.name == split})
+        extra = sorted({p.stem for p in (out / split).glob("*.json")}
+                       - {t.name for _, t in plan if t.parent.name == split})
         if extra:
             raise DatasetError(f"{out / split}: holds trajectories the pool would not write ({extra[:3]}...): "
                                "pool into a new directory")

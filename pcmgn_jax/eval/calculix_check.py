@@ -101,7 +101,8 @@ def section_weights(points, cells, cell_part, *, part: int, x_end: float) -> np.
     if not np.all(at_lo ^ at_hi) or np.any(at_lo.sum(axis=1) != 2):
         raise ValueError(f"section_weights: the cells of part {part} are not axis-aligned rectangles")
     if hi[:, 0].max() < x_end - tol:
-        raise ValueError(f"section_weights: part {part} ends at x = {hi[:, 0].max():.4e} m, short of x_end = {x_end:.4e} m")
+        raise ValueError(f"section_weights: part {part} ends at x = {hi[:, 0].max():.4e} m, "
+                         f"short of x_end = {x_end:.4e} m")
     x0, x1 = lo[:, 0], hi[:, 0]
     xc = np.clip(x_end, x0, x1)
     left = (x1 * (xc - x0) - 0.5 * (xc ** 2 - x0 ** 2)) / (x1 - x0)   # int over [x0, xc] of (x1 - x) / (x1 - x0)

@@ -149,7 +149,8 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
     bnodes, pnodes = zip(*[boundary(t, panel_part) for t in test_trajs])
     m = _scores(scene, test_trajs, pu, ps, bnodes, pnodes)
     truth_pen = metrics.penetration_summary(
-        [metrics.penetration_stats(t.positions[:, b], t.positions[:, p]) for t, b, p in zip(test_trajs, bnodes, pnodes)],
+        [metrics.penetration_stats(t.positions[:, b], t.positions[:, p])
+         for t, b, p in zip(test_trajs, bnodes, pnodes)],
         suffix="_truth")
     phases = [impact_phases(t, b, p) for t, b, p in zip(test_trajs, bnodes, pnodes)]
     m.update(truth_pen, rollout_seconds_per_trajectory=mgn.rollout_seconds / len(test_trajs),

@@ -58,7 +58,8 @@ def curve_table(rows: Mapping[int, dict]) -> str:
     names = [p for p in CURVE_PREDICTORS if any(p in r for r in rows.values())]
     lines = []
     for key in WINNER_METRICS:
-        lines += [f"**{label[key]}**", "", "| solver runs | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+        lines += [f"**{label[key]}**", "", "| solver runs | " + " | ".join(names) + " |",
+                  "|---" * (len(names) + 1) + "|"]
         for n, r in rows.items():
             cells = []
             for p in names:

@@ -42,7 +42,8 @@ def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str =
         raise ValueError(f"evaluate: split={split!r} must be test or val")
     if split == "val" and data:
         raise ValueError("evaluate: split='val' scores the run's validation trajectories; it takes no data directory")
-    train, val, test = load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train, n_val=cfg.n_val if split == "val" else 0,
+    train, val, test = load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train,
+                                   n_val=cfg.n_val if split == "val" else 0,
                                    n_test=0 if data or split == "val" else cfg.n_test)
     if data:
         test = load_directory(data)

@@ -337,7 +337,8 @@ def render(run: dict, *, optimize_table: Sequence[str] | None = None, title: str
     if log:
         info.append(f"training's last log line: step {log.get('step')}, loss {_num(log.get('loss'))}")
     body = [f"<h1>{e(title)}</h1>",
-            f"<p class=note>Evaluation <code>{e(run['eval_dir'])}/metrics.json</code>: {e('; '.join(map(str, info)))}.</p>",
+            f"<p class=note>Evaluation <code>{e(run['eval_dir'])}/metrics.json</code>: "
+            f"{e('; '.join(map(str, info)))}.</p>",
             "<h2>Metrics beside the baselines</h2>",
             "<p class=note>Rollouts from frame 0 over the test split; every baseline fitted on the run's training "
             "split and scored by the same code (<code>pcmgn_jax.metrics</code>). Bold: the best of a column.</p>",
@@ -364,7 +365,8 @@ def render(run: dict, *, optimize_table: Sequence[str] | None = None, title: str
             body += [f"<details><summary><code>eval/{e(name)}</code> ({_num(sm.get('n_test', '?'))} "
                      f"trajectories)</summary>", summary_html(sm), "</details>"]
     body += ["<h2>Data provenance</h2>", provenance_html(run), "<h2>Configuration (<code>config.json</code>)</h2>",
-             _kv(run["config"]) if isinstance(run.get("config"), dict) else "<p>No config.json in the run directory.</p>"]
+             _kv(run["config"]) if isinstance(run.get("config"), dict)
+             else "<p>No config.json in the run directory.</p>"]
     return ("<!DOCTYPE html>\n<html lang=en><head><meta charset=utf-8><title>" + e(title) + "</title><style>"
             + CSS + "</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
 

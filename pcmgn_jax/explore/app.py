@@ -42,8 +42,10 @@ def _slider(i: int, p, value: float):
     lo, hi = (v * p.scale for v in p.slider_range())
     step = _step(lo, hi)
     marks = {float(np.round(lo, 6)): f"{lo:.4g}", float(np.round(hi, 6)): f"{hi:.4g}",
-             float(np.round(p.low * p.scale, 6)): {"label": f"box {p.low * p.scale:.4g}", "style": {"color": "seagreen"}},
-             float(np.round(p.high * p.scale, 6)): {"label": f"box {p.high * p.scale:.4g}", "style": {"color": "seagreen"}}}
+             float(np.round(p.low * p.scale, 6)): {"label": f"box {p.low * p.scale:.4g}",
+                                                   "style": {"color": "seagreen"}},
+             float(np.round(p.high * p.scale, 6)): {"label": f"box {p.high * p.scale:.4g}",
+                                                    "style": {"color": "seagreen"}}}
     return html.Div([
         html.Label(f"{p.label} [{p.unit}]", htmlFor=f"p-{i}", style={"fontWeight": "bold"}),
         dcc.Slider(id=f"p-{i}", min=_snap(np.floor(lo / step) * step, step), max=_snap(np.ceil(hi / step) * step, step),

@@ -222,7 +222,8 @@ def inp_text(scene: Scene, mesh: Mesh, settings: CalculixSettings = CalculixSett
             f"{_num(scene.output_dt)}, {_num(window)}, {_num(scene.output_dt)}",
             f"*STEP, INC={100 * n_inc * scene.n_frames}", dyn,
             f"{_num(dt)}, {_num(window)}, {_num(dt * settings.min_increment_ratio)}, {_num(dt)}",
-            "*NODE FILE, TIME POINTS=FRAMES, GLOBAL=YES", "U, V", "*EL FILE, TIME POINTS=FRAMES, GLOBAL=YES", "S", "*END STEP"]
+            "*NODE FILE, TIME POINTS=FRAMES, GLOBAL=YES", "U, V", "*EL FILE, TIME POINTS=FRAMES, GLOBAL=YES", "S",
+            "*END STEP"]
     return "\n".join(out) + "\n"
 
 

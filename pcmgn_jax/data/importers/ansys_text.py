@@ -90,7 +90,8 @@ def read_ansys_table(path: str | os.PathLike, kind: str) -> AnsysTable:
         try:
             nid = int(fields[i_node])
         except ValueError:
-            raise InputFileError(f"{path}:{ln + 1}: column 'Node Number': {fields[i_node]!r} is not an integer") from None
+            raise InputFileError(f"{path}:{ln + 1}: column 'Node Number': "
+                                 f"{fields[i_node]!r} is not an integer") from None
         vals = []
         for k in (i_x, i_y, i_v):
             try:

@@ -55,7 +55,8 @@ def _show(field: str) -> str:
     return repr(field if len(field) <= 24 else field[:24] + "...")
 
 
-def fixed_record(line: str, layout: Sequence[tuple[str, int]], where: str) -> tuple[list[int | None], list[float | None]]:
+def fixed_record(line: str, layout: Sequence[tuple[str, int]],
+                 where: str) -> tuple[list[int | None], list[float | None]]:
     """Split ``line`` by ``layout``: (integer fields, real fields) in order, None where blank or past the end."""
     line = line.rstrip("\r\n")
     ints: list[int | None] = []
@@ -104,8 +105,8 @@ def _int_width(layout: Sequence[tuple[str, int]], where: str) -> int:
     return widths.pop()
 
 
-_PARAM = re.compile(r"^\s*(?:\*set\s*,\s*([A-Za-z_]\w*)\s*,\s*([-+0-9.eE]+)|([A-Za-z_]\w*)\s*=\s*([-+0-9.eE]+))\s*(?:!.*)?$",
-                    re.IGNORECASE)
+_PARAM = re.compile(r"^\s*(?:\*set\s*,\s*([A-Za-z_]\w*)\s*,\s*([-+0-9.eE]+)"
+                    r"|([A-Za-z_]\w*)\s*=\s*([-+0-9.eE]+))\s*(?:!.*)?$", re.IGNORECASE)
 
 
 def _int_arg(text: str, params: Mapping[str, float]) -> int | None:

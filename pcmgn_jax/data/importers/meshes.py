@@ -67,7 +67,8 @@ def read_meshio_mesh(path: str | os.PathLike, *, scene: Scene | Mapping | None =
                                for b in keep_blocks])
         if mask.any():
             groups[name.lower()] = mask
-    cell_part = assign_parts(where, names, specs, len(cells), cell_ints, f"cell data {part_field!r}", groups, "cell set")
+    cell_part = assign_parts(where, names, specs, len(cells), cell_ints, f"cell data {part_field!r}", groups,
+                             "cell set")
     pts = np.asarray(m.points, dtype=np.float64)
     if pts.shape[1] == 3:
         if np.any(pts[:, 2] != 0):
