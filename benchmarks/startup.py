@@ -116,8 +116,8 @@ def main(argv=None) -> dict:
     md_path = Path(a.md) if a.md else path.with_suffix(".md")
     work = Path(tempfile.mkdtemp(prefix="pcmgn-startup-"))
     data = Path(a.data) if a.data else work / "data"
-    base_env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep)
-                                                            if p])
+    base_env["PYTHONPATH"] = os.pathsep.join(
+        [str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
     result: dict = {"config": {"preset": a.preset, "data": str(data), "budget_s": a.budget_s,
                                "command": cli.command_line("benchmarks.startup", argv)},
                     "machine": {**common.machine_info(), "jax_backend": "(not used by the measuring process)"},

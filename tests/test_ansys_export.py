@@ -141,7 +141,8 @@ BAD_RUNS = {
     "missing": (lambda r: (r / "results" / "stress_001.txt").unlink(),
                 r"results/stress_001\.txt: file missing \(frame 1, result stress\)"),
     "corrupt": (lambda r: _replace_row(r / "results" / "velocity_y_002.txt", 3, "abc"),
-                r"results/velocity_y_002\.txt:4: node 3: column 'Directional Velocity \(mm/s\)': 'abc' is not a number"),
+                r"results/velocity_y_002\.txt:4: node 3: "
+                r"column 'Directional Velocity \(mm/s\)': 'abc' is not a number"),
     "truncated": (lambda r: (r / "results" / "deformation_x_000.txt").write_text(
         "\n".join((r / "results" / "deformation_x_000.txt").read_text().splitlines()[:3]) + "\n"),
                   r"results/deformation_x_000\.txt: node \d+ of the mesh .* has no value"),
@@ -186,4 +187,5 @@ def test_family_tiny_round_trip(tmp_path):
     assert len({read_trajectory(p).n_nodes for p in stems.values()}) == 3     # the meshes differ
     _check_round_trip(stems, tmp_path / "back")
     for stem, path in stems.items():
-        assert read_trajectory(tmp_path / "back" / stem).meta["scene_params"] == read_trajectory(path).meta["scene_params"]
+        back = read_trajectory(tmp_path / "back" / stem)
+        assert back.meta["scene_params"] == read_trajectory(path).meta["scene_params"]

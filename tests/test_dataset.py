@@ -168,8 +168,9 @@ def test_family_scenes_outside_its_box_from_scene_params(tmp_path, fake, capsys)
     assert [tuple(np.round(c[1][0] * 1e6, 3)) for c in fake.calls] == [(40.0, 160.0, 25.0), (160.0, 40.0, 75.0)]
     traj = read_trajectory(out / entries[0]["path"])
     assert traj.meta["scene_params"] == entries[0]["scene_params"] and traj.meta["family"] == "family_tiny"
-    for bad, msg in [("ball.radius=3e-3", r"scene 1 misses \['OCA1'"), ("ball.radius=3e-3,ball.radius=4e-3", "repeated"),
-                     ("mass=1", "unknown"), ("ball.radius=-1", "> 0"), ("ball.radius", "not NAME=VALUE"), (";", "empty")]:
+    for bad, msg in [("ball.radius=3e-3", r"scene 1 misses \['OCA1'"),
+                     ("ball.radius=3e-3,ball.radius=4e-3", "repeated"), ("mass=1", "unknown"),
+                     ("ball.radius=-1", "> 0"), ("ball.radius", "not NAME=VALUE"), (";", "empty")]:
         with pytest.raises(ValueError, match=msg):
             ds.parse_scene_params(bad, names)
     capsys.readouterr()

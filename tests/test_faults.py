@@ -307,7 +307,9 @@ def test_generate_killed_at_a_random_moment_resumes_to_the_same_dataset(tmp_path
                     lambda: any((cut / "extrap").glob("*.json")), delay)
     print(f"killed: rc={rc}, trajectories written {len(list((cut / 'extrap').glob('*.json')))}")
     assert generate.main([*args, "--out", str(cut)]) == 0
-    sha = lambda root: [e["sha256"] for e in json.loads((root / "manifest.json").read_text())["splits"]["extrap"]["trajectories"]]  # noqa: E731
+    def sha(root):
+        splits = json.loads((root / "manifest.json").read_text())["splits"]
+        return [e["sha256"] for e in splits["extrap"]["trajectories"]]
     assert sha(cut) == sha(whole) and all(sha(whole))
 
 

@@ -40,7 +40,8 @@ def _roll_back(form: Formulation, traj, dtype=np.float64):
                          v=jnp.asarray(v, dtype), a=jnp.asarray(s["target"][:, :2], dtype),
                          a_ball=jnp.asarray(s["ball"], dtype), dt=DT)
         if form.panel_model == "quasi_static":
-            u = jnp.where(jnp.asarray(ball)[:, None], u, jnp.asarray(_sample(form, traj, t + 1)["target"][:, :2], dtype))
+            u = jnp.where(jnp.asarray(ball)[:, None], u,
+                          jnp.asarray(_sample(form, traj, t + 1)["target"][:, :2], dtype))
         out.append(np.asarray(u, np.float64))
     return np.stack(out)
 

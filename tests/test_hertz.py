@@ -17,8 +17,8 @@ def test_theory_matches_design_figures():
     assert t["mass_kg"] == pytest.approx(4.110e-3, rel=1e-3)
 
 
-@pytest.mark.parametrize("radius,velocity,target", [(2.5e-3, 1.8, "glass"),
-                                                          pytest.param(6e-3, 0.35, "aluminium", marks=pytest.mark.slow)])  # ~20 s each
+@pytest.mark.parametrize("radius,velocity,target", [
+    (2.5e-3, 1.8, "glass"), pytest.param(6e-3, 0.35, "aluminium", marks=pytest.mark.slow)])  # ~20 s each
 def test_solver_meets_hertz_targets(radius, velocity, target):
     # coarser than hertz.ELEMS_PER_RADIUS (12, the README's check) for speed; the targets hold at 10
     r = hertz_check(radius=radius, velocity=velocity, target=target, elems_per_radius=10)

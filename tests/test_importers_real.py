@@ -84,7 +84,8 @@ def _write_tables(folder: Path, node_ids, xy_mm, n_frames=2):
     """Mechanical-style exports for every archive node (midside nodes included), values a function of x, y."""
     folder.mkdir()
     for k in range(n_frames):
-        for key, col in (("deformation_x", "Directional Deformation (mm)"), ("deformation_y", "Directional Deformation (mm)"),
+        for key, col in (("deformation_x", "Directional Deformation (mm)"),
+                         ("deformation_y", "Directional Deformation (mm)"),
                          ("velocity_x", "Directional Velocity (mm/s)"), ("velocity_y", "Directional Velocity (mm/s)"),
                          ("stress", "Equivalent (von-Mises) Stress (MPa)")):
             vals = (k + 1) * (1e-3 * xy_mm[:, 0] + 2e-3 * xy_mm[:, 1])
@@ -223,9 +224,9 @@ def test_workbench_dat_goes_to_the_cdb_reader_and_skips_non_solid_eblock(tmp_pat
 def test_plane_stress_keyopt_refused(tmp_path):
     pts = [(1, 0, 0), (2, 1, 0), (3, 1, 1), (4, 0, 1)]
     base = ["/units,si", "et,1,182", "keyopt,1,3,0", "nblock,3,,4", "(1i9,3e20.9e3)"]
+    element = [1, 1, 1, 1, 0, 0, 0, 0, 4, 0, 1, 1, 2, 3, 4]
     base += [f"{n:9d}{x:20.9E}{y:20.9E}" for n, x, y in pts] + ["-1", "eblock,19,solid,,1", "(19i9)",
-                                                                 "".join(f"{v:9d}" for v in [1, 1, 1, 1, 0, 0, 0, 0, 4, 0, 1, 1, 2, 3, 4]),
-                                                                 "-1"]
+                                                                 "".join(f"{v:9d}" for v in element), "-1"]
     (tmp_path / "ps.cdb").write_text("\n".join(base) + "\n")
     with pytest.raises(imp.InputFileError, match=r"ps\.cdb:2: element type 1 \(PLANE182\) has KEYOPT\(3\)=0 "
                                                  r"\(plane stress\).*set KEYOPT\(3\)"):

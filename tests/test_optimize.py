@@ -313,7 +313,8 @@ def test_optimize_table_orders_by_the_solver_and_names_bad_files(tmp_path):
     from experiments import optimize_table
     base = {"objective": "area_mean", "dataset_best": {"design_um": [110.0, 135.0], "mpa": 1.01},
             "n_evals": 10, "search_seconds": 2.0, "command": "python -m experiments.optimize ..."}
-    (tmp_path / "a.json").write_text(json.dumps({**base, "surrogate": "mgn", "method": "ga", "budget": {"pop": 100, "gens": 50},
+    (tmp_path / "a.json").write_text(json.dumps({**base, "surrogate": "mgn", "method": "ga",
+                                                 "budget": {"pop": 100, "gens": 50},
                                                  "optimum_um": [120, 94], "predicted_mpa": 0.97, "solver_mpa": 1.02,
                                                  "rel_error_pct": 4.9, "beats_dataset_best": False,
                                                  "surrogate_fingerprint": "0123456789abcdef"}))

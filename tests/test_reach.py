@@ -104,7 +104,8 @@ def test_report_coarsest_diameter_and_local_reach(cpu_mesh):
 
 
 def test_global_block_placement_and_multiscale_reach_grows():
-    assert global_block_steps(8) == (4, 8) and global_block_steps(15) == (4, 8, 12, 15) and global_block_steps(3) == (3,)
+    assert global_block_steps(8) == (4, 8) and global_block_steps(15) == (4, 8, 12, 15)
+    assert global_block_steps(3) == (3,)
     t = make_synthetic_trajectory()
     topo = topology_from_trajectory(t)
     levels = build_levels(topo.mesh_senders, topo.mesh_receivers, topo.n_node, 2)

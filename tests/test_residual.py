@@ -1,4 +1,5 @@
-"""residual_of: the MGN as a learned correction of a baseline's fields (pcmgn_jax/surrogates/residual.py, correction.py)."""
+"""residual_of: the MGN as a learned correction of a baseline's fields (pcmgn_jax/surrogates/residual.py,
+correction.py)."""
 import dataclasses
 import json
 

@@ -27,7 +27,8 @@ def test_long_rollout_finite_and_bcs(tiny_run, tiny_trajs):
     assert np.all(np.asarray(res.displacement)[:, axis, 0] == 0)
 
 
-@pytest.mark.slow  # ~17 s (the default suite's 10-minute budget); test_rollout_no_recompilation and the union tests stay
+# ~17 s (the default suite's 10-minute budget); test_rollout_no_recompilation and the union tests stay
+@pytest.mark.slow
 def test_scan_equals_python_loop_and_vmap(tiny_run, tiny_trajs):
     _, _, summary = tiny_run
     s, params = summary["setup"], summary["state"].params
@@ -51,7 +52,8 @@ def test_rollout_no_recompilation(tiny_run, tiny_trajs):
     rl.rollout(s.spec.sim, 4, params, s.stats, s.graphs[0].topology, s.graphs[0].index, *_args(tiny_trajs[0]))
     with CompileCounter("_rollout") as c:
         for t in tiny_trajs:
-            jax.block_until_ready(rl.rollout(s.spec.sim, 4, params, s.stats, s.graphs[0].topology, s.graphs[0].index, *_args(t)))
+            jax.block_until_ready(rl.rollout(s.spec.sim, 4, params, s.stats, s.graphs[0].topology, s.graphs[0].index,
+                                             *_args(t)))
     assert c.count == 0
 
 
@@ -239,7 +241,8 @@ def test_a_given_ball_path_drives_the_ball_and_its_own_path_changes_nothing(tiny
     same = rl.rollout_designs(spec, n, mgn.sim.params, mgn.sim.stats, [own]).rollouts[0]
     scale = float(np.abs(free.displacement).max())
     np.testing.assert_allclose(same.displacement, free.displacement, rtol=1e-5, atol=1e-5 * scale)
-    np.testing.assert_allclose(same.von_mises, free.von_mises, rtol=1e-3, atol=1e-3 * float(np.abs(free.von_mises).max()))
+    np.testing.assert_allclose(same.von_mises, free.von_mises, rtol=1e-3,
+                               atol=1e-3 * float(np.abs(free.von_mises).max()))
     ball = np.asarray(t.node_type) == 0
     path = np.zeros((n, t.n_nodes, 2), np.float32)
     path[:, :, 1] = -np.linspace(0.1e-6, 8e-6, n)[:, None]           # straight down, 8 µm by the end

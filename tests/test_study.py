@@ -227,7 +227,8 @@ def test_lambda_study_starts_the_paper_formulations_penalty_at_step_0(tmp_path, 
     assert study.main(["--name", "lambda", "--seeds", "0", "--runs", str(tmp_path / "runs"),
                        "--out", str(tmp_path / "out")]) == 0
     assert all((f.get("lambda_start") == 0) == ("/paper/" in w) for w, f in calls)
-    assert "The `paper` formulation adds `--lambda_start=0` in this study." in (tmp_path / "out" / "lambda.md").read_text()
+    text = (tmp_path / "out" / "lambda.md").read_text()
+    assert "The `paper` formulation adds `--lambda_start=0` in this study." in text
 
 
 def test_cell_settings_are_the_training_flags_they_are_written_as():

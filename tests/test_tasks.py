@@ -88,7 +88,8 @@ def test_learning_curve_crossings_table_plot_and_cli(tmp_path):
     from pcmgn_jax.eval.learning_curve import crossings, curve_rows, curve_table
     # the MGN's objective error falls 4.0 -> 1.0 -> 0.2 while kriging's stays 0.5: they cross at n = 48;
     # its position error never reaches rom's 0.1
-    pts = {24: [_m(0.4, 1.0, 0.1, 0.5), _m(0.6, 1.0, 0.1, 0.5)], 8: [_m(0.9, 4.0, 0.1, 0.5)], 48: [_m(0.2, 0.2, 0.1, 0.5)]}
+    pts = {24: [_m(0.4, 1.0, 0.1, 0.5), _m(0.6, 1.0, 0.1, 0.5)], 8: [_m(0.9, 4.0, 0.1, 0.5)],
+           48: [_m(0.2, 0.2, 0.1, 0.5)]}
     rows = curve_rows(pts)
     assert list(rows) == [8, 24, 48] and rows[24]["MGN"]["position_mae_um"] == pytest.approx(0.5)
     cross = crossings(rows)

@@ -130,7 +130,8 @@ def test_ema_parameters_are_the_average_and_what_the_best_checkpoint_keeps(tiny_
     best = checkpoint.load(tmp_path, tiny_trajs[0], which="best")
     for a, b in zip(jax.tree.leaves(best.params), jax.tree.leaves(last.ema_params)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    restored, _, _ = checkpoint.restore(tmp_path / "checkpoints" / "periodic", init_state(setup.spec, last.params).to_dict())
+    restored, _, _ = checkpoint.restore(tmp_path / "checkpoints" / "periodic",
+                                        init_state(setup.spec, last.params).to_dict())
     for a, b in zip(jax.tree.leaves(restored["ema_params"]), jax.tree.leaves(last.ema_params)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 

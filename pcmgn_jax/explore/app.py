@@ -110,8 +110,9 @@ def build_app(explorer: Explorer):
                 html.H3(first.headline, id="objective", style={"margin": "6px 0 10px"}),
                 html.Div(_table(first.rows), id="table"),
                 html.P("± : kriging's GP posterior std; the MGN's (explore --mgn_spread) the std of a GP of its "
-                       "objective residuals on the training scenes. 'vs solver': after a solver check, each predictor's "
-                       "relative error on the objective. Test-split errors: RUN/eval/metrics.json.", style=NOTE),
+                       "objective residuals on the training scenes. 'vs solver': after a solver check, each "
+                       "predictor's relative error on the objective. Test-split errors: RUN/eval/metrics.json.",
+                       style=NOTE),
             ]),
         ]),
         html.Div(style={"display": "flex", "gap": "24px", "alignItems": "center", "margin": "10px 0"}, children=[

@@ -46,7 +46,8 @@ def _scale(values_mpa: np.ndarray, vmax_mpa: float, scale: str) -> tuple[np.ndar
         lo = hi - LOG_DECADES
         c = np.log10(np.clip(np.nan_to_num(values_mpa, nan=0.0), 10.0 ** lo, None))
         ticks = np.arange(np.ceil(lo), np.floor(hi) + 1)
-        bar = {"tickvals": ticks.tolist(), "ticktext": [f"{10.0 ** t:g}" for t in ticks], "title": {"text": "MPa (log)"}}
+        bar = {"tickvals": ticks.tolist(), "ticktext": [f"{10.0 ** t:g}" for t in ticks],
+               "title": {"text": "MPa (log)"}}
         return c, lo, hi, bar
     if scale != "linear":
         raise ValueError(f"colour scale must be 'log' or 'linear', got {scale!r}")
@@ -184,7 +185,8 @@ def box_figure(params, x, samples, outside: Sequence[bool], *, band: tuple[float
                   "yaxis": {"title": {"text": f"{b.label} [{b.unit}]"}, "range": list(rb)}, "shapes": shapes}
     else:
         def z(v, p):
-            return ((np.asarray(v) - p.low) / (p.high - p.low)).tolist() if p.varied else (np.asarray(v) * 0 + 0.5).tolist()
+            return (((np.asarray(v) - p.low) / (p.high - p.low)).tolist() if p.varied
+                    else (np.asarray(v) * 0 + 0.5).tolist())
         rows = [p.label for p in params]
         data = [{"type": "scatter", "mode": "markers", "name": "training scenes", "hoverinfo": "skip",
                  "x": [v for i, p in enumerate(params) for v in z(samples[:, i], p)],

@@ -179,7 +179,8 @@ def _union_hierarchy(topologies: Sequence[Topology], n_fine: int, min_levels) ->
         return None
     real = np.sum([level_sizes(t.hierarchy) for t in topologies], axis=0)  # (levels, 2)
     mins = list(min_levels) + [(0, 0)] * (len(real) - len(min_levels))
-    sizes = [(bucket_size(int(n) + 1, max(m[0], 16)), bucket_size(int(e), max(m[1], 16))) for (n, e), m in zip(real, mins)]
+    sizes = [(bucket_size(int(n) + 1, max(m[0], 16)), bucket_size(int(e), max(m[1], 16)))
+             for (n, e), m in zip(real, mins)]
     return union_levels([t.hierarchy for t in topologies], [t.n_node for t in topologies], n_fine, sizes)
 
 

@@ -143,9 +143,9 @@ def reach_report(mesh, part_names: Sequence[str], panel_part: int, variants: dic
         if levels:
             diam = level_diameters(mesh_s, mesh_r, n, levels)
             entry["levels_detail"] = [{"level": k, "nodes": int(nn), "edges": int(e), "diameter": d}
-                                      for k, (nn, e, d) in enumerate(zip([n] + [lv.n_node for lv in levels],
-                                                                         [len(mesh_s)] + [len(lv.senders) for lv in levels],
-                                                                         diam))]
+                                      for k, (nn, e, d) in enumerate(zip(
+                                          [n] + [lv.n_node for lv in levels],
+                                          [len(mesh_s)] + [len(lv.senders) for lv in levels], diam))]
         report["variants"][name] = entry
     return report
 
@@ -160,6 +160,7 @@ def report_table(report: dict) -> list[str]:
     for name, v in report["variants"].items():
         diam = v["levels_detail"][-1]["diameter"] if "levels_detail" in v else "-"
         full = next((i + 1 for i, f in enumerate(v["oled_fraction_by_step"]) if f >= 1.0), "-")
-        lines.append(f"| {name} | {v['steps']} | {v['reach']} | {v.get('levels', '-') if v['reach'] == 'multiscale' else '-'} "
+        levels = v.get("levels", "-") if v["reach"] == "multiscale" else "-"
+        lines.append(f"| {name} | {v['steps']} | {v['reach']} | {levels} "
                      f"| {100 * v['oled_fraction']:.1f} % | {full} | {diam} |")
     return lines

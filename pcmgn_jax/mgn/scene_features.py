@@ -16,13 +16,17 @@ SCENE_FEATURES = {"ball_radius": ("ball", "radius"), "ball_velocity": ("ball", "
                   "layer_thickness": ("layers", "thickness"),  # one channel per layer, in the scene's order
                   "stack_thickness": ("layers", "thickness"),  # the same on every node, the contact pair's too
                   "material": ("parts", "material"),  # per node: its own part's material (material_rows)
-                  "own_thickness": ("parts", "own_thickness"),   # per node: its own layer's thickness [m] (0 on the ball)
-                  "layer_depth": ("parts", "layer_depth"),       # per node: its layer's top below the contact layer's top [m]
+                  # per node: its own layer's thickness [m] (0 on the ball)
+                  "own_thickness": ("parts", "own_thickness"),
+                  # per node: its layer's top below the contact layer's top [m]
+                  "layer_depth": ("parts", "layer_depth"),
                   "total_thickness": ("parts", "total_thickness")}  # per node: the stack's total thickness [m]
 PER_LAYER_FEATURES = ("layer_thickness", "stack_thickness")  # one channel per layer: width = the layer count
 LAYER_ONLY_FEATURES = ("layer_thickness",)  # 0 on the contact pair's nodes (scene_feature_rows)
-MATERIAL_CHANNELS = ("log10_youngs", "poisson", "log10_density")  # material_rows: log10(E / 1 Pa), nu, log10(rho / 1 kg m^-3)
-ACROSS_PART_FEATURES = ("material", "own_thickness", "layer_depth")  # constant within a part: normalised over all nodes, never per part
+# material_rows: log10(E / 1 Pa), nu, log10(rho / 1 kg m^-3)
+MATERIAL_CHANNELS = ("log10_youngs", "poisson", "log10_density")
+# constant within a part: normalised over all nodes, never per part
+ACROSS_PART_FEATURES = ("material", "own_thickness", "layer_depth")
 PART_CHANNELS = {"material": len(MATERIAL_CHANNELS), "own_thickness": 1, "layer_depth": 1, "total_thickness": 1}
 
 

@@ -123,8 +123,8 @@ def mgn_base(workdir, problem: Problem, cache_path, *, reading: str = "area_mean
     _, (train, _, _) = _splits(workdir)
     scene = Scene.from_dict(train[0].meta["scene"])
     part = scene.part_names.index("OLED")
-    obj = MGNObjective(fit("mgn", train, workdir=Path(workdir)), DesignMap.build(scene, solver_preset(train[0], workdir)),
-                       part=part, reading=reading)
+    obj = MGNObjective(fit("mgn", train, workdir=Path(workdir)),
+                       DesignMap.build(scene, solver_preset(train[0], workdir)), part=part, reading=reading)
     path = Path(cache_path)
     memo = json.loads(path.read_text()) if path.exists() else {}
 
@@ -195,7 +195,8 @@ def table_markdown(result: dict, command: str = "") -> str:
     budgets = result["budgets"]
     lines = [f"Reference: {ref['mpa']:.4f} MPa at {ref['design_um']} µm (the solver, "
              f"{result['context']['preset']} preset, {result['context']['reading']}). Gap of the best solver value "
-             f"found to it, mean over seeds {result['seeds']} (worst in brackets); negative = better than the reference.",
+             f"found to it, mean over seeds {result['seeds']} (worst in brackets); "
+             "negative = better than the reference.",
              "", "| strategy | " + " | ".join(f"{b} runs" for b in budgets)
              + f" | solver runs to within {result['hit_pct']} % (per seed) | holdout error at the largest budget [%] |",
              "|---|" + "---|" * (len(budgets) + 2)]

@@ -43,7 +43,8 @@ def optimum_spread(surrogate: str, obj, x, train: Sequence, *, part: int, readin
             proxy = fit(SPREAD_OF, train, readings=(reading,), part=part, fields=False).objective
             _, sd = proxy.predict(x, return_std=True)
             return {"std_mpa": float(sd[reading][0]),
-                    "source": f"proxy: the kriging std of the same training data ({surrogate} has no spread of its own)"}
+                    "source": f"proxy: the kriging std of the same training data "
+                              f"({surrogate} has no spread of its own)"}
         if members:
             vals = [float(obj(x)[0])]
             for m in members:

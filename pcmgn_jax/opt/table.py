@@ -45,9 +45,11 @@ def rows(paths) -> list[str]:
     if len(best) == 1 and results[0][1].get("dataset_best"):
         db = results[0][1]["dataset_best"]
         lines += [f"Best of the dataset's own solver-evaluated designs: {db['mpa']:.4f} MPa at "
-                  f"{db['design_um'][0]:.1f} / {db['design_um'][1]:.1f} µm (objective `{results[0][1]['objective']}`).", ""]
+                  f"{db['design_um'][0]:.1f} / {db['design_um'][1]:.1f} µm "
+                  f"(objective `{results[0][1]['objective']}`).", ""]
     lines += ["| file | surrogate | method | budget | optimum T1 / T2 [µm] | predicted [MPa] | solver [MPa] | "
-              "error [%] | search [s] | evaluations | beats dataset best |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+              "error [%] | search [s] | evaluations | beats dataset best |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for p, d in results:
         fp = d.get("surrogate_fingerprint")
         solver = d.get("solver_mpa")
@@ -56,6 +58,7 @@ def rows(paths) -> list[str]:
             f"| `{name[p]}` | {d['surrogate']}{f' `{fp[:8]}`' if fp else ''} | {d['method']} | {budget_of(d)} | "
             f"{d['optimum_um'][0]:.1f} / {d['optimum_um'][1]:.1f} | {d['predicted_mpa']:.4f} | "
             + ("– | – | " if solver is None else f"{solver:.4f} | {d['rel_error_pct']:.2f} | ")
-            + f"{d['search_seconds']:.1f} | {d['n_evals']:,} | {'–' if beats is None else ('yes' if beats else 'no')} |")
+            + f"{d['search_seconds']:.1f} | {d['n_evals']:,} | "
+            + f"{'–' if beats is None else ('yes' if beats else 'no')} |")
     lines += ["", "Commands:", ""] + [f"- `{name[p]}`: `{d['command']}`" for p, d in results]
     return lines

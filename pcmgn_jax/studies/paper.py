@@ -250,14 +250,16 @@ def write(name, out, table_ref, steps, study_cells, forms, seeds, results, *, co
     done = sum(len(results.get(f, {}).get(c[0], {})) for f in forms for c in study_cells)
     total = len(forms) * len(study_cells) * len(seeds)
     if done < total:
-        lines += [f"**Partial: {done} of {total} cell-seeds measured so far** (the runner resumes where it stopped).", ""]
+        lines += [f"**Partial: {done} of {total} cell-seeds measured so far** "
+                  "(the runner resumes where it stopped).", ""]
     lines += [
              "| formulation | cell | position MAE | stress MAE | objective error [%] | max penetration [µm] | "
              "train [s] | paper: position / stress |", "|---|---|---|---|---|---|---|---|"]
     for form in forms:
         for label, _, pc, pv in study_cells:
             per = list(results.get(form, {}).get(label, {}).values())
-            paper = "–" if pc is None else f"{pc[0]:g} / {pc[1]:g}" + ("" if pv is None else f" ({pv[0]:g} / {pv[1]:g})")
+            paper = ("–" if pc is None
+                     else f"{pc[0]:g} / {pc[1]:g}" + ("" if pv is None else f" ({pv[0]:g} / {pv[1]:g})"))
             if not per:
                 lines.append(f"| {form} | {label} | not run yet | | | | | {paper} |")
                 continue

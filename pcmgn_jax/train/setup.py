@@ -155,7 +155,8 @@ def objective_loss_weights(traj, scene: Scene) -> np.ndarray:
     the evaluation scores) on one trajectory's mesh, for the ``lambda_obj`` term. ValueError when the
     scene has no part named 'OLED'."""
     if "OLED" not in scene.part_names:
-        raise ValueError(f"lambda_obj > 0 needs a part named 'OLED' (the objective's layer); the scene has {list(scene.part_names)}")
+        raise ValueError(f"lambda_obj > 0 needs a part named 'OLED' (the objective's layer); "
+                         f"the scene has {list(scene.part_names)}")
     w = objective_weights(traj.points, traj.cells, traj.cell_part, traj.node_part, part=scene.part_names.index("OLED"))
     return np.asarray(w, np.float32)
 
@@ -291,7 +292,8 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
         sigma = noise_sigma(topo.node_type, g_ref.node_part, topo.fixed, parts=cfg.noise_parts,
                             noise_std=cfg.noise_std, noise_rel=cfg.noise_rel, rms=rms)
         shared[key] = GraphParts(topo, index, sigma, w["motion"], w["stress"], float(w["ball"]),
-                                 noise_parts_mask(g_ref.node_part, cfg.noise_parts, fixed=topo.fixed).astype(np.float32),
+                                 noise_parts_mask(g_ref.node_part, cfg.noise_parts,
+                                                  fixed=topo.fixed).astype(np.float32),
                                  pen_ball, pen_panel, w_obj)
     # one buffer size per dataset: the largest any mesh needs
     cap = max(p.index.capacity for p in shared.values())

@@ -174,8 +174,8 @@ def _total(spec: TrainSpec, batch, loss_data, loss_pen, loss_obj, edges, step):
     loss = loss_data + lam * loss_pen + spec.cfg.lambda_obj * loss_obj
     real = batch.graph_mask
     mean = lambda a: jnp.sum(jnp.where(real, a, 0.0)) / jnp.maximum(jnp.sum(real), 1)  # noqa: E731
-    return mean(loss), dict(loss_data=mean(loss_data), loss_pen=mean(loss_pen), loss_obj=mean(loss_obj), loss_graph=loss,
-                            overflow=jnp.any(edges.overflow), contact_count=jnp.max(edges.count))
+    return mean(loss), dict(loss_data=mean(loss_data), loss_pen=mean(loss_pen), loss_obj=mean(loss_obj),
+                            loss_graph=loss, overflow=jnp.any(edges.overflow), contact_count=jnp.max(edges.count))
 
 
 def _loss_per_design(params, spec: TrainSpec, stats: Stats, batch, key, step=None):
