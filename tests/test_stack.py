@@ -127,6 +127,12 @@ def test_generate_records_every_stack_and_shards_alike(tmp_path):
         assert [len(e["layers"]) for e in entries] == [stack_layer_count(e["scene_params"]) for e in entries]
     resumed = {k: v for k, v in kw.items() if k != "stack_split"}     # as training calls it: the manifest's plan
     assert strip(load_manifest(ensure_dataset(tmp_path / "whole", **resumed))) == strip(whole)
+    # a learning-curve point (fewer training stacks) reads the dataset as it is: no second hypercube (which
+    # would be other stacks, refused as "holds other designs")
+    from pcmgn_jax.data.splits import load_splits, prepare_dataset
+    prepare_dataset(tmp_path / "whole", preset="stack_tiny", n_train=2, n_test=1, seed=0, solve_fn=None)
+    train, val, _ = load_splits(tmp_path / "whole", n_train=1, n_val=1, n_test=0)
+    assert [t.meta["name"] for t in train + val] == [e["name"] for e in whole["splits"]["train"]["trajectories"][:2]]
     for k in (0, 1):
         ensure_dataset(tmp_path / "sharded", shard=(k, 2), **kw)
     merged = load_manifest(ensure_dataset(tmp_path / "sharded", merge=True, **kw))
