@@ -52,13 +52,18 @@ class TrainingDiverged(RuntimeError):
 
 
 def init_params(setup: Setup, example_traj, seed: int):
-    """Fresh model parameters (shapes from one example frame, ``example_traj`` on its own mesh)."""
-    t0 = example_traj
+    """Fresh model parameters (shapes from one example frame, ``example_traj`` on its own mesh). One jitted
+    call (its program comes from the persistent compilation cache on a warm start), not Flax's op-by-op
+    eager init, which compiles every small operation anew in each process; the same parameters bit for bit."""
+    t0, form, model = example_traj, setup.spec.sim.formulation, setup.spec.sim.model
     d = graph_for(setup, t0)
-    g, _ = input_graph(setup.spec.sim.formulation, d["topology"], d["index"], t0.points, t0.displacement[0],
-                       t0.velocity[0])
-    g = normalize_graph(setup.stats, g, d["topology"].node_type)
-    return setup.spec.sim.model.init(jax.random.PRNGKey(seed), g)
+
+    def init(key, topology, index, stats, points, u, v):
+        g, _ = input_graph(form, topology, index, points, u, v)
+        return model.init(key, normalize_graph(stats, g, topology.node_type))
+
+    return jax.jit(init)(jax.random.PRNGKey(seed), d["topology"], d["index"], setup.stats, t0.points,
+                         t0.displacement[0], t0.velocity[0])
 
 
 def rollout_frames(setup: Setup, params, trajs):

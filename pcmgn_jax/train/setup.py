@@ -161,9 +161,9 @@ def objective_loss_weights(traj, scene: Scene) -> np.ndarray:
 
 
 @functools.partial(jax.jit, static_argnames=("spec",))
-def _noisy_features(spec: Spec, topology, index, sigma, smp, key):
+def _noisy_features(spec: Spec, topology, index, sigma, smp, key, n):
     form = spec.formulation
-    smp = perturb(spec, topology, smp, sigma, key)
+    smp = perturb(spec, topology, smp, sigma, jax.random.fold_in(key, n))  # pair n's draw, inside the one call
     g, edges = input_graph(form, topology, index, smp["points"], smp["u"], smp["v"])
     return (g.nodes[:, topology.n_node_types:], g.edges["mesh"].features, g.edges["contact"].features,
             edges.mask, smp["target"], smp["ball"])
@@ -206,8 +206,7 @@ def compute_stats(spec: Spec, trajs, topology, index, sigma, *, max_frames: int 
         # motion targets of the free nodes that move on their own (not a rigid ball's), stress of all nodes
         moving = ~np.asarray(topo.fixed) & ~((node_type == BALL_PART) & form.rigid_ball)
         smp = f32(sample(form, trajs[i], int(t), spec.dt))
-        node, mesh, cont, mask, target, ball = _noisy_features(spec, topo, indices[i], sigmas[i], smp,
-                                                                jax.random.fold_in(key, n))
+        node, mesh, cont, mask, target, ball = _noisy_features(spec, topo, indices[i], sigmas[i], smp, key, n)
         acc["node"].add(node, node_type)
         acc["mesh"].add(mesh, node_type[np.asarray(topo.mesh_receivers)])
         acc["contact"].add(cont, np.asarray(mask))
