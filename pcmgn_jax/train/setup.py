@@ -40,6 +40,7 @@ from pcmgn_jax.mgn.inputs import contact_radius, graph_inputs, with_scene
 from pcmgn_jax.mgn.normalization import Accumulator, Stats, TypedAccumulator, make_stats
 from pcmgn_jax.mgn.rollout import Spec, input_graph
 from pcmgn_jax.scene import Scene
+from pcmgn_jax.train import startup_cache
 from pcmgn_jax.train.noise import motion_rms, noise_parts_mask, noise_sigma, perturb
 from pcmgn_jax.train.sampling import pair_table, sample
 
@@ -307,9 +308,11 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
     spec = TrainSpec(sim=sim, cfg=cfg, decay_steps=cfg.lr_decay_steps or steps, pen_interval=interval)
     from pcmgn_jax.train.sharding import resolve_devices
     sizes = union_sizes(graphs, per_union=max(1, cfg.batch_graphs // resolve_devices(cfg.devices)), capacity=cap)
-    if stats is None:
-        stats = compute_stats(sim, train_trajs, [g.topology for g in graphs], [g.index for g in graphs],
-                              [g.sigma for g in graphs], max_frames=stats_max_frames, seed=cfg.seed)
+    if stats is None:  # kept beside the compiled programs: a warm start reads them (train/startup_cache.py)
+        stats = startup_cache.stats(cfg, train_trajs, dict(max_frames=stats_max_frames, radius=r_w, capacity=cap),
+                                   lambda: compute_stats(sim, train_trajs, [g.topology for g in graphs],
+                                                         [g.index for g in graphs], [g.sigma for g in graphs],
+                                                         max_frames=stats_max_frames, seed=cfg.seed))
     return Setup(spec, graphs, sizes, stats, scene, n_pairs, steps)
 
 
