@@ -211,3 +211,57 @@ def test_padded_objective_equals_one_design_at_a_time(tiny_run, tiny_trajs):
     alone = _mgn_objective(workdir, ref, batch=1)(designs)
     assert np.ptp(alone) > 0  # the designs differ
     np.testing.assert_allclose(padded, alone, rtol=1e-5, atol=1e-6 * np.abs(alone).max())
+
+
+# ---- the start-up cache: statistics and initial parameters beside the compiled programs -----------------
+def _hashed(trajs):
+    """Copies of ``trajs`` carrying a content hash, as the dataset's read cache gives them."""
+    return [dataclasses.replace(t, meta=dict(t.meta, source_sha256=f"sha-{i}")) for i, t in enumerate(trajs)]
+
+
+def test_startup_cache_key_covers_data_config_and_code(tiny_trajs):
+    from pcmgn_jax.train import startup_cache
+    cfg, trajs = tiny_config(), _hashed(tiny_trajs[:2])
+    k = startup_cache.key("stats", cfg, trajs, {"capacity": 16})
+    assert len(k) == 64 and k == startup_cache.key("stats", cfg, trajs, {"capacity": 16})
+    others = [startup_cache.key("params", cfg, trajs, {"capacity": 16}),
+              startup_cache.key("stats", cfg, trajs, {"capacity": 32}),
+              startup_cache.key("stats", cfg, trajs[::-1], {"capacity": 16}),
+              startup_cache.key("stats", tiny_config(seed=1), trajs, {"capacity": 16})]
+    assert len({k, *others}) == 5
+    assert startup_cache.key("stats", cfg, list(tiny_trajs[:2]), {}) is None   # no content hash: no cache
+    assert len(startup_cache.code_hash()) == 64
+
+
+def test_startup_cache_round_trip_and_off(tiny_trajs, tmp_path, monkeypatch):
+    """Statistics and parameters read back bit for bit; computed once per key; a damaged file is computed
+    again; nothing is kept when the compilation cache is off."""
+    import jax
+
+    from pcmgn_jax.train import setup as setup_lib
+    from pcmgn_jax.train import startup_cache
+    from pcmgn_jax.train.loop import init_params
+    cfg = tiny_config(latent_size=8, message_passing_steps=1)
+    trajs = _hashed(tiny_trajs[:2])
+    monkeypatch.setattr(startup_cache.compile_cache, "active", lambda: tmp_path)
+    calls = []
+    real = setup_lib.compute_stats
+    monkeypatch.setattr(setup_lib, "compute_stats", lambda *a, **k: calls.append(1) or real(*a, **k))
+    first = setup_lib.prepare(cfg, trajs)
+    again = setup_lib.prepare(cfg, trajs)
+    assert len(calls) == 1
+    for a, b in zip(first.stats, again.stats):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    p1, p2 = init_params(first, trajs[0], 0), init_params(first, trajs[0], 0)
+    assert jax.tree.structure(p1) == jax.tree.structure(p2)
+    assert all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(jax.tree.leaves(p1), jax.tree.leaves(p2)))
+    files = sorted((tmp_path / "start").iterdir())
+    assert sorted(f.suffix for f in files) == [".json", ".npz"]
+    for f in files:
+        f.write_text("damaged")
+    setup_lib.prepare(cfg, trajs)
+    assert len(calls) == 2 and init_params(first, trajs[0], 0) is not None
+    assert all(f.stat().st_size > len("damaged") for f in files)         # replaced by good files
+    monkeypatch.setattr(startup_cache.compile_cache, "active", lambda: None)
+    setup_lib.prepare(cfg, _hashed(tiny_trajs[1:3]))
+    assert len(calls) == 3 and len(list((tmp_path / "start").iterdir())) == 2
