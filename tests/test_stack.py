@@ -10,6 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from fixtures.helpers import make_synthetic_trajectory
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.data.stack import (
     BALL_RANGES,
@@ -21,6 +22,7 @@ from pcmgn_jax.data.stack import (
 )
 from pcmgn_jax.presets import STACK_FEATURES
 from pcmgn_jax.scene import default_scene
+from pcmgn_jax.surrogates.transfer import part_coordinates, transfer_fields
 
 FAM = STACK_FAMILIES["stack_tiny"]
 
@@ -134,6 +136,12 @@ def test_generate_records_every_stack_and_shards_alike(tmp_path):
         assert [len(e["layers"]) for e in entries] == [stack_layer_count(e["scene_params"]) for e in entries]
     resumed = {k: v for k, v in kw.items() if k != "stack_split"}     # as training calls it: the manifest's plan
     assert strip(load_manifest(ensure_dataset(tmp_path / "whole", **resumed))) == strip(whole)
+    # a learning-curve point (fewer training stacks) reads the dataset as it is: no second hypercube (which
+    # would be other stacks, refused as "holds other designs")
+    from pcmgn_jax.data.splits import load_splits, prepare_dataset
+    prepare_dataset(tmp_path / "whole", preset="stack_tiny", n_train=2, n_test=1, seed=0, solve_fn=None)
+    train, val, _ = load_splits(tmp_path / "whole", n_train=1, n_val=1, n_test=0)
+    assert [t.meta["name"] for t in train + val] == [e["name"] for e in whole["splits"]["train"]["trajectories"][:2]]
     for k in (0, 1):
         ensure_dataset(tmp_path / "sharded", shard=(k, 2), **kw)
     merged = load_manifest(ensure_dataset(tmp_path / "sharded", merge=True, **kw))
@@ -254,3 +262,24 @@ def test_a_7_layer_scene_keeps_its_energy():
     total = np.asarray(res.energy[0]).sum(-1)     # kinetic + internal + contact [J], every frame
     assert res.energy_error[0] < 0.01, res.energy_error[0]
     assert abs(total[-1] - total[0]) < 0.01 * total[0]
+
+
+def test_transfer_to_a_part_the_source_has_no_nodes_of():
+    """A one-element layer whose nodes all sit on its interfaces has no nodes of its own (node_part goes to the
+    neighbour): the fields of the destination's nodes of that part come from the nearest source node over all
+    parts, instead of a refusal that left the rom and the nearest scene without an answer (a stack dataset's BF)."""
+    dst = make_synthetic_trajectory(1.0)
+    src = make_synthetic_trajectory(0.9)
+    src.node_part = np.where(src.node_part == 1, 2, src.node_part)          # the source's CG nodes relabelled
+    u, vm = transfer_fields(src, dst.points, dst.node_part, dst.meta["scene"])
+    assert u.shape == dst.displacement.shape and vm.shape == dst.von_mises.shape
+    assert np.isfinite(u).all() and np.isfinite(vm).all()
+    cg = dst.node_part == 1
+    a = part_coordinates(src.points, src.node_part, src.meta["scene"])
+    b = part_coordinates(dst.points, dst.node_part, dst.meta["scene"])
+    span = np.ptp(a[:, 0])                                                   # x scaled by the source's span
+    a[:, 0] /= span
+    b[:, 0] /= span
+    nearest = np.argmin(((b[cg, None] - a[None]) ** 2).sum(-1), axis=1)
+    np.testing.assert_allclose(vm[:, cg], src.von_mises[:, nearest])
+    np.testing.assert_allclose(u[:, cg], src.displacement[:, nearest])

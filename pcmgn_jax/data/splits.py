@@ -54,8 +54,8 @@ def prepare_dataset(dataset_dir: str | os.PathLike, *, preset: str, n_train: int
 
 
 def _covers(root: Path, *, preset: str, n_train: int, n_test: int, seed: int) -> bool:
-    """True when ``root``'s manifest is a finished LHS dataset of ``preset`` and ``seed`` with at least
-    ``n_train`` train and ``n_test`` test trajectories (every one written: a sha256 recorded)."""
+    """True when ``root``'s manifest is a finished LHS (or stack-family) dataset of ``preset`` and ``seed``
+    with at least ``n_train`` train and ``n_test`` test trajectories (every one written: a sha256 recorded)."""
     man = load_manifest(root)
     if not man or man.get("preset") != preset:
         return False
@@ -63,7 +63,7 @@ def _covers(root: Path, *, preset: str, n_train: int, n_test: int, seed: int) ->
         sp = man["splits"].get(split)
         if need == 0:
             continue
-        if sp is None or sp["origin"].get("kind") != "lhs" or sp["origin"].get("seed") != seed:
+        if sp is None or sp["origin"].get("kind") not in ("lhs", "stack") or sp["origin"].get("seed") != seed:
             return False
         done = [e for e in sp["trajectories"] if e.get("sha256")]
         if len(done) < need or len(done) < len(sp["trajectories"]):

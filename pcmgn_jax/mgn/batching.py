@@ -39,6 +39,7 @@ from pcmgn_jax.mgn.graphs import Topology
 from pcmgn_jax.mgn.hierarchy import level_sizes, union_levels
 
 BUCKET_STEPS = tuple(range(8, 16))  # sizes m * 2^k, m in 8..15: 8 sizes per octave, < 12.5 % padding
+MIN_NODES, MIN_EDGES = 64, 256      # the smallest union (nodes, mesh edges) batch_graphs pads to
 
 
 def bucket_size(n: int, minimum: int = 16) -> int:
@@ -57,6 +58,23 @@ def design_slots(n_designs: int) -> int:
     if n_designs < 1:
         raise ValueError(f"a batch needs at least one design, got {n_designs}")
     return 1 << (int(n_designs) - 1).bit_length()
+
+
+def slot_minimums(topologies: Sequence[Topology], slots: int) -> dict:
+    """:func:`batch_graphs` minimums that size a union by its graph ``slots`` and its largest design, not by
+    how many designs fill it: nodes ``slots`` x the most nodes of one of ``topologies`` (plus the padding
+    node), mesh edges and every coarse level's likewise. A union of k <= ``slots`` designs of these meshes
+    then has one shape whatever k is (a GA's population after its cached designs are dropped, a ragged last
+    batch), so a rollout compiles once per slot count (a power of two), not once per design count."""
+    slots = design_slots(slots)
+    most_nodes = max(t.n_node for t in topologies)
+    most_edges = max(len(t.mesh_senders) for t in topologies)
+    levels = ()
+    if topologies[0].hierarchy is not None:
+        most = np.max([level_sizes(t.hierarchy) for t in topologies], axis=0)  # (levels, 2)
+        levels = tuple((slots * int(n) + 1, slots * int(e)) for n, e in most)
+    return dict(min_nodes=max(MIN_NODES, slots * most_nodes + 1), min_edges=max(MIN_EDGES, slots * most_edges),
+                min_slots=slots, min_levels=levels)
 
 
 @struct.dataclass
@@ -98,7 +116,7 @@ class GraphBatch:
 
 
 def batch_graphs(topologies: Sequence[Topology], indices: Sequence[contact_lib.ContactIndex],
-                 points: Sequence[np.ndarray], *, min_nodes: int = 64, min_edges: int = 256,
+                 points: Sequence[np.ndarray], *, min_nodes: int = MIN_NODES, min_edges: int = MIN_EDGES,
                  min_slots: int = 1, min_capacity: int = 16, min_ball: int = 8, min_panel: int = 8,
                  min_levels: Sequence[tuple[int, int]] = ()) -> GraphBatch:
     """Host-side: the padded union of designs (their topology, contact index, reference points [m]).

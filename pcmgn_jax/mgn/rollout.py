@@ -26,7 +26,16 @@ import numpy as np
 
 from pcmgn_jax import compile_notes
 from pcmgn_jax.mgn import contact as contact_lib
-from pcmgn_jax.mgn.batching import GraphBatch, Layout, batch_graphs, split, split_graphs, to_union
+from pcmgn_jax.mgn.batching import (
+    GraphBatch,
+    Layout,
+    batch_graphs,
+    bucket_size,
+    slot_minimums,
+    split,
+    split_graphs,
+    to_union,
+)
 from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, integrate, model_inputs, rigidify
 from pcmgn_jax.mgn.graphs import Topology, build_graph
 from pcmgn_jax.mgn.normalization import Stats, denormalize_output, normalize_graph, normalize_last_node_channels
@@ -280,8 +289,7 @@ rollout = jax.jit(_rollout, static_argnames=("spec", "n_steps"))
 rollout.__doc__ = """Jitted rollout: ``rollout(spec, n_steps, params, stats, topology, index, points, u0, v0, vm0)``.
 
 points (N,2) reference [m]; u0 (N,2) [m], v0 (N,2) [m/s], vm0 (N,) [Pa] the initial frame.
-Returns :class:`Rollout` with n_steps + 1 frames. One compilation per (spec, n_steps, shapes).
-"""
+Returns :class:`Rollout` with n_steps + 1 frames. One compilation per (spec, n_steps, shapes)."""
 
 
 @functools.partial(jax.jit, static_argnames=("spec", "n_steps"))
@@ -314,7 +322,8 @@ def _until_no_overflow(run, index, max_grow: int):
         if not bool(np.any(np.asarray(res.overflow))):
             return res, index
         needed = int(np.max(np.asarray(res.contact_count)))
-        new = contact_lib.grow(index, needed)
+        new = contact_lib.grow(index, needed)  # to a bucket, as batch_graphs rounds (rollout_designs reuses it)
+        new = new.replace(capacity=bucket_size(new.capacity, 16))
         if new.capacity == index.capacity:
             break
         index = new
@@ -336,7 +345,6 @@ def rollout_checked(spec: Spec, n_steps: int, params, stats, topology, index, po
 def rollout_union_checked(spec: Spec, n_steps: int, params, stats, batch: GraphBatch, u0, v0, vm0,
                           *, max_grow: int = 6, ball_path=None):
     """:func:`rollout_union` growing the per-graph contact buffer until nothing overflows.
-
     Returns (Rollout over the union, the batch actually used)."""
     res, index = _until_no_overflow(
         lambda idx: rollout_union(spec, n_steps, params, stats, batch.replace(index=idx), u0, v0, vm0, ball_path),
@@ -363,18 +371,21 @@ def rollout_designs(spec: Spec, n_steps: int, params, stats, designs, *, batch_s
 
     designs: sequence of dicts with ``topology``, ``index`` (its ContactIndex), ``points`` (N_g, 2) [m],
     ``u0``, ``v0`` (N_g, 2), ``vm0`` (N_g,), and optionally (every design or none) ``ball_u``, ``ball_v``
-    (n_steps, N_g, 2): a given ball path (:func:`rollout_union`'s ``ball_path``). A grown contact buffer is kept for the
-    following batches. ``compiled``: size buckets (:meth:`GraphBatch.bucket`) already compiled; a batch of a new bucket
-    runs once untimed first (compilation, buffer sizing) and its bucket is added. ``seconds`` times the
+    (n_steps, N_g, 2): a given ball path (:func:`rollout_union`'s ``ball_path``). A grown contact buffer (a
+    size bucket) is kept for the following batches. Every union of a call has one shape
+    (:func:`pcmgn_jax.mgn.batching.slot_minimums` of ``min(batch_size, len(designs))`` slots): a short last
+    batch reuses the full ones' compilation, other design counts compile once per power of two.
+    ``compiled``: size buckets (:meth:`GraphBatch.bucket`) already compiled; a batch of a new bucket runs
+    once untimed first (compilation, buffer sizing) and its bucket is added. ``seconds`` times the
     rollouts only (host-side batching and splitting excluded). ``note``: the name in the console line
     printed while a new size bucket compiles (:mod:`pcmgn_jax.compile_notes`).
     """
     out, capacity, seconds = [], 0, 0.0
+    sizes = slot_minimums([d["topology"] for d in designs], min(batch_size, len(designs)))
     for i in range(0, len(designs), batch_size):
         chunk = designs[i:i + batch_size]
         batch = batch_graphs([d["topology"] for d in chunk], [d["index"] for d in chunk],
-                             [d["points"] for d in chunk], min_slots=min(batch_size, len(designs)),
-                             min_capacity=capacity)
+                             [d["points"] for d in chunk], min_capacity=capacity, **sizes)
         init = [to_union(batch, [d[k] for d in chunk]) for k in ("u0", "v0", "vm0")]
         path = None
         if "ball_u" in chunk[0]:  # (n_steps, N_g, 2) per design -> (n_steps, N, 2) on the union

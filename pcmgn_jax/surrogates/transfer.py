@@ -48,10 +48,16 @@ def transfer_fields(src, dst_points, dst_node_part, dst_scene: dict) -> tuple[np
     T = values.shape[0]
     out = np.zeros((T, len(b), 3))
     src_part, dst_part = np.asarray(src.node_part), np.asarray(dst_node_part)
+    # x scaled by the source's span so that both part-relative coordinates are O(1) for the nearest-node rule
+    scale = np.array([max(float(np.ptp(a[:, 0])), 1e-30), 1.0])
     for k in np.unique(dst_part):
         s_sel, d_sel = src_part == k, dst_part == k
         if not s_sel.any():
-            raise ValueError(f"field transfer: part {k} has no nodes in {src.meta.get('name', 'the source')}")
+            # a part without nodes of its own in the source (a one-element layer whose nodes all sit on its
+            # interfaces and so belong to the stiffer neighbour): the nearest source node over every part
+            got = NearestNDInterpolator(a / scale, values.transpose(1, 0, 2).reshape(len(a), -1))(b[d_sel] / scale)
+            out[:, d_sel] = got.reshape(d_sel.sum(), T, 3).transpose(1, 0, 2)
+            continue
         lo, span = a[s_sel].min(0), np.maximum(np.ptp(a[s_sel], axis=0), 1e-30)
         xa, xb = (a[s_sel] - lo) / span, (b[d_sel] - lo) / span
         vals = values[:, s_sel].transpose(1, 0, 2).reshape(s_sel.sum(), -1)

@@ -39,6 +39,7 @@ from pcmgn_jax.metrics import position_mae_um
 from pcmgn_jax.mgn import checkpoint, contact as contact_lib
 from pcmgn_jax.mgn.normalization import normalize_graph
 from pcmgn_jax.mgn.rollout import input_graph, rollout_designs
+from pcmgn_jax.train import startup_cache
 from pcmgn_jax.train.resume import resume_point
 from pcmgn_jax.train.sampling import gather_unions, pair_table, sample_ids
 from pcmgn_jax.train.setup import Setup, graph_for, prepare
@@ -51,13 +52,23 @@ class TrainingDiverged(RuntimeError):
 
 
 def init_params(setup: Setup, example_traj, seed: int):
-    """Fresh model parameters (shapes from one example frame, ``example_traj`` on its own mesh)."""
-    t0 = example_traj
-    d = graph_for(setup, t0)
-    g, _ = input_graph(setup.spec.sim.formulation, d["topology"], d["index"], t0.points, t0.displacement[0],
-                       t0.velocity[0])
-    g = normalize_graph(setup.stats, g, d["topology"].node_type)
-    return setup.spec.sim.model.init(jax.random.PRNGKey(seed), g)
+    """Fresh model parameters (shapes from one example frame, ``example_traj`` on its own mesh). One jitted
+    call, not Flax's op-by-op eager init (which compiles every small operation anew in each process): the
+    same parameters bit for bit; a warm start reads them from the start-up cache (train/startup_cache.py)."""
+    t0, form, model = example_traj, setup.spec.sim.formulation, setup.spec.sim.model
+
+    def compute():
+        d = graph_for(setup, t0)
+
+        def init(key, topology, index, stats, points, u, v):
+            g, _ = input_graph(form, topology, index, points, u, v)
+            return model.init(key, normalize_graph(stats, g, topology.node_type))
+
+        return jax.jit(init)(jax.random.PRNGKey(seed), d["topology"], d["index"], setup.stats, t0.points,
+                             t0.displacement[0], t0.velocity[0])
+
+    extra = dict(seed=seed, radius=setup.radius, capacity=setup.sizes.capacity)
+    return startup_cache.params(setup.spec.cfg, [t0], extra, compute)
 
 
 def rollout_frames(setup: Setup, params, trajs):

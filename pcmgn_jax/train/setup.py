@@ -41,6 +41,7 @@ from pcmgn_jax.mgn.normalization import Accumulator, Stats, TypedAccumulator, ma
 from pcmgn_jax.mgn.rollout import Spec, input_graph
 from pcmgn_jax.mgn.scene_features import across_part_channels
 from pcmgn_jax.scene import Scene
+from pcmgn_jax.train import startup_cache
 from pcmgn_jax.train.noise import motion_rms, noise_parts_mask, noise_sigma, perturb
 from pcmgn_jax.train.sampling import pair_table, sample
 
@@ -162,9 +163,9 @@ def objective_loss_weights(traj, scene: Scene) -> np.ndarray:
 
 
 @functools.partial(jax.jit, static_argnames=("spec",))
-def _noisy_features(spec: Spec, topology, index, sigma, smp, key):
+def _noisy_features(spec: Spec, topology, index, sigma, smp, key, n):
     form = spec.formulation
-    smp = perturb(spec, topology, smp, sigma, key)
+    smp = perturb(spec, topology, smp, sigma, jax.random.fold_in(key, n))  # pair n's draw, inside the one call
     g, edges = input_graph(form, topology, index, smp["points"], smp["u"], smp["v"])
     return (g.nodes[:, topology.n_node_types:], g.edges["mesh"].features, g.edges["contact"].features,
             edges.mask, smp["target"], smp["ball"])
@@ -208,8 +209,7 @@ def compute_stats(spec: Spec, trajs, topology, index, sigma, *, max_frames: int 
         # motion targets of the free nodes that move on their own (not a rigid ball's), stress of all nodes
         moving = ~np.asarray(topo.fixed) & ~((node_type == BALL_PART) & form.rigid_ball)
         smp = f32(sample(form, trajs[i], int(t), spec.dt))
-        node, mesh, cont, mask, target, ball = _noisy_features(spec, topo, indices[i], sigmas[i], smp,
-                                                                jax.random.fold_in(key, n))
+        node, mesh, cont, mask, target, ball = _noisy_features(spec, topo, indices[i], sigmas[i], smp, key, n)
         acc["node"].add(node, node_type)
         acc["mesh"].add(mesh, node_type[np.asarray(topo.mesh_receivers)])
         acc["contact"].add(cont, np.asarray(mask))
@@ -311,9 +311,11 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
     spec = TrainSpec(sim=sim, cfg=cfg, decay_steps=cfg.lr_decay_steps or steps, pen_interval=interval)
     from pcmgn_jax.train.sharding import resolve_devices
     sizes = union_sizes(graphs, per_union=max(1, cfg.batch_graphs // resolve_devices(cfg.devices)), capacity=cap)
-    if stats is None:
-        stats = compute_stats(sim, train_trajs, [g.topology for g in graphs], [g.index for g in graphs],
-                              [g.sigma for g in graphs], max_frames=stats_max_frames, seed=cfg.seed)
+    if stats is None:  # kept beside the compiled programs: a warm start reads them (train/startup_cache.py)
+        stats = startup_cache.stats(cfg, train_trajs, dict(max_frames=stats_max_frames, radius=r_w, capacity=cap),
+                                   lambda: compute_stats(sim, train_trajs, [g.topology for g in graphs],
+                                                         [g.index for g in graphs], [g.sigma for g in graphs],
+                                                         max_frames=stats_max_frames, seed=cfg.seed))
     return Setup(spec, graphs, sizes, stats, scene, n_pairs, steps)
 
 
