@@ -1,16 +1,14 @@
 """The learned simulator: one jitted step and the ``lax.scan`` rollout.
 
-State of a frame: reference ``points`` (N,2) [m], displacement ``u`` (N,2) [m], velocity ``v`` (N,2)
-[m/s] (frame-averaged, (u_t - u_{t-1}) / dt; the solver's at frame 0). World position = points + u;
-positions are integrated on the *displacement* so float32 keeps µm steps on mm coordinates. What the
-model predicts and how it becomes the next frame is the :class:`~pcmgn_jax.mgn.formulation.Formulation`
-(targets, rigid ball, normalisation, features).
+State of a frame: reference ``points`` (N,2) [m], displacement ``u`` (N,2) [m], velocity ``v`` (N,2) [m/s]
+(frame-averaged, (u_t - u_{t-1}) / dt; the solver's at frame 0). World position = points + u; positions are integrated
+on the *displacement* so float32 keeps µm steps on mm coordinates. What the model predicts and how it becomes the next
+frame is the :class:`~pcmgn_jax.mgn.formulation.Formulation` (targets, rigid ball, normalisation, features).
 
-Boundary conditions re-imposed after every step: fixed nodes (node_type == n_parts) u = v = 0;
-symmetry-axis nodes (x = 0) u_x = v_x = 0; with the formulation's ``contact_projection``, cover-glass
-nodes inside the rigid ball are moved onto its surface (:func:`project_contact`). Contact edges are
-recomputed from the predicted positions inside the scan; every frame reports contact-buffer overflow
-(callers grow the buffer and re-run).
+Boundary conditions re-imposed after every step: fixed nodes (node_type == n_parts) u = v = 0; symmetry-axis nodes
+(x = 0) u_x = v_x = 0; with the formulation's ``contact_projection``, cover-glass nodes inside the rigid ball are moved
+onto its surface (:func:`project_contact`). Contact edges are recomputed from the predicted positions inside the scan;
+every frame reports contact-buffer overflow (callers grow the buffer and re-run).
 """
 from __future__ import annotations
 
@@ -143,10 +141,9 @@ def project_frames(index: contact_lib.ContactIndex, points, u) -> np.ndarray:
 
 def input_graph(form: Formulation, topology: Topology, index: contact_lib.ContactIndex, points, u, v,
                 layout: Layout | None = None):
-    """The raw (SI) graph the network sees of the state (u, v) (N, 2) [m, m/s], and its contact edges:
-    the one place where a state becomes model inputs (:func:`pcmgn_jax.mgn.formulation.model_inputs`,
-    then the contact search and :func:`pcmgn_jax.mgn.graphs.build_graph`), for training, statistics
-    and rollouts alike."""
+    """The raw (SI) graph the network sees of the state (u, v) (N, 2) [m, m/s], and its contact edges: the one place
+    where a state becomes model inputs (:func:`pcmgn_jax.mgn.formulation.model_inputs`, then the contact search and
+    :func:`pcmgn_jax.mgn.graphs.build_graph`), for training, statistics and rollouts alike."""
     points = jnp.asarray(points, jnp.float32)
     u_in, v_in, extra = model_inputs(form, ball_mask(topology), jnp.asarray(u, jnp.float32),
                                      jnp.asarray(v, jnp.float32), None if layout is None else layout.segments)
@@ -212,13 +209,12 @@ def step(spec: Spec, params, stats: Stats, topology: Topology, index, points, u,
 
 
 def _advance_quasi_static(spec: Spec, stats, topology, index, points, u, v, out, net, layout=None, drive=None):
-    """A quasi-static panel's frame forward from the output ``out`` at the state (u, v): the ball moves
-    on by its acceleration, then the network ``net`` (:func:`network`), evaluated at the ball's new
-    state, gives the panel's fields there (the panel's outputs are fields at the input's own time,
-    :func:`formulation.training_sample`). Returns (u_next, v_next, vm_next, out_next, edges); a rollout
-    carries ``out_next`` to the next frame, so one evaluation per frame (and one for the initial state).
-    ``drive``: None, or the ball's next (u, v) (N, 2) given (its rows are used): the ball follows that
-    path instead of the network's acceleration (:func:`rollout_union`'s ``ball_path``)."""
+    """A quasi-static panel's frame forward from the output ``out`` at the state (u, v): the ball moves on by its
+    acceleration, then the network ``net`` (:func:`network`), evaluated at the ball's new state, gives the panel's
+    fields there (the panel's outputs are fields at the input's own time, :func:`formulation.training_sample`). Returns
+    (u_next, v_next, vm_next, out_next, edges); a rollout carries ``out_next`` to the next frame, so one evaluation per
+    frame (and one for the initial state). ``drive``: None, or the ball's next (u, v) (N, 2) given (its rows are used):
+    the ball follows that path instead of the network's acceleration (:func:`rollout_union`'s ``ball_path``)."""
     ball = ball_mask(topology)[:, None]
     ub, vb, _ = integrate_output(spec, stats, topology, points, u, v, out, layout)
     if drive is not None:
@@ -234,9 +230,8 @@ def _advance_quasi_static(spec: Spec, stats, topology, index, points, u, v, out,
 
 def integrate_output(spec: Spec, stats: Stats, topology: Topology, points, u, v, out,
                      layout: Layout | None = None):
-    """Normalised model output (N, k) -> next (u, v) with boundary conditions, and von Mises (N,) [Pa],
-    >= 0.
-    With a ``layout`` (disjoint union) the rigid ball is one body per graph."""
+    """Normalised model output (N, k) -> next (u, v) with boundary conditions, and von Mises (N,) [Pa], >= 0. With a
+    ``layout`` (disjoint union) the rigid ball is one body per graph."""
     form = spec.formulation
     phys = denormalize_output(stats, topology.node_type, out)
     a_ball = None
@@ -288,8 +283,8 @@ def _rollout(spec: Spec, n_steps: int, params, stats, topology, index, points, u
 rollout = jax.jit(_rollout, static_argnames=("spec", "n_steps"))
 rollout.__doc__ = """Jitted rollout: ``rollout(spec, n_steps, params, stats, topology, index, points, u0, v0, vm0)``.
 
-points (N,2) reference [m]; u0 (N,2) [m], v0 (N,2) [m/s], vm0 (N,) [Pa] the initial frame.
-Returns :class:`Rollout` with n_steps + 1 frames. One compilation per (spec, n_steps, shapes)."""
+points (N,2) reference [m]; u0 (N,2) [m], v0 (N,2) [m/s], vm0 (N,) [Pa] the initial frame. Returns :class:`Rollout`
+with n_steps + 1 frames. One compilation per (spec, n_steps, shapes)."""
 
 
 @functools.partial(jax.jit, static_argnames=("spec", "n_steps"))
@@ -303,13 +298,12 @@ def rollout_batch(spec: Spec, n_steps: int, params, stats, topology, index, poin
 def rollout_union(spec: Spec, n_steps: int, params, stats, batch: GraphBatch, u0, v0, vm0, ball_path=None):
     """``rollout`` of a padded disjoint union of designs (:func:`pcmgn_jax.mgn.batching.batch_graphs`).
 
-    u0, v0 (N, 2), vm0 (N,): the union's initial frame (:func:`pcmgn_jax.mgn.batching.to_union`).
-    ``ball_path``: None (the ball moves by the network's acceleration), or (u, v) (n_steps, N, 2) [m, m/s]:
-    the rigid ball's displacement and velocity at frames 1..n_steps, given (ball rows used; quasi_static
-    panel only): the panel's fields are then the network's map evaluated along that path.
-    Returns :class:`Rollout` over the union's N nodes, with ``overflow`` / ``contact_count`` [T, G-1]
-    per graph slot. One compilation per (spec, n_steps, size bucket): another mesh or batch in the
-    same bucket reuses it.
+    u0, v0 (N, 2), vm0 (N,): the union's initial frame (:func:`pcmgn_jax.mgn.batching.to_union`). ``ball_path``: None
+    (the ball moves by the network's acceleration), or (u, v) (n_steps, N, 2) [m, m/s]: the rigid ball's displacement
+    and velocity at frames 1..n_steps, given (ball rows used; quasi_static panel only): the panel's fields are then the
+    network's map evaluated along that path. Returns :class:`Rollout` over the union's N nodes, with ``overflow`` /
+    ``contact_count`` [T, G-1] per graph slot. One compilation per (spec, n_steps, size bucket): another mesh or batch
+    in the same bucket reuses it.
     """
     return _rollout(spec, n_steps, params, stats, batch.topology, batch.index, batch.points, u0, v0, vm0,
                     batch.layout, ball_path)
@@ -369,17 +363,15 @@ def rollout_designs(spec: Spec, n_steps: int, params, stats, designs, *, batch_s
                     max_grow: int = 6, compiled: set | None = None, note: str = "the rollout") -> DesignRollouts:
     """Roll out many designs, each on its own mesh, ``batch_size`` at a time as padded disjoint unions.
 
-    designs: sequence of dicts with ``topology``, ``index`` (its ContactIndex), ``points`` (N_g, 2) [m],
-    ``u0``, ``v0`` (N_g, 2), ``vm0`` (N_g,), and optionally (every design or none) ``ball_u``, ``ball_v``
-    (n_steps, N_g, 2): a given ball path (:func:`rollout_union`'s ``ball_path``). A grown contact buffer (a
-    size bucket) is kept for the following batches. Every union of a call has one shape
-    (:func:`pcmgn_jax.mgn.batching.slot_minimums` of ``min(batch_size, len(designs))`` slots): a short last
-    batch reuses the full ones' compilation, other design counts compile once per power of two.
-    ``compiled``: size buckets (:meth:`GraphBatch.bucket`) already compiled; a batch of a new bucket runs
-    once untimed first (compilation, buffer sizing) and its bucket is added. ``seconds`` times the
-    rollouts only (host-side batching and splitting excluded). ``note``: the name in the console line
-    printed while a new size bucket compiles (:mod:`pcmgn_jax.compile_notes`).
-    """
+    designs: sequence of dicts with ``topology``, ``index`` (its ContactIndex), ``points`` (N_g, 2) [m], ``u0``, ``v0``
+    (N_g, 2), ``vm0`` (N_g,), and optionally (every design or none) ``ball_u``, ``ball_v`` (n_steps, N_g, 2): a given
+    ball path (:func:`rollout_union`'s ``ball_path``). A grown contact buffer (a size bucket) is kept for the following
+    batches. Every union of a call has one shape (:func:`pcmgn_jax.mgn.batching.slot_minimums` of
+    ``min(batch_size, len(designs))`` slots): a short last batch reuses the full ones' compilation, other design counts
+    compile once per power of two. ``compiled``: size buckets (:meth:`GraphBatch.bucket`) already compiled; a batch of a
+    new bucket runs once untimed first (compilation, buffer sizing) and its bucket is added. ``seconds`` times the
+    rollouts only (host-side batching and splitting excluded). ``note``: the name in the console line printed while a
+    new size bucket compiles (:mod:`pcmgn_jax.compile_notes`)."""
     out, capacity, seconds = [], 0, 0.0
     sizes = slot_minimums([d["topology"] for d in designs], min(batch_size, len(designs)))
     for i in range(0, len(designs), batch_size):
