@@ -40,8 +40,8 @@ class SeriesArgs:
     ccx_penalty_factor: float = 0.1
     """the contact penalty factor of the CalculiX rows, in both codes"""
     ccx_elements: str = "C3D8"
-    """CalculiX's elements, each a row: C3D8 (full integration, the built-in Q4's counterpart),
-    C3D8I (incompatible modes)"""
+    """CalculiX's elements, each a row: C3D8 (full integration, the built-in Q4's counterpart), \
+C3D8I (incompatible modes)"""   # one line of --help: the backslash joins the lines
     increments_per_frame: int = 2
     """ccx's largest increment = output_dt / this"""
     timeout_s: float = 7200.0
