@@ -29,7 +29,11 @@ import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+import flax
+import jax
+import jaxlib
 import numpy as np
+from flax.traverse_util import flatten_dict, unflatten_dict
 
 from pcmgn_jax import compile_cache
 from pcmgn_jax.atomic import atomic_dir, atomic_write_text
@@ -52,10 +56,6 @@ def code_hash() -> str:
 
 def key(what: str, cfg, trajs: Sequence, extra: dict) -> str | None:
     """The cache key (module docstring), or None when a trajectory carries no content hash."""
-    import flax
-    import jax
-    import jaxlib
-
     hashes = [t.meta.get("source_sha256") for t in trajs]
     if not hashes or not all(hashes):
         return None
@@ -92,26 +92,16 @@ def stats(cfg, trajs: Sequence, extra: dict, compute: Callable[[], Stats]) -> St
 def params(cfg, trajs: Sequence, extra: dict, compute: Callable[[], dict]) -> dict:
     """``compute()``'s parameters (nested dicts of arrays), read from the cache when there, else computed
     and kept there."""
-    import jax
-
     path = _path("params", cfg, trajs, extra, ".npz")
     if path is None:
         return compute()
     try:
         with np.load(path, allow_pickle=False) as z:
-            out: dict = {}
-            for name in z.files:
-                *outer, last = name.split("/")
-                node = out
-                for p in outer:
-                    node = node.setdefault(p, {})
-                node[last] = jax.numpy.asarray(z[name])
-            return out
+            return unflatten_dict({name: jax.numpy.asarray(z[name]) for name in z.files}, sep="/")
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         pass                                   # missing or unreadable: computed again
     out = compute()
-    flat = {"/".join(str(getattr(k, "key", k)) for k in p): np.asarray(v)
-            for p, v in jax.tree_util.tree_flatten_with_path(out)[0]}
+    flat = {name: np.asarray(v) for name, v in flatten_dict(out, sep="/").items()}
     try:
         with atomic_dir(path.parent, files=[path.name]) as tmp:
             np.savez(tmp / path.name, **flat)
