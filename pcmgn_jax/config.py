@@ -85,8 +85,6 @@ class TrainConfig:
     noise_std: float = 0.0           # Gaussian noise on the input displacement [m], all noised nodes (paper: 3e-7)
     noise_rel: float = 0.0           # used when noise_std = 0: sigma per part = noise_rel x its RMS motion per frame
     noise_parts: NoiseParts = "none"  # none | ball | panel | all
-    # inputs of the noise_parts = the model's own one-step prediction (no gradient through it)
-    pushforward: bool = False
     # frames of each sample's trajectory decoded from its one processor pass per step (the sample's and F-1 more, evenly
     # spread); > 1 needs processor='per_design'; 0 = auto: 8 with processor='per_design', else 1
     frames_per_sample: int = 0
@@ -147,9 +145,9 @@ class TrainConfig:
             bad("learning_rate", "must be in (0, 1)")
         if self.frames_per_sample < 0:
             bad("frames_per_sample", "must be >= 0 (0 = auto)")
-        if self.frames_per_sample > 1 and (self.formulation.processor != "per_design" or self.pushforward):
+        if self.frames_per_sample > 1 and self.formulation.processor != "per_design":
             bad("frames_per_sample", "> 1 needs formulation processor='per_design' (one processor pass shared by the "
-                "frames of a design) and no pushforward")
+                "frames of a design)")
         if self.devices:  # 0 (all devices) is checked once jax knows how many (train.sharding)
             check_batch_split(self.batch_graphs, self.devices)
 
@@ -164,7 +162,7 @@ class TrainConfig:
     def from_json(cls, data: dict) -> "TrainConfig":
         """A config from its ``to_dict()`` form (``formulation`` nested), or from an older flat config.json
         (``formulation`` a name, its fields beside it under their old names: converted)."""
-        data = dict(data)
+        data = _drop_retired(dict(data))
         if isinstance(data.get("formulation"), dict):
             form = dict(data.pop("formulation"))
             if "scene_features" in form:
@@ -215,7 +213,7 @@ class TrainConfig:
         processor (its decoder is ~1/25 of a processor pass: 8 readouts cost ~1.3 passes) and 1 otherwise."""
         if self.frames_per_sample:
             return self.frames_per_sample
-        return 8 if self.formulation.processor == "per_design" and not self.pushforward else 1
+        return 8 if self.formulation.processor == "per_design" else 1
 
     @property
     def resolved_dataset_dir(self) -> str:
@@ -248,6 +246,26 @@ def check_resume(cfg: TrainConfig, workdir: str | Path) -> None:
 
 
 FORMULATION_FIELDS = tuple(f.name for f in dataclasses.fields(Formulation))
+
+
+# research toggles that lost when measured and are in no paper study: removed from the config. An older
+# config.json that holds one at its off value still loads; one that switched it on is refused, naming the page
+# that keeps the toggle's measured result.
+RETIRED_FIELDS = {
+    "pushforward": (False, "docs/results/changelog.md (pushforward training: 8.7 µm position MAE against 4.7 µm "
+                           "without, the dynamic panel)"),
+}
+
+
+def _drop_retired(data: dict) -> dict:
+    """``data`` without the :data:`RETIRED_FIELDS` keys; ``ValueError`` naming a key set to anything but its
+    off value."""
+    for key, (off, where) in RETIRED_FIELDS.items():
+        if key in data and data.pop(key) != off:
+            raise ValueError(f"config: {key} was removed (a research toggle that lost when measured, in no paper "
+                             f"study; its result: {where}); this config switched it on, so this code cannot "
+                             f"load or resume it: use the commit that trained it")
+    return data
 
 
 def _check_keys(data: dict, cls, where: str) -> None:

@@ -95,12 +95,18 @@ def test_nonzero_lambda_pen_is_wired_or_refused(tiny_trajs, tmp_path):
     assert "loss_pen" in rec and np.isfinite(rec["loss"]) and res["step"] == 20
 
 
-@pytest.mark.slow  # ~20 s: an option off by default (the default suite's 10-minute budget)
-def test_pushforward_training_runs_and_lowers_the_loss(tiny_trajs, tmp_path):
-    cfg = tiny_config(pushforward=True, noise_rel=0.5, noise_parts="panel", num_steps=80)
-    res = training.train(cfg, tmp_path, train_trajs=tiny_trajs[:3])
-    losses = [json.loads(line)["loss"] for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
-    assert res["step"] == 80 and np.all(np.isfinite(losses)) and losses[-1] < losses[0]
+def test_a_retired_toggle_loads_when_off_and_is_refused_by_name_when_on():
+    """An older config.json holding a removed research toggle (config.RETIRED_FIELDS) at its off value loads
+    as before; one that switched it on is a ValueError naming the toggle and where its result is kept."""
+    from pcmgn_jax.config import RETIRED_FIELDS, TrainConfig
+    base = tiny_config().to_dict()
+    for key, (off, where) in RETIRED_FIELDS.items():
+        assert TrainConfig.from_json({**base, key: off}) == TrainConfig.from_json(base)
+        with pytest.raises(ValueError, match=f"{key} was removed") as err:
+            TrainConfig.from_json({**base, key: not off})
+        assert where.split(" ")[0] in str(err.value)
+    with pytest.raises(ValueError, match="unknown key"):
+        TrainConfig.from_json({**base, "no_such_toggle": False})
 
 
 @pytest.mark.slow  # ~28 s (the default suite's 10-minute budget)

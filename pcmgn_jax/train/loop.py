@@ -184,7 +184,7 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
             t_chunk = time.perf_counter()
             ids = sample_ids(cfg.seed, step, K, B, setup.n_pairs)
             batch = gather_unions(form, train_trajs, setup.graphs, table, ids, dt=setup.spec.sim.dt,
-                                  sizes=setup.sizes, shards=shards, local_shards=rows, previous=cfg.pushforward,
+                                  sizes=setup.sizes, shards=shards, local_shards=rows,
                                   frames=cfg.frames)
             if dp is not None:
                 batch = dp.put_batch(batch, shards)

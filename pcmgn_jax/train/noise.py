@@ -16,7 +16,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from pcmgn_jax.mgn.formulation import BALL_PART, NOISE_PARTS
+from pcmgn_jax.mgn.formulation import BALL_PART, NOISE_PARTS, add_noise
+from pcmgn_jax.mgn.rollout import ball_mask
 
 
 def noise_parts_mask(node_part, parts: str, *, fixed) -> np.ndarray:
@@ -91,17 +92,13 @@ def sample_noise(key, sigma, ball_mask, *, rigid_ball: bool, segments=None, grap
     return n
 
 
-def perturb(spec, topology, sample: dict, sigma, key, offset=None, layout=None, graph_ids=None) -> dict:
-    """``sample`` as the training loss sees it: ``offset`` (N, 2) [m] (e.g. the pushforward deviation)
-    plus drawn noise on the input displacement, with the velocity input and targets corrected
-    (:func:`pcmgn_jax.mgn.formulation.add_noise`). One function for the loss and the statistics.
+def perturb(spec, topology, sample: dict, sigma, key, layout=None, graph_ids=None) -> dict:
+    """``sample`` as the training loss sees it: drawn noise on the input displacement, with the velocity input
+    and targets corrected (:func:`pcmgn_jax.mgn.formulation.add_noise`). One function for the loss and the statistics.
     ``layout``: a padded disjoint union's (the rigid ball is one body per graph), ``graph_ids`` its graphs'
     noise ids (:func:`sample_noise`)."""
-    from pcmgn_jax.mgn.formulation import add_noise
-    from pcmgn_jax.mgn.rollout import ball_mask
-
     form = spec.formulation
     ball = ball_mask(topology)
     segments = None if layout is None else layout.segments
     n = sample_noise(key, sigma, ball, rigid_ball=form.rigid_ball, segments=segments, graph_ids=graph_ids)
-    return add_noise(form, ball, sample, n if offset is None else n + offset, spec.dt, segments=segments)
+    return add_noise(form, ball, sample, n, spec.dt, segments=segments)

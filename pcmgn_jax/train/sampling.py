@@ -47,30 +47,18 @@ def sample(form: Formulation, traj, t: int, dt: float) -> dict:
 FIELDS = (("points", (2,)), ("u", (2,)), ("v", (2,)), ("target", (3,)))
 
 
-def gather(form: Formulation, trajs, table, ids: np.ndarray, *, dt: float,
-           previous: bool = False) -> dict[str, np.ndarray]:
-    """Host batch (K, B, ...) float32: points, u, v (N, 2) inputs, target (N, 3), ball (2,) targets.
-
-    ``previous``: also the inputs of the frame before (u_prev_in, v_prev_in; the same frame when t = 0)
-    and ``has_prev`` (K, B), for pushforward training.
-    """
+def gather(form: Formulation, trajs, table, ids: np.ndarray, *, dt: float) -> dict[str, np.ndarray]:
+    """Host batch (K, B, ...) float32: points, u, v (N, 2) inputs, target (N, 3), ball (2,) targets."""
     K, B = ids.shape
     n = trajs[0].n_nodes
     out = {k: np.empty((K, B, n) + d, np.float32) for k, d in FIELDS}
     out["ball"] = np.empty((K, B, 2), np.float32)
-    if previous:
-        out.update(u_prev_in=np.empty((K, B, n, 2), np.float32), v_prev_in=np.empty((K, B, n, 2), np.float32),
-                   has_prev=np.empty((K, B), np.float32))
     for a in range(K):
         for b in range(B):
             i, t = table[ids[a, b]]
             s = sample(form, trajs[i], int(t), dt)
             for k in ("points", "u", "v", "target", "ball"):
                 out[k][a, b] = s[k]
-            if previous:
-                p = sample(form, trajs[i], int(t) - 1, dt) if t > 0 else s
-                out["u_prev_in"][a, b], out["v_prev_in"][a, b] = p["u"], p["v"]
-                out["has_prev"][a, b] = float(t > 0)
     return out
 
 
@@ -94,9 +82,6 @@ class TrainBatch(NamedTuple):
     pen_ball_mask: Any    # (G, Mb) bool: a real entry of pen_ball
     pen_panel: Any        # (G, Mp) int32 cover-glass boundary nodes (union node numbers)
     pen_panel_mask: Any   # (G, Mp) bool: a real entry of pen_panel
-    u_prev_in: Any = None  # (N, 2) float32 the previous frame's displacement input [m] (pushforward only)
-    v_prev_in: Any = None  # (N, 2) float32 the previous frame's velocity input [m/s] (pushforward only)
-    has_prev: Any = None   # (G,) float32 1 where the frame has a previous one (pushforward only)
     w_obj: Any = None      # (N,) float32 the objective's section weights (sum 1 per graph; lambda_obj > 0 only)
 
 
@@ -118,7 +103,7 @@ def sample_frames(t: int, n_steps: int, frames: int) -> list[int]:
 
 
 def union_batch(form: Formulation, trajs, graphs, pairs, *, dt: float, sizes, graph_ids,
-                previous: bool = False, frames: int = 1) -> TrainBatch:
+                frames: int = 1) -> TrainBatch:
     """One training union: the graphs of the (trajectory, frame) ``pairs`` as a padded disjoint union of
     the static ``sizes`` (:class:`pcmgn_jax.train.setup.UnionSizes`), with everything the loss reads.
 
@@ -127,8 +112,7 @@ def union_batch(form: Formulation, trajs, graphs, pairs, *, dt: float, sizes, gr
     zero on padding: u, v [m, m/s] inputs, target (N, 3) [SI], sigma [m], w_motion, w_stress, perturbed;
     per-graph-slot arrays [G] (G = slots + 1; padding slots zero / False): ball (G, 2) rigid-ball target,
     w_ball, graph_id (the graph's noise id: its column in the global batch), graph_mask; penetration
-    boundary nodes pen_ball (G, Mb), pen_panel (G, Mp) as union node numbers, with masks; with
-    ``previous`` also u_prev_in, v_prev_in [N, 2] and has_prev [G] (pushforward). ``frames`` > 1 (a
+    boundary nodes pen_ball (G, Mb), pen_panel (G, Mp) as union node numbers, with masks. ``frames`` > 1 (a
     per-design processor): u, v, target and ball carry a leading frame axis (F, ...), the frames of
     :func:`sample_frames` of each pair's trajectory (one graph per design, F readouts of it).
     """
@@ -173,15 +157,11 @@ def union_batch(form: Formulation, trajs, graphs, pairs, *, dt: float, sizes, gr
                pen_ball=pen_ball, pen_ball_mask=pen_ball_mask, pen_panel=pen_panel, pen_panel_mask=pen_panel_mask)
     if parts[0].objective is not None:
         out["w_obj"] = node([p.objective for p in parts])
-    if previous:
-        prev = [sample(form, trajs[i], int(t) - 1, dt) if t > 0 else s for (i, t), s in zip(pairs, smp)]
-        out.update(u_prev_in=node([p["u"] for p in prev]), v_prev_in=node([p["v"] for p in prev]),
-                   has_prev=per_graph([float(t > 0) for _, t in pairs]))
     return TrainBatch(**out)
 
 
 def gather_unions(form: Formulation, trajs, graphs, table, ids: np.ndarray, *, dt: float, sizes,
-                  shards: int = 1, local_shards=None, previous: bool = False, frames: int = 1):
+                  shards: int = 1, local_shards=None, frames: int = 1):
     """Host batch of K steps: ``ids`` (K, B) global batch columns -> a pytree of (K, S_local, ...) arrays,
     one padded union (:func:`union_batch`) per step and shard; shard s holds columns
     [s B/S, (s+1) B/S) of the global batch (``local_shards``: the shards this process feeds, default all).
@@ -191,7 +171,7 @@ def gather_unions(form: Formulation, trajs, graphs, table, ids: np.ndarray, *, d
     per = B // shards
     local = range(shards) if local_shards is None else local_shards
     unions = [[union_batch(form, trajs, graphs, [table[ids[k, c]] for c in range(s * per, (s + 1) * per)],
-                           dt=dt, sizes=sizes, graph_ids=np.arange(s * per, (s + 1) * per), previous=previous,
+                           dt=dt, sizes=sizes, graph_ids=np.arange(s * per, (s + 1) * per),
                            frames=frames)
                for s in local] for k in range(K)]
     return jax.tree.map(lambda *xs: np.stack(xs).reshape((K, len(local)) + np.shape(xs[0])),

@@ -118,22 +118,8 @@ def loss_fn(params, spec: TrainSpec, stats: Stats, batch, key, step=None):
     sim = spec.sim
     g = batch.graph
     topology, layout, index, points = g.topology, g.layout, g.index, g.points
-    node_graph, n_graph = layout.segments
     sample = dict(points=points, u=batch.u, v=batch.v, target=batch.target, ball=batch.ball)
-    dev = None
-    if spec.cfg.pushforward:
-        # the model's own one-step prediction of this frame (from the true previous frame) as the input:
-        # its deviation from the truth is exactly an input "noise" n with velocity noise n/dt; only on
-        # the perturbed parts (noise_parts): for a body that keeps an acceleration target, landing on the
-        # true next frame from a wrong position would need an unphysical one-step acceleration
-        frozen = jax.lax.stop_gradient(params)
-        out0, _ = predict(sim, frozen, stats, topology, index, points, batch.u_prev_in, batch.v_prev_in,
-                          layout)
-        u_hat, _, _ = integrate_output(sim, stats, topology, points, batch.u_prev_in, batch.v_prev_in,
-                                       out0, layout)
-        on = batch.has_prev[node_graph] * batch.perturbed
-        dev = jax.lax.stop_gradient(u_hat - batch.u) * on[:, None]
-    sample = perturb(sim, topology, sample, batch.sigma, key, dev, layout=layout, graph_ids=batch.graph_id)
+    sample = perturb(sim, topology, sample, batch.sigma, key, layout=layout, graph_ids=batch.graph_id)
     out, edges = predict(sim, params, stats, topology, index, points, sample["u"], sample["v"], layout)
     loss_data, loss_pen, loss_obj = _frame_losses(spec, stats, batch, sample, out)
     return _total(spec, batch, loss_data, loss_pen, loss_obj, edges, step)
@@ -190,7 +176,7 @@ def _loss_per_design(params, spec: TrainSpec, stats: Stats, batch, key, step=Non
 
     def one(f, u, v, target, ball):
         sample = dict(points=g.points, u=u, v=v, target=target, ball=ball)
-        sample = perturb(sim, g.topology, sample, batch.sigma, jax.random.fold_in(key, f), None, layout=g.layout,
+        sample = perturb(sim, g.topology, sample, batch.sigma, jax.random.fold_in(key, f), layout=g.layout,
                          graph_ids=batch.graph_id)
         out, edges = net(sample["u"], sample["v"])
         return _frame_losses(spec, stats, batch, sample, out) + (edges,)
