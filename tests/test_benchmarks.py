@@ -8,6 +8,8 @@ import json
 import numpy as np
 import pytest
 
+from fixtures.helpers import ROOT
+
 HAVE_TORCH = importlib.util.find_spec("torch") is not None
 
 
@@ -210,11 +212,10 @@ def test_gpu_check_smoke(tmp_path):
     import math
     import subprocess
     import sys
-    from pathlib import Path
 
     out = tmp_path / "g.json"
     run = subprocess.run([sys.executable, "-m", "benchmarks.gpu_check", "--smoke", "--json", str(out)], check=False,
-                         cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=600)
+                         cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stdout + run.stderr
     r = _load(out)
     assert "--xla_backend_optimization_level=0" in r["machine"]["xla_flags"]

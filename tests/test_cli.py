@@ -1,6 +1,7 @@
 """The entry points' command lines (pcmgn_jax.cli, tyro): flag spellings, presets, errors, --resume."""
 import pytest
 
+from fixtures.helpers import ROOT
 from pcmgn_jax import cli
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.mgn.formulation import FORMULATIONS
@@ -199,9 +200,8 @@ def test_console_script_entry_point(tmp_path):
     import shutil
     import subprocess
     import tomllib
-    from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
+    root = ROOT
     project = tomllib.loads((root / "pyproject.toml").read_text())
     assert project["project"]["scripts"]["pcmgn"] == "experiments.console:main"
     assert "experiments*" in project["tool"]["setuptools"]["packages"]["find"]["include"]

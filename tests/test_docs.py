@@ -3,11 +3,11 @@ sections, the README stays a front page and its test command is the one CI runs.
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from fixtures.helpers import ROOT
+
 DOCS = sorted((ROOT / "docs").rglob("*.md")) + [ROOT / "README.md"]
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 

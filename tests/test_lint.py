@@ -6,11 +6,10 @@ formatted by hand, never with ``ruff format``.
 """
 import shutil
 import subprocess
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from fixtures.helpers import ROOT
 
 
 def _ruff() -> str | None:

@@ -1,13 +1,11 @@
 """The code record every metrics.json carries (pcmgn_jax/provenance.py)."""
 import re
 import subprocess
-from pathlib import Path
 
 import pytest
 
+from fixtures.helpers import ROOT
 from pcmgn_jax.provenance import code_version
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_outside_a_checkout_there_is_no_commit(tmp_path):

@@ -10,7 +10,7 @@
 - Aggregation is ``jax.ops.segment_sum``; for the edge sets in ``sorted_receivers`` (default: "mesh")
   it is told the receivers are sorted ascending (``indices_are_sorted=True``), which
   :func:`pcmgn_jax.mgn.graphs.quad_edges` and the disjoint union of :mod:`pcmgn_jax.mgn.batching`
-  guarantee (tests/test_graphs.py). Contact edges come in slot order, not sorted: plain sum. XLA:CPU
+  guarantee (tests/mgn/test_graphs.py). Contact edges come in slot order, not sorted: plain sum. XLA:CPU
   gives the same code either way (benchmarks/README.md §1); accelerators use it for sorted scatters.
 - The first layer of each processor edge MLP uses the concat trick: W [v_s, v_r, e] =
   W_s v_s + W_r v_r + W_e e; W_s v and W_r v are computed once per node and gathered by senders /

@@ -73,7 +73,7 @@ FORM_SETTINGS = {("degree", "default"): {"lambda_pen": 10.0}, ("lambda", "paper"
 # cells that are the same training as another cell of the study, so they are not trained twice: the
 # default's quasi-static panel never sees its own state (mgn.formulation.model_inputs draws the layers
 # at their reference) and its total-displacement target needs no noise correction, so noise on the
-# panel changes neither its inputs nor its loss (tests/test_noise.py)
+# panel changes neither its inputs nor its loss (tests/train/test_noise.py)
 SAME_AS = {("noise_parts", "default"): ({"panel": "none", "all": "ball"}, "the quasi-static panel's own state is "
                                          "not an input, so panel noise changes neither the inputs nor the loss")}
 EXTRAP_DESIGNS_UM = "40,40;40,160;160,40;160,160"   # the paper's §4.6

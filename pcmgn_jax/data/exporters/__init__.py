@@ -5,11 +5,11 @@ in the naming convention the ANSYS text importer reads; :func:`export_dataset` w
 as run folders ``OUT/<split>/<run>/{model.cdb, results/, scene.json, run.json}`` that
 :func:`pcmgn_jax.data.importers.import_ansys_dataset` (CLI ``python -m experiments.import_ansys
 --exports OUT --out DIR``) reads back. It is how the project makes "your own ANSYS data" from its own
-solver runs, and the round trip is tested (tests/test_ansys_export.py).
+solver runs, and the round trip is tested (tests/data/test_ansys_export.py).
 
 ``calculix`` (imported by name, not re-exported here): a scene on the project's mesh as a CalculiX deck
 (``write_inp``); :mod:`pcmgn_jax.data.calculix` runs ``ccx`` and reads its ``.frd`` back
-(:mod:`pcmgn_jax.data.importers.frd`) into a trajectory (tests/test_calculix.py).
+(:mod:`pcmgn_jax.data.importers.frd`) into a trajectory (tests/data/test_calculix.py).
 """
 from __future__ import annotations
 

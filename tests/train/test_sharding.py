@@ -9,16 +9,13 @@ import os
 import socket
 import subprocess
 import sys
-from pathlib import Path
 
 import jax
 import pytest
 
+from fixtures.helpers import ROOT, TESTS
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.train.sharding import data_parallel
-
-TESTS = Path(__file__).resolve().parent
-ROOT = TESTS.parent
 
 CHILD = r'''
 import json, sys, tempfile

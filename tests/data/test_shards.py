@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from test_dataset import FakeSolver
 
+from fixtures.helpers import ROOT, TESTS
 from pcmgn_jax.data import dataset as ds, shards
 from pcmgn_jax.data.trajectory_io import read_sidecar, read_trajectory
 from pcmgn_jax.scene import default_scene
 
-ROOT = Path(__file__).resolve().parent.parent
 TIMINGS = ("wall_time_s",)
 # scipy's Lanczos (eigsh, tol 1e-4, no start vector) for the stable step: ARPACK's start vector depends on
 # how many eigsh calls the process made before, so these two estimates differ between processes at ~1e-8
@@ -175,7 +175,7 @@ def test_concurrent_shard_processes_equal_one_process(tmp_path, solver, monkeypa
     scene = tmp_path / "scene.json"
     scene.write_text(json.dumps(dataclasses.replace(default_scene(), n_frames=_SCENE_FRAMES).to_dict()))
     env = {**os.environ, "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "xla_cache"),
-           "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tests"), os.environ.get("PYTHONPATH", "")])}
+           "PYTHONPATH": os.pathsep.join([str(ROOT), str(TESTS), os.environ.get("PYTHONPATH", "")])}
     use_fake = solver == "fake"
     if use_fake:
         monkeypatch.setitem(sys.modules, "pcmgn_jax.sim.solver", FakeSolver())

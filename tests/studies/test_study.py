@@ -10,6 +10,7 @@ import sys
 import pytest
 
 from experiments import study
+from fixtures.helpers import ROOT
 from pcmgn_jax import cli
 from pcmgn_jax.studies import ablation, cells, paper as studies
 
@@ -31,7 +32,7 @@ def test_compilation_cache_is_written_and_read(tmp_path):
             "f = jax.jit(lambda x: jnp.sin(x) @ x.T + 1.0)\n"
             "print(float(f(jnp.ones((64, 64))).sum()))\n")
     runs = [subprocess.run([sys.executable, "-c", code, str(tmp_path / "c")], capture_output=True, text=True,
-                           cwd=str(__import__("pathlib").Path(__file__).parents[1])) for _ in range(2)]
+                           cwd=str(ROOT)) for _ in range(2)]
     for r in runs:
         assert r.returncode == 0, r.stderr
     assert runs[0].stdout == runs[1].stdout

@@ -1,16 +1,14 @@
 """pcmgn_jax/surrogates: every registered kind fits and predicts through the one registry; no second list of kinds."""
 import ast
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from fixtures.helpers import drop_last_column, make_synthetic_trajectory
+from fixtures.helpers import ROOT, drop_last_column, make_synthetic_trajectory
 from pcmgn_jax.surrogates.kinds import KINDS, Surrogate, choices, kind, names
 from pcmgn_jax.surrogates.registry import FAMILIES, fit
 
-ROOT = Path(__file__).resolve().parents[1]
 FITTED = names(baseline=True)   # every kind fitted on trajectories (mgn loads a run: test below)
 
 

@@ -10,13 +10,12 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from fixtures.ansys_files import write_cdb, write_results
-from fixtures.helpers import tensor_grid
+from fixtures.helpers import FIXTURES, tensor_grid
 from fixtures.synthetic import synthetic_trajectory
 from pcmgn_jax import geometry
 from pcmgn_jax.data import importers as imp
@@ -209,7 +208,7 @@ def test_generator_crop_with_depth():
 
 
 # ---- imported meshes ---------------------------------------------------------------------------------
-REAL_CDB = Path(__file__).parent / "fixtures" / "real" / "ansys" / "plane182_183.cdb"
+REAL_CDB = FIXTURES / "real" / "ansys" / "plane182_183.cdb"
 
 
 def test_real_ansys_archive_can_be_cropped():

@@ -13,12 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fixtures.helpers import CompileCounter, make_synthetic_trajectory, tiny_config
+from fixtures.helpers import ROOT, CompileCounter, make_synthetic_trajectory, tiny_config
 from pcmgn_jax import compile_cache, compile_notes
 from pcmgn_jax.scene import default_scene
 from pcmgn_jax.sim import solver
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 # ---- the persistent compilation cache -------------------------------------------------------------------

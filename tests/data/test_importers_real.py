@@ -13,10 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fixtures.helpers import FIXTURES, ROOT
 from pcmgn_jax.data import importers as imp
 from pcmgn_jax.scene import Layer, Scene
 
-REAL = Path(__file__).parent / "fixtures" / "real"
+REAL = FIXTURES / "real"
 PLANE = REAL / "ansys" / "plane182_183.cdb"
 ETBLOCK = REAL / "ansys" / "etblock.cdb"
 CORRUPT = REAL / "ansys" / "corrupt_a.cdb"
@@ -265,7 +266,7 @@ def test_real_fixtures_are_the_shared_copies():
     readme = (REAL / "README.md").read_text()
     for p in (PLANE, ETBLOCK, CORRUPT, D3_TEMP.parent, D3_BEAM.parent):
         assert str(p.relative_to(REAL)) in readme
-    shared = Path(__file__).resolve().parents[2] / "shared" / "real_files"
+    shared = ROOT.parent / "shared" / "real_files"
     if not shared.is_dir():
         pytest.skip("shared/real_files not next to the repository")
     for f in sorted(q for q in shared.rglob("*") if q.is_file()):

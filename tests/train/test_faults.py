@@ -17,7 +17,7 @@ import jax
 import numpy as np
 import pytest
 
-from fixtures.helpers import make_synthetic_trajectory, tiny_config
+from fixtures.helpers import ROOT, make_synthetic_trajectory, tiny_config
 from pcmgn_jax import cli, lock
 from pcmgn_jax.data import dataset as ds, splits
 from pcmgn_jax.data.trajectory_io import TrajectoryFileError, trajectory_paths, write_trajectory
@@ -25,7 +25,6 @@ from pcmgn_jax.mgn import checkpoint
 from pcmgn_jax.train import loop as training
 from pcmgn_jax.train.resume import cut_metrics
 
-ROOT = Path(__file__).resolve().parents[1]
 # a tiny run on the synthetic imported dataset below: 20 steps, a checkpoint and a validation every 10
 TRAIN_FLAGS = ["--preset", "tiny", "--n_train", "3", "--n_val", "1", "--n_test", "1", "--num_steps", "20",
                "--steps_per_dispatch", "10", "--log_every", "10", "--ckpt_every", "10", "--val_every", "10",
