@@ -3,50 +3,15 @@ from __future__ import annotations
 
 import json
 import sys
-import types
 
 import h5py
 import meshio
 import numpy as np
 import pytest
 
-from fixtures.synthetic import synthetic_trajectory
+from fixtures.synthetic import FakeSolver
 from pcmgn_jax.data import dataset as ds
 from pcmgn_jax.data.trajectory_io import read_trajectory
-
-
-class FakeSolver(types.ModuleType):
-    """Stand-in for pcmgn_jax.sim.solver (contract: solve_designs(scene, designs, *, preset); designs_per_call
-    and call_size, which size the batches)."""
-
-    class SolverError(RuntimeError):
-        pass
-
-    def __init__(self, fail_above=None):
-        super().__init__("pcmgn_jax.sim.solver")
-        self.calls = []
-        self.fail_above = fail_above
-
-    @staticmethod
-    def designs_per_call(settings=None):
-        return 1        # as the solver on CPU: one design per compiled call
-
-    @staticmethod
-    def call_size(n_designs, settings=None):
-        return 1
-
-    def solve_designs(self, scene, designs, *, preset):
-        self.calls.append((preset, np.array(designs)))
-        batch_um = np.round(np.asarray(designs) * 1e6, 6).tolist()   # its batch, as the solver records it
-        out = []
-        for d in designs:
-            if self.fail_above is not None and d[0] > self.fail_above:
-                raise self.SolverError(f"energy drift for design {d}")
-            seed = int(round(d[0] * 1e9))
-            out.append(synthetic_trajectory(seed=seed, meta={
-                "design": dict(zip(scene.design_layers, map(float, d))), "wall_time_s": 0.5,
-                "solver": {"preset": preset, "batch_um": batch_um}, "energy": {"max_rel_drift": 1e-4}}))
-        return out
 
 
 @pytest.fixture

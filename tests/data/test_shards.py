@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_dataset import FakeSolver
 
 from fixtures.helpers import ROOT, TESTS
+from fixtures.synthetic import FakeSolver
 from pcmgn_jax.data import dataset as ds, shards
 from pcmgn_jax.data.trajectory_io import read_sidecar, read_trajectory
 from pcmgn_jax.scene import default_scene
@@ -27,7 +27,7 @@ ESTIMATES = ("omega2_mesh", "omega2_coupled")
 
 @pytest.fixture
 def fake(monkeypatch):
-    """test_dataset's fake solver in place of pcmgn_jax.sim.solver."""
+    """the fake solver (fixtures.synthetic.FakeSolver) in place of pcmgn_jax.sim.solver."""
     monkeypatch.setitem(sys.modules, "pcmgn_jax.sim.solver", solver := FakeSolver())
     return solver
 
@@ -143,7 +143,8 @@ def test_cli_shard_and_merge(tmp_path, fake, capsys):
 
 _SCENE_FRAMES = 4       # frames of the scene the solver test runs (the tiny mesh; compile time dominates)
 # a child process that runs experiments.generate with the fake solver in place of the real one
-_FAKE_CHILD = ("import sys; from test_dataset import FakeSolver; sys.modules['pcmgn_jax.sim.solver'] = FakeSolver(); "
+_FAKE_CHILD = ("import sys; from fixtures.synthetic import FakeSolver; "
+               "sys.modules['pcmgn_jax.sim.solver'] = FakeSolver(); "
                "from experiments.generate import main; sys.exit(main(sys.argv[1:]))")
 
 

@@ -228,7 +228,7 @@ def test_a_damaged_trajectory_behind_a_built_cache_is_caught(tmp_path, damage):
 
 
 def test_a_changed_manifest_entry_is_caught(tmp_path, monkeypatch):
-    from test_dataset import FakeSolver
+    from fixtures.synthetic import FakeSolver
     monkeypatch.setitem(sys.modules, "pcmgn_jax.sim.solver", FakeSolver())
     root = ds.ensure_dataset(tmp_path / "gen", preset="tiny", n_train=3, n_test=1, progress=False)
     assert len(splits.load_splits(root, n_train=2, n_val=1, n_test=1)[0]) == 2
