@@ -12,7 +12,7 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-from pcmgn_jax import cli
+from pcmgn_jax import cli, markdown
 
 
 @dataclass(frozen=True)
@@ -75,13 +75,14 @@ def main(argv=None) -> int:
             rows.append({"mesh": m, **r})
             print(f"{m:9s} {d * 1e6} µm: " + ", ".join(f"{k} {r[k]:.4f}" for k in OBJECTIVES), flush=True)
     ref = {tuple(r["design_um"]): r for r in rows if r["mesh"] == meshes[-1]}
-    lines = ["| design [µm] | mesh | nodes (ROI) | " + " | ".join(f"{k} [MPa] (vs {meshes[-1]})" for k in OBJECTIVES)
-             + " | solver [s] |", "|---|---|---|" + "---|" * len(OBJECTIVES) + "---|"]
+    body = []
     for r in rows:
         f = ref[tuple(r["design_um"])]
-        cells = [f"{r[k]:.4f} ({(r[k] / f[k] - 1) * 100:+.1f} %)" for k in OBJECTIVES]
-        lines.append(f"| {r['design_um'][0]:.1f}, {r['design_um'][1]:.1f} | {r['mesh']} | {r['n_nodes']} | "
-                     + " | ".join(cells) + f" | {r['solver_seconds']:.0f} |")
+        body.append((f"{r['design_um'][0]:.1f}, {r['design_um'][1]:.1f}", r["mesh"], r["n_nodes"],
+                     *(f"{r[k]:.4f} ({(r[k] / f[k] - 1) * 100:+.1f} %)" for k in OBJECTIVES),
+                     f"{r['solver_seconds']:.0f}"))
+    lines = markdown.table(("design [µm]", "mesh", "nodes (ROI)", *(f"{k} [MPa] (vs {meshes[-1]})" for k in OBJECTIVES),
+                            "solver [s]"), body)
     # which readings agree on the better of the designs, per mesh
     order = {m: {k: min(((r[k], tuple(r["design_um"])) for r in rows if r["mesh"] == m))[1] for k in OBJECTIVES}
              for m in meshes}

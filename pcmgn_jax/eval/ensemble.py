@@ -26,7 +26,7 @@ from typing import Mapping, Sequence
 import numpy as np
 from scipy.stats import spearmanr
 
-from pcmgn_jax import metrics
+from pcmgn_jax import markdown, metrics
 from pcmgn_jax.surrogates.inputs import TrainingScenes
 from pcmgn_jax.surrogates.registry import fit
 from pcmgn_jax.surrogates.response_surfaces import Kriging, objective_table
@@ -194,28 +194,28 @@ def report_markdown(rep: dict, command: str = "") -> str:
     lines = ([f"`{command}`", ""] if command else []) + [
         f"Members: {', '.join(rep['members'])} (K = {rep['n_members']}); kriging and the residual GP fitted on "
         f"{rep['n_train']} training designs. ρ: Spearman between the spread and the absolute objective error "
-        "per design (node: per-node displacement spread vs error, pooled).", "",
-        "| set | designs | MGN mean error [%] | members' errors [%] | ρ ensemble | spread / error | ρ node position "
-        "| ρ kriging std vs own error (error %) | ρ kriging std vs MGN error | ρ residual GP std vs MGN error "
-        "| MGN + residual GP error [%] |",
-        "|---|---|---|---|---|---|---|---|---|---|---|"]
+        "per design (node: per-node displacement spread vs error, pooled).", ""]
+    spreads, fields = [], []
     for name, s in rep["sets"].items():
         e = s.get("ensemble")
         ratio = "–" if not e or e["spread_over_error"] is None else f"{e['spread_over_error']:.2f}"
-        lines.append(
-            f"| {name} | {s['n']} | {s['mean_error_pct']:.2f} | {', '.join(f'{v:.2f}' for v in s['member_error_pct'])} "
-            f"| {rho(e and e['spearman'])} | {ratio} "
-            f"| {rho(e and e['node_position']['spearman'])} "
-            f"| {rho(s['kriging']['spearman_own_error'])} ({s['kriging']['mean_error_pct']:.2f}) "
-            f"| {rho(s['kriging']['spearman_mgn_error'])} | {rho(s['residual_gp']['spearman_mgn_error'])} "
-            f"| {s['residual_gp']['corrected_mean_error_pct']:.2f} |")
-    lines += ["", "Fields of the members and of their mean (a predictor of its own, K rollouts a design):", "",
-              "| set | members' position MAE [µm] | members' stress MAE [MPa] | mean's position MAE [µm] "
-              "| mean's stress MAE [MPa] | mean's objective error [%] |", "|---|---|---|---|---|---|"]
-    for name, s in rep["sets"].items():
+        spreads.append((name, s["n"], f"{s['mean_error_pct']:.2f}",
+                        ", ".join(f"{v:.2f}" for v in s["member_error_pct"]), rho(e and e["spearman"]), ratio,
+                        rho(e and e["node_position"]["spearman"]),
+                        f"{rho(s['kriging']['spearman_own_error'])} ({s['kriging']['mean_error_pct']:.2f})",
+                        rho(s["kriging"]["spearman_mgn_error"]), rho(s["residual_gp"]["spearman_mgn_error"]),
+                        f"{s['residual_gp']['corrected_mean_error_pct']:.2f}"))
         mf = s.get("mean_fields")
-        pos = ", ".join(format(m["position_mae_um"], ".3f") for m in s["member_fields"])
-        st = ", ".join(format(m["stress_mae_mpa"], ".2f") for m in s["member_fields"])
-        lines.append(f"| {name} | {pos} | {st} | {'–' if not mf else format(mf['position_mae_um'], '.3f')} "
-                     f"| {'–' if not mf else format(mf['stress_mae_mpa'], '.2f')} | {s['mean_error_pct']:.2f} |")
+        fields.append((name, ", ".join(format(m["position_mae_um"], ".3f") for m in s["member_fields"]),
+                       ", ".join(format(m["stress_mae_mpa"], ".2f") for m in s["member_fields"]),
+                       "–" if not mf else format(mf["position_mae_um"], ".3f"),
+                       "–" if not mf else format(mf["stress_mae_mpa"], ".2f"), f"{s['mean_error_pct']:.2f}"))
+    lines += markdown.table(("set", "designs", "MGN mean error [%]", "members' errors [%]", "ρ ensemble",
+                             "spread / error", "ρ node position", "ρ kriging std vs own error (error %)",
+                             "ρ kriging std vs MGN error", "ρ residual GP std vs MGN error",
+                             "MGN + residual GP error [%]"), spreads)
+    lines += ["", "Fields of the members and of their mean (a predictor of its own, K rollouts a design):", ""]
+    lines += markdown.table(("set", "members' position MAE [µm]", "members' stress MAE [MPa]",
+                             "mean's position MAE [µm]", "mean's stress MAE [MPa]", "mean's objective error [%]"),
+                            fields)
     return "\n".join(lines) + "\n"

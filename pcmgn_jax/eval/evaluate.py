@@ -31,7 +31,7 @@ from typing import Sequence
 
 import numpy as np
 
-from pcmgn_jax import metrics
+from pcmgn_jax import markdown, metrics
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.data.stack import stack_warnings
 from pcmgn_jax.data.trajectory_io import atomic_write_json
@@ -109,17 +109,13 @@ def summary_table(m: dict) -> str:
     """A Markdown table of the model's and the baselines' summary metrics (from ``evaluate``)."""
     cols = ("position_mae_um", "stress_mae_mpa", "oled_objective_rel_error_pct_mean",
             "oled_objective_area_rel_error_pct_mean", "penetration_max_um")
-    head = ("| predictor | position MAE [µm] | stress MAE [MPa] | OLED objective error, node mean [%] | "
-            "OLED objective error, area mean [%] | max penetration [µm] |")
-    rows = [head, "|---|---|---|---|---|---|"]
+    head = ("predictor", "position MAE [µm]", "stress MAE [MPa]", "OLED objective error, node mean [%]",
+            "OLED objective error, area mean [%]", "max penetration [µm]")
     preds = [("MGN", m)] + [(k, v) for k, v in m.get("baselines", {}).items()]
-    for name, v in preds:
-        if "not_applicable" in v:
-            rows.append(f"| {name} | n/a: {v['not_applicable']} | | | | |")
-            continue
-        rows.append("| " + " | ".join([name] + [f"{v[c]:.4g}" if c in v else "-" for c in cols]) + " |")
-    rows.append(f"| ground truth | | | | | {m.get('penetration_max_um_truth', float('nan')):.4g} |")
-    return "\n".join(rows)
+    rows = [(name, f"n/a: {v['not_applicable']}", "", "", "", "") if "not_applicable" in v
+            else (name, *(f"{v[c]:.4g}" if c in v else "-" for c in cols)) for name, v in preds]
+    rows.append(("ground truth", "", "", "", "", f"{m.get('penetration_max_um_truth', float('nan')):.4g}"))
+    return "\n".join(markdown.table(head, rows))
 
 
 def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence = (), which: str = "best",

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pcmgn_jax import markdown
 from pcmgn_jax.data.designs import parse_designs
 from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.scene import default_scene
@@ -49,14 +50,14 @@ def panel_report(preset: str = "cpu", designs: str = "50,50;100,100;150,150", fr
     summary = {"preset": preset, "default_window_us": window * 1e6, "frames_simulated": frames,
                "dt_s": res.dt, "wall_time_s": res.wall_time_s, "designs": rows, "command": command}
     atomic_write_json(out.with_suffix(".json"), summary)
-    lines = ["| T_OCA1 / T_OCA2 [µm] | contact start [µs] | peak force [N] at [µs] | separation [µs] | "
-             "peak OLED von Mises [MPa] at [µs] | all 4 phases in 400 µs? |", "|---|---|---|---|---|---|"]
-    for r in rows:
-        sep = f"{r['separation_us']:.0f}" if r["separation_us"] is not None else f"> {frames * 4}"
-        lines.append(f"| {r['t_oca1_um']:.0f} / {r['t_oca2_um']:.0f} | {r['contact_start_us']:.1f} | "
-                     f"{r['peak_force_N']:.1f} at {r['peak_force_time_us']:.0f} | {sep} | "
-                     f"{r['peak_oled_von_mises_mpa']:.2f} at {r['peak_oled_time_us']:.0f} | "
-                     f"{'yes' if r['all_phases_in_default_window'] else 'no'} |")
+    lines = markdown.table(
+        ("T_OCA1 / T_OCA2 [µm]", "contact start [µs]", "peak force [N] at [µs]", "separation [µs]",
+         "peak OLED von Mises [MPa] at [µs]", "all 4 phases in 400 µs?"),
+        ((f"{r['t_oca1_um']:.0f} / {r['t_oca2_um']:.0f}", f"{r['contact_start_us']:.1f}",
+          f"{r['peak_force_N']:.1f} at {r['peak_force_time_us']:.0f}",
+          f"{r['separation_us']:.0f}" if r["separation_us"] is not None else f"> {frames * 4}",
+          f"{r['peak_oled_von_mises_mpa']:.2f} at {r['peak_oled_time_us']:.0f}",
+          "yes" if r["all_phases_in_default_window"] else "no") for r in rows))
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     _plot(out.with_suffix(".png"), res, rows, is_oled, base, window, preset)
     return lines

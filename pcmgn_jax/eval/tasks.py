@@ -17,6 +17,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from pcmgn_jax import markdown
+
 TASKS = {"a": "the paper's box (cpu test split)", "b": "scene family (family test split)",
          "c": "extrapolation (outside the training box)", "d": "zero-shot (a parameter training held fixed)",
          "e": "new panel stacks (stack family: e.e1 in distribution, e.e2 a held-out layer count, e.e3 an impactor "
@@ -103,8 +105,7 @@ def summary_table(rows: dict) -> str:
     (named) and their ratio MGN / best (< 1: the MGN is the more accurate), so the whole comparison reads
     at a glance before the per-task tables."""
     labels = dict(METRICS)
-    head = "| task | " + " | ".join(f"{labels[k]}: MGN / best baseline" for k in WINNER_METRICS) + " |"
-    lines = [head, "|---" * (len(WINNER_METRICS) + 1) + "|"]
+    body = []
     for task, row in rows.items():
         if "MGN" not in row:
             continue
@@ -120,13 +121,14 @@ def summary_table(rows: dict) -> str:
             cell = f"{mgn:.3g} / {best:.3g} ({name}): {ratio}"
             cells.append(f"**{cell}**" if mgn <= best else cell)
         label = task + (f" (MGN = {row['MGN']['residual_of']} + correction)" if row["MGN"].get("residual_of") else "")
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+        body.append((label, *cells))
+    head = ("task", *(f"{labels[k]}: MGN / best baseline" for k in WINNER_METRICS))
+    return "\n".join(markdown.table(head, body))
 
 
 def _table(row: dict[str, dict[str, float]]) -> list[str]:
     win = winners(row)
-    lines = ["| predictor | " + " | ".join(label for _, label in METRICS) + " |", "|---" * (len(METRICS) + 1) + "|"]
+    body = []
     for name, v in row.items():
         cells = []
         for key, _ in METRICS:
@@ -135,9 +137,10 @@ def _table(row: dict[str, dict[str, float]]) -> list[str]:
             if f"{key}_seeds" in v:      # the MGN's seed range
                 s += " ({:.3g}–{:.3g})".format(*v[f"{key}_seeds"])
             cells.append(s)
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        body.append((name, *cells))
     named = ", ".join(f"{dict(METRICS)[k]}: **{n}**" for k, n in win.items())
-    return lines + ["", f"Winner per metric: {named}.", ""]
+    head = ("predictor", *(label for _, label in METRICS))
+    return markdown.table(head, body) + ["", f"Winner per metric: {named}.", ""]
 
 
 def code_note(runs: Mapping[str, Sequence[dict]]) -> str:

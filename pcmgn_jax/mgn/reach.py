@@ -24,6 +24,7 @@ from typing import Sequence
 import numpy as np
 from scipy.sparse import csgraph
 
+from pcmgn_jax import markdown
 from pcmgn_jax.mgn.graphs import quad_edges
 from pcmgn_jax.mgn.hierarchy import Level, adjacency, build_levels
 from pcmgn_jax.mgn.model import global_block_steps
@@ -152,15 +153,14 @@ def reach_report(mesh, part_names: Sequence[str], panel_part: int, variants: dic
 
 def report_table(report: dict) -> list[str]:
     """Markdown lines: hops per part, then every variant's OLED fraction."""
-    lines = [f"contact node {report['contact_node']} of {report['nodes']} nodes", "",
-             "| part | min hops | median | max |", "|---|---|---|---|"]
-    lines += [f"| {p} | {h['min']} | {h['median']:g} | {h['max']} |" for p, h in report["hops"].items()]
-    lines += ["", "| processor | steps | reach | levels | OLED within reach (one pass) | all OLED after step "
-              "| coarsest diameter |", "|---|---|---|---|---|---|---|"]
+    lines = [f"contact node {report['contact_node']} of {report['nodes']} nodes", ""]
+    lines += markdown.table(("part", "min hops", "median", "max"),
+                            ((p, h["min"], f"{h['median']:g}", h["max"]) for p, h in report["hops"].items()))
+    variants = []
     for name, v in report["variants"].items():
         diam = v["levels_detail"][-1]["diameter"] if "levels_detail" in v else "-"
         full = next((i + 1 for i, f in enumerate(v["oled_fraction_by_step"]) if f >= 1.0), "-")
         levels = v.get("levels", "-") if v["reach"] == "multiscale" else "-"
-        lines.append(f"| {name} | {v['steps']} | {v['reach']} | {levels} "
-                     f"| {100 * v['oled_fraction']:.1f} % | {full} | {diam} |")
-    return lines
+        variants.append((name, v["steps"], v["reach"], levels, f"{100 * v['oled_fraction']:.1f} %", full, diam))
+    return lines + [""] + markdown.table(("processor", "steps", "reach", "levels", "OLED within reach (one pass)",
+                                          "all OLED after step", "coarsest diameter"), variants)

@@ -27,6 +27,7 @@ from typing import Sequence
 
 import numpy as np
 
+from pcmgn_jax import markdown
 from pcmgn_jax.data.designs import FAMILIES
 from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.opt.active import LoopConfig, Problem, SolverOracle, best_at, run_loop
@@ -196,10 +197,8 @@ def table_markdown(result: dict, command: str = "") -> str:
     lines = [f"Reference: {ref['mpa']:.4f} MPa at {ref['design_um']} µm (the solver, "
              f"{result['context']['preset']} preset, {result['context']['reading']}). Gap of the best solver value "
              f"found to it, mean over seeds {result['seeds']} (worst in brackets); "
-             "negative = better than the reference.",
-             "", "| strategy | " + " | ".join(f"{b} runs" for b in budgets)
-             + f" | solver runs to within {result['hit_pct']} % (per seed) | holdout error at the largest budget [%] |",
-             "|---|" + "---|" * (len(budgets) + 2)]
+             "negative = better than the reference.", ""]
+    body = []
     for name in result["strategies"]:
         cells = []
         for b in budgets:
@@ -210,7 +209,10 @@ def table_markdown(result: dict, command: str = "") -> str:
         runs = [x["runs"] for x in result["runs_to_hit"] if x["strategy"] == name]
         cells.append(", ".join("not reached" if r is None else str(r) for r in runs))
         cells.append(f"{np.mean(h):.3f}" if h else "–")
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        body.append((name, *cells))
+    lines += markdown.table(("strategy", *(f"{b} runs" for b in budgets),
+                             f"solver runs to within {result['hit_pct']} % (per seed)",
+                             "holdout error at the largest budget [%]"), body)
     if command:
         lines = [f"`{command}`", ""] + lines
     return "\n".join(lines) + "\n"

@@ -11,6 +11,8 @@ import json
 import os
 from pathlib import Path
 
+from pcmgn_jax import markdown
+
 
 def budget_of(d: dict) -> str:
     """The search budget in words: GA population × generations, starts × iterations, screening."""
@@ -47,18 +49,17 @@ def rows(paths) -> list[str]:
         lines += [f"Best of the dataset's own solver-evaluated designs: {db['mpa']:.4f} MPa at "
                   f"{db['design_um'][0]:.1f} / {db['design_um'][1]:.1f} µm "
                   f"(objective `{results[0][1]['objective']}`).", ""]
-    lines += ["| file | surrogate | method | budget | optimum T1 / T2 [µm] | predicted [MPa] | solver [MPa] | "
-              "error [%] | search [s] | evaluations | beats dataset best |",
-              "|---|---|---|---|---|---|---|---|---|---|---|"]
+    body = []
     for p, d in results:
         fp = d.get("surrogate_fingerprint")
         solver = d.get("solver_mpa")
         beats = d.get("beats_dataset_best")
-        lines.append(
-            f"| `{name[p]}` | {d['surrogate']}{f' `{fp[:8]}`' if fp else ''} | {d['method']} | {budget_of(d)} | "
-            f"{d['optimum_um'][0]:.1f} / {d['optimum_um'][1]:.1f} | {d['predicted_mpa']:.4f} | "
-            + ("– | – | " if solver is None else f"{solver:.4f} | {d['rel_error_pct']:.2f} | ")
-            + f"{d['search_seconds']:.1f} | {d['n_evals']:,} | "
-            + f"{'–' if beats is None else ('yes' if beats else 'no')} |")
+        body.append((f"`{name[p]}`", f"{d['surrogate']}{f' `{fp[:8]}`' if fp else ''}", d["method"], budget_of(d),
+                     f"{d['optimum_um'][0]:.1f} / {d['optimum_um'][1]:.1f}", f"{d['predicted_mpa']:.4f}",
+                     *(("–", "–") if solver is None else (f"{solver:.4f}", f"{d['rel_error_pct']:.2f}")),
+                     f"{d['search_seconds']:.1f}", f"{d['n_evals']:,}",
+                     "–" if beats is None else ("yes" if beats else "no")))
+    lines += markdown.table(("file", "surrogate", "method", "budget", "optimum T1 / T2 [µm]", "predicted [MPa]",
+                             "solver [MPa]", "error [%]", "search [s]", "evaluations", "beats dataset best"), body)
     lines += ["", "Commands:", ""] + [f"- `{name[p]}`: `{d['command']}`" for p, d in results]
     return lines

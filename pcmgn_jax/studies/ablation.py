@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from pcmgn_jax import markdown
 from pcmgn_jax.studies import cells
 
 # cell name -> (what it changes, settings on top of the cpu preset). Noise and lambda are fixed across the
@@ -56,16 +57,13 @@ def cell_settings(name: str, seed: int, num_steps: int) -> dict:
 
 def table(results: dict, baselines: dict) -> str:
     """The markdown table of ``results`` ({cell: {seed: metrics}}) and the ``baselines`` ({name: metrics})."""
-    head = ("| cell | what changes | position MAE [µm] | stress MAE [MPa] | OLED objective error [%] | "
-            "max penetration [µm] | training time [s] |")
-    rows = [head, "|---|---|---|---|---|---|---|"]
-    for name, per_seed in results.items():
-        cols = [cells.mean_pm(m[k] for m in per_seed.values()) for k in (*KEYS, "train_seconds")]
-        rows.append(f"| {name} | {CELLS[name][0]} | " + " | ".join(cols) + " |")
-    for name, b in baselines.items():
-        rows.append(f"| baseline: {name} | fitted on the 12 training designs | "
-                    + " | ".join(f"{b[k]:.3g}" for k in KEYS) + " | – |")
-    return "\n".join(rows)
+    head = ("cell", "what changes", "position MAE [µm]", "stress MAE [MPa]", "OLED objective error [%]",
+            "max penetration [µm]", "training time [s]")
+    rows = [(name, CELLS[name][0], *(cells.mean_pm(m[k] for m in per_seed.values()) for k in (*KEYS, "train_seconds")))
+            for name, per_seed in results.items()]
+    rows += [(f"baseline: {name}", "fitted on the 12 training designs", *(f"{b[k]:.3g}" for k in KEYS), "–")
+             for name, b in baselines.items()]
+    return "\n".join(markdown.table(head, rows))
 
 
 def run(names=(), *, seeds=(0, 1), num_steps: int = 1000, runs: str | Path = "runs/ablation",

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from pcmgn_jax import markdown
 from pcmgn_jax.studies import cells
 
 # base settings per formulation: the paper's (0.3 µm noise on all nodes, lambda = 10) and the project's
@@ -252,16 +253,14 @@ def write(name, out, table_ref, steps, study_cells, forms, seeds, results, *, co
     if done < total:
         lines += [f"**Partial: {done} of {total} cell-seeds measured so far** "
                   "(the runner resumes where it stopped).", ""]
-    lines += [
-             "| formulation | cell | position MAE | stress MAE | objective error [%] | max penetration [µm] | "
-             "train [s] | paper: position / stress |", "|---|---|---|---|---|---|---|---|"]
+    rows = []
     for form in forms:
         for label, _, pc, pv in study_cells:
             per = list(results.get(form, {}).get(label, {}).values())
             paper = ("–" if pc is None
                      else f"{pc[0]:g} / {pc[1]:g}" + ("" if pv is None else f" ({pv[0]:g} / {pv[1]:g})"))
             if not per:
-                lines.append(f"| {form} | {label} | not run yet | | | | | {paper} |")
+                rows.append((form, label, "not run yet", "", "", "", "", paper))
                 continue
             tag = "" if len(per) == len(seeds) else f" ({len(per)} of {len(seeds)} seeds)"
             early = [m.get("checkpoint_step") for m in per]
@@ -270,14 +269,15 @@ def write(name, out, table_ref, steps, study_cells, forms, seeds, results, *, co
             same_as, why = SAME_AS.get((name, form), ({}, ""))
             if label in same_as:
                 tag += f" (= {same_as[label]}, not retrained: {why})"
-            lines.append(f"| {form} | {label}{tag} | " + " | ".join(cells.mean_pm(m[k] for m in per) for k in KEYS)
-                         + f" | {cells.mean_pm(m['train_seconds'] for m in per)} | {paper} |")
+            rows.append((form, f"{label}{tag}", *(cells.mean_pm(m[k] for m in per) for k in KEYS),
+                         cells.mean_pm(m["train_seconds"] for m in per), paper))
     first = next(iter(next(iter(results.values())).values()))
     base = next(iter(first.values()))["baselines"]
     for kind, b in base.items():
         if "not_applicable" not in b:
-            lines.append(f"| baseline | {kind} | " + " | ".join(f"{b.get(k, float('nan')):.3g}" for k in KEYS)
-                         + " | – | – |")
+            rows.append(("baseline", kind, *(f"{b.get(k, float('nan')):.3g}" for k in KEYS), "–", "–"))
+    lines += markdown.table(("formulation", "cell", "position MAE", "stress MAE", "objective error [%]",
+                             "max penetration [µm]", "train [s]", "paper: position / stress"), rows)
     # the orderings: the best cell per formulation and the paper's, and how far the cells' ranking agrees
     # with the paper's (Kendall's tau over the cells both have: +1 the same order, -1 reversed)
     lines.append("")
