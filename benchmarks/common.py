@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pcmgn_jax import cli
+from pcmgn_jax import cli, markdown
 
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "benchmarks"
 
@@ -47,13 +47,10 @@ def default_paths(name: str, json_path: str | None, md_path: str | None) -> tupl
 
 
 def md_table(header: Sequence[str], rows: Sequence[Sequence]) -> str:
+    """A benchmark's markdown table (pcmgn_jax.markdown.table), floats to 4 significant digits."""
     def fmt(v):
-        if isinstance(v, float):
-            return f"{v:.4g}"
-        return str(v)
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    lines += ["| " + " | ".join(fmt(v) for v in r) + " |" for r in rows]
-    return "\n".join(lines) + "\n"
+        return f"{v:.4g}" if isinstance(v, float) else v
+    return "\n".join(markdown.table(header, ([fmt(v) for v in r] for r in rows))) + "\n"
 
 
 def _clean(obj):
