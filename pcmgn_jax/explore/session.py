@@ -40,6 +40,7 @@ from pcmgn_jax import metrics
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.data.layout import load_manifest
 from pcmgn_jax.data.splits import load_splits
+from pcmgn_jax.data.stack import nominal, range_warnings, stack_layer_count
 from pcmgn_jax.eval.baselines import READING_KEYS
 from pcmgn_jax.eval.ensemble import ResidualSpread, rollout_objectives
 from pcmgn_jax.explore.page import Page
@@ -58,7 +59,6 @@ from pcmgn_jax.explore.types import (
     has_checkpoint,
     parameter,
 )
-from pcmgn_jax.data.stack import nominal, range_warnings, stack_layer_count
 from pcmgn_jax.opt.problem import DesignBox
 from pcmgn_jax.opt.scenes import family_of, is_stack, query, row_of, scene_at, solve_scene
 from pcmgn_jax.scene import Scene

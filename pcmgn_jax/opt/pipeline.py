@@ -68,8 +68,8 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
     from pcmgn_jax.opt.objectives import FieldObjective, MGNObjective, SurfaceObjective
     from pcmgn_jax.opt.problem import DesignBox
     from pcmgn_jax.opt.scenes import PAPER_STACK, family_of, is_stack, parse_names
-    from pcmgn_jax.opt.stack_search import optimize_stack
     from pcmgn_jax.opt.spread import optimum_spread
+    from pcmgn_jax.opt.stack_search import optimize_stack
     from pcmgn_jax.scene import Scene
     from pcmgn_jax.sim.design_map import DesignMap
     from pcmgn_jax.surrogates.inputs import design_of

@@ -138,9 +138,14 @@ def stack_box(layers: Sequence[str] = PAPER_STACK, search: Sequence[str] | None 
     names = tuple(search) if search else tuple(n for n in allowed if not n.startswith("ball."))
     bad = [n for n in names if n not in allowed]
     if bad:
-        why = {n: "a presence flag: choose the layer list (--stack) instead" if n.endswith(".present") else
-               f"layer {n.split('.')[0]} is not in the stack {list(layers)}" if n.split(".")[0] in SLOT_NAMES
-               else "unknown" for n in bad}
+        def why(name: str) -> str:
+            slot, _, what = name.partition(".")
+            if slot in SLOT_NAMES and what == "present":
+                return "a presence flag: choose the layer list (--stack) instead"
+            if f"{slot}.{what}" in ranges and slot not in layers:
+                return f"layer {slot} is not in the stack {list(layers)}"
+            return "unknown"
+        why = {n: why(n) for n in bad}
         raise ValueError("stack search: cannot search " + "; ".join(f"{n!r} ({w})" for n, w in why.items())
                          + f". Searchable for this stack: {', '.join(allowed)}")
     if len(set(names)) != len(names):
