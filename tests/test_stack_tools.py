@@ -80,6 +80,11 @@ def test_the_stack_explorer_refuses_by_name_and_answers_what_it_can(stack_explor
     flags = ex.flags(odd)
     assert any("8 layers, outside the family's 5 to 7" in f for f in flags), flags
     assert any(f.startswith("stack range: this design: CG.thickness") for f in flags), flags
+    # an absent layer's sliders are not part of the design: nothing is flagged for them
+    absent = ex.start.copy()
+    absent[ex.names.index("TSP.thickness")] = 500e-6
+    assert not any("TSP" in f for f in ex.flags(absent)) and any("TSP" in f for f in ex.flags(
+        np.where(np.array(ex.names) == "TSP.present", 1.0, absent)))
     # a present layer of thickness 0 is a clear error (the page shows it and keeps the previous design)
     bad = ex.start.copy()
     bad[ex.names.index("POL.thickness")] = 0.0

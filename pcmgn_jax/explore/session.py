@@ -269,8 +269,12 @@ class Explorer(Page):
         scene's design layers, outside the optimiser's problem (:class:`~pcmgn_jax.opt.problem.DesignBox`)."""
         x = np.asarray(x, float)
         lo, hi = self.samples.min(0), self.samples.max(0)
+        row = row_of(self.names, x, self.fam) if self.stack else {}
         out = []
         for p, v, a, b in zip(self.params, x, lo, hi):
+            slot, _, what = p.name.partition(".")
+            if what != "present" and row.get(f"{slot}.present", 1.0) < 0.5:
+                continue                  # a stack's absent layer: its sliders are not part of the design
             show = p.text
             if p.outside(v):
                 how = "extrapolated" if p.varied else "training held it fixed: answered as if unchanged"
@@ -279,7 +283,6 @@ class Explorer(Page):
                 out.append(f"{p.label} = {show(v)} is inside the box but outside the training samples' span "
                            f"{show(a, b)}: the regressions extrapolate")
         if self.stack:
-            row = row_of(self.names, x, self.fam)
             out += range_warnings("this design", row)
             trained = sorted({stack_layer_count(dict(zip(self.names, r))) for r in self.samples})
             if stack_layer_count(row) not in trained:
