@@ -87,12 +87,12 @@ class StackFamily:
     def parameters(self) -> tuple[tuple[str, float, float], ...]:
         """(name, low, high) of every padded parameter over the family's whole range (an absent layer's
         thickness 0 and flag 0 included where the slot is optional)."""
-        out = []
-        for name, _, t0, e0, _, _, kind in SLOTS:
-            lo_t = 0.0 if kind != "fixed" else t0 * (1 - THICKNESS_SPAN)
-            out += [(f"{name}.thickness", lo_t, t0 * (1 + THICKNESS_SPAN)),
-                    (f"{name}.log10_youngs", math.log10(e0 / MODULUS_FACTOR), math.log10(e0 * MODULUS_FACTOR)),
-                    (f"{name}.present", 0.0 if kind != "fixed" else 1.0, 1.0)]
+        out, ranges = [], value_ranges()
+        for name, *_, kind in SLOTS:
+            (lo_t, hi_t), optional = ranges[f"{name}.thickness"], kind != "fixed"
+            out += [(f"{name}.thickness", 0.0 if optional else lo_t, hi_t),
+                    (f"{name}.log10_youngs", *ranges[f"{name}.log10_youngs"]),
+                    (f"{name}.present", 0.0 if optional else 1.0, 1.0)]
         return tuple(out) + BALL_RANGES
 
     def base(self, scene: Scene) -> Scene:
@@ -164,6 +164,58 @@ class StackFamily:
         return self.sample(n_train, seed, **train_kw), self.sample(n_test, seed + 1, **test_kw)
 
 
+def value_ranges() -> dict[str, tuple[float, float]]:
+    """{name: (low, high)} of every padded number a *present* layer (or the ball) may take in the family
+    [SI]: a layer's ``.thickness`` [m] (nominal +-40 %) and ``.log10_youngs`` [log10 Pa] (within a factor 2),
+    ``ball.radius`` [m] and ``ball.velocity`` [m/s]. (:attr:`StackFamily.parameters` spans an absent layer's
+    0 too.) The ranges :func:`range_warnings` checks and a stack search (``experiments.optimize``) searches."""
+    out = {}
+    for name, _, t0, e0, *_rest in SLOTS:
+        out[f"{name}.thickness"] = (t0 * (1 - THICKNESS_SPAN), t0 * (1 + THICKNESS_SPAN))
+        out[f"{name}.log10_youngs"] = (math.log10(e0 / MODULUS_FACTOR), math.log10(e0 * MODULUS_FACTOR))
+    return {**out, **{n: (lo, hi) for n, lo, hi in BALL_RANGES}}
+
+
+def nominal(layers: Sequence[str] = variant_layers(True, None)) -> dict[str, float]:
+    """{name: value} of the padded row of the stack ``layers`` (default the paper's six) at every slot's
+    nominal thickness [m] and modulus, the ball at the middle of its ranges; an absent slot's flag is 0 but
+    its thickness stays nominal (:func:`canonical` zeroes it), so that a page's slider for it starts at a
+    layer one can switch on. ValueError naming a layer that is no slot."""
+    unknown = [n for n in layers if n not in SLOT_NAMES]
+    if unknown:
+        raise ValueError(f"stack: layer(s) {unknown} are not slots of the stack family {list(SLOT_NAMES)}")
+    out = {}
+    for name, _, t0, e0, *_rest in SLOTS:
+        out.update({f"{name}.thickness": t0, f"{name}.log10_youngs": math.log10(e0),
+                    f"{name}.present": float(name in layers)})
+    return {**out, **{n: (lo + hi) / 2 for n, lo, hi in BALL_RANGES}}
+
+
+def canonical(params: Mapping[str, float]) -> dict[str, float]:
+    """The padded row ``params`` ({name: value}) as the family records a scene: each ``.present`` flag
+    rounded to 1 (>= 0.5) or 0, an absent slot's thickness 0 and its modulus nominal (module docstring):
+    what a response surface fitted on the dataset's rows is asked. Other names pass unchanged."""
+    out = dict(params)
+    for name, _, _, e0, *_rest in SLOTS:
+        flag = f"{name}.present"
+        if flag in out:
+            out[flag] = float(out[flag] >= 0.5)
+            if not out[flag]:
+                out.update({f"{name}.thickness": 0.0, f"{name}.log10_youngs": math.log10(e0)})
+    return out
+
+
+def display(name: str) -> tuple[str, str, float] | None:
+    """(label, unit, scale) of a padded-row name on a page (value x scale in unit): a layer's thickness in
+    µm, its log10 modulus (log10 Pa), its presence flag (1 present, 0 absent); None for the ball's numbers
+    and any other name."""
+    slot, _, what = name.partition(".")
+    if slot not in SLOT_NAMES:
+        return None
+    return {"thickness": (f"{slot} thickness", "µm", 1e6), "log10_youngs": (f"{slot} modulus", "log10 Pa", 1.0),
+            "present": (f"{slot} present (1/0)", "", 1.0)}.get(what)
+
+
 def stack_layer_count(params: Mapping[str, float]) -> int:
     """The layer count of a padded row ({name: value})."""
     return int(sum(params[f"{name}.present"] >= 0.5 for name in SLOT_NAMES))
@@ -173,12 +225,8 @@ def range_warnings(label: str, params: Mapping[str, float]) -> list[str]:
     """Lines naming every number of a stack scene (padded row ``params``) outside the family's ranges: a
     present layer's thickness [m] or log10 modulus, the ball's radius [m] or speed [m/s], and a layer count
     outside 5..7; [] inside. Each line starts ``stack range:`` (metrics.json ``warnings``)."""
-    ranges = [(name, *r) for (name, r) in (
-        (f"{s[0]}.thickness", (s[2] * (1 - THICKNESS_SPAN), s[2] * (1 + THICKNESS_SPAN))) for s in SLOTS)]
-    ranges += [(f"{s[0]}.log10_youngs", math.log10(s[3] / MODULUS_FACTOR), math.log10(s[3] * MODULUS_FACTOR))
-               for s in SLOTS]
     out = []
-    for name, lo, hi in ranges + list(BALL_RANGES):
+    for name, (lo, hi) in value_ranges().items():
         slot = name.split(".")[0]
         if slot in SLOT_NAMES and params.get(f"{slot}.present", 0) < 0.5:
             continue

@@ -87,9 +87,9 @@ class Page:
                 notes.append(f"{show!r} has no fields at this design yet: showing {choices[0] if choices else 'none'}")
             show = choices[0] if choices else None
         q, truth = self.query(x), self.truth(x)
-        figs = {"box": figures.box_figure(self.params, x, self.scenes.x, self.out_of_box(x),
+        figs = {"box": figures.box_figure(self.params, x, self.samples, self.out_of_box(x),
                                           band=None if self.family else _band(len(x)))}
-        names = list(self.scene0.part_names)
+        names = list(q.meta["part_names"])     # the design's layers (a stack's follow its sliders)
         if show is None:
             empty = figures.message_figure("no predictor with fields at this design")
             figs.update(field=empty, oled=empty, history=empty)
@@ -110,9 +110,10 @@ class Page:
                                                  title=f"von Mises: {label}, frame {frame} (t = {t_us:.0f} µs), "
                                                        f"deformed section at true scale", scale=scale,
                                                  vmax_pa=float(np.nanmax(vm)))
-            figs["oled"] = figures.oled_figure(pts, mesh.cells, mesh.cell_part, vm[frame], self.part,
+            part = self.oled(q)
+            figs["oled"] = figures.oled_figure(pts, mesh.cells, mesh.cell_part, vm[frame], part,
                                                x_max=metrics.OBJECTIVE_X_MAX, vmax_pa=float(
-                                                   np.nanmax(vm[:, np.asarray(mesh.node_part) == self.part])),
+                                                   np.nanmax(vm[:, np.asarray(mesh.node_part) == part])),
                                                title=f"OLED layer: {label}, frame {frame} (linear scale)")
             curves, ball = {}, {}
             for k in self._field_kinds():

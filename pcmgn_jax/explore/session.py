@@ -13,9 +13,13 @@ scene across meshes), ``poly2``/``rbf`` (one shared mesh only), ``kriging`` (the
 GP std, and on one shared mesh the field surface for the plots), ``mop`` (the objective surface only) and ``rom``.
 
 A design is answered on its own mesh: the training data's scene with the parameters set
-(:func:`pcmgn_jax.scene.with_parameters`), meshed at the data's preset and cropped to its region of
-interest, as a "query" trajectory holding only the initial state (the solver's rule,
-:func:`pcmgn_jax.sim.initial.initial_velocity`). Every field prediction is scored on that mesh by
+(:func:`pcmgn_jax.opt.scenes.scene_at`: :func:`pcmgn_jax.scene.with_parameters`, or a panel stack's
+scene, whose layer list follows its ``.present`` sliders), meshed at the data's preset and cropped to its
+region of interest, as a "query" trajectory holding only the initial state (:func:`pcmgn_jax.opt.scenes.query`).
+A stack run (issue 40) gets a slider per padded parameter (:mod:`pcmgn_jax.data.stack`) in the family's
+order, opens at the paper's six layers at their nominal values, and flags a design outside the family's
+ranges by :func:`pcmgn_jax.data.stack.range_warnings`; a baseline that cannot answer a stack (no training
+stack of its layers) says so in its row instead of a value. Every field prediction is scored on that mesh by
 :func:`pcmgn_jax.metrics.oled_objective_of` (docs/design.md §8), the truth of a solver check too.
 
 Units: SI in and out (parameters, fields); objectives in MPa; the page shows µm, mm, m/s and MPa. The page's
@@ -36,6 +40,7 @@ from pcmgn_jax import metrics
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.data.layout import load_manifest
 from pcmgn_jax.data.splits import load_splits
+from pcmgn_jax.data.stack import nominal, range_warnings, stack_layer_count
 from pcmgn_jax.eval.baselines import READING_KEYS
 from pcmgn_jax.eval.ensemble import ResidualSpread, rollout_objectives
 from pcmgn_jax.explore.page import Page
@@ -55,11 +60,8 @@ from pcmgn_jax.explore.types import (
     parameter,
 )
 from pcmgn_jax.opt.problem import DesignBox
-from pcmgn_jax.scene import Scene, with_parameters
-from pcmgn_jax.sim.initial import initial_velocity
-from pcmgn_jax.sim.mesh import build_mesh, roi
-from pcmgn_jax.sim.output import to_trajectories
-from pcmgn_jax.sim.solver import simulate
+from pcmgn_jax.opt.scenes import family_of, is_stack, query, row_of, scene_at, solve_scene
+from pcmgn_jax.scene import Scene
 from pcmgn_jax.surrogates.inputs import TrainingScenes, shared_mesh
 from pcmgn_jax.surrogates.kinds import KINDS, by_rank
 from pcmgn_jax.surrogates.registry import fit
@@ -95,11 +97,19 @@ class Explorer(Page):
         names = list(self.ref.meta.get("part_names") or self.scene0.part_names)
         if "OLED" not in names:
             raise RunError(f"{self.run}: the scene has no part named 'OLED' ({names}): no objective to explore")
-        self.part = names.index("OLED")
+        self.fam = family_of(self.ref)
+        self.stack = is_stack(self.fam)
+        self.part = None if self.stack else names.index("OLED")   # a stack's OLED index varies: found by name
         self.scenes = TrainingScenes(self.train)
-        self.names = self.scenes.names
+        # the sliders in the family's order (its rows' names), the training samples (B, P) [SI] likewise
+        order = list(self.fam.names) if self.fam is not None and set(self.fam.names) == set(self.scenes.names) \
+            else list(self.scenes.names)
+        self.names = tuple(order)
+        self.samples = self.scenes.x[:, [list(self.scenes.names).index(n) for n in order]]
         self.params = [parameter(n, *box) for n, box in zip(self.names, self._box())]
-        self.start = np.array([(p.low + p.high) / 2 for p in self.params])   # the page opens at the box centre
+        # the page opens at the box centre; a stack at the paper's six layers, nominal (pcmgn_jax.data.stack)
+        centre = {**{p.name: (p.low + p.high) / 2 for p in self.params}, **(nominal() if self.stack else {})}
+        self.start = np.array([centre[n] for n in self.names])
         self.family = bool(self.ref.meta.get("scene_params"))
         self.shared = shared_mesh(self.train)
         self.notes: list[str] = []
@@ -142,7 +152,7 @@ class Explorer(Page):
                 ("; a design whose mesh falls in a new size bucket compiles the MGN's rollout first (tens of "
                  "seconds, once per bucket)" if "mgn" in slow and not self.shared else ""))
         first = self.predict(self.start, self.live)
-        kinds = [k for k in self._field_kinds() if k in first]
+        kinds = [k for k in self._field_kinds() if k in first and first[k].vm is not None]
         # the page opens at the frame where the first field predictor's OLED section reading peaks
         self.start_frame = int(np.argmax(self.objective_history(self.query(self.start), first[kinds[0]].vm))) \
             if kinds else 0
@@ -164,9 +174,10 @@ class Explorer(Page):
         """Per parameter the training box [SI]: the range the dataset's designs were drawn from (its
         manifest: a scene family's parameter ranges, or the Latin hypercube's bounds), else the span of
         the training samples (an imported dataset)."""
-        lo, hi = self.scenes.x.min(0), self.scenes.x.max(0)
+        lo, hi = self.samples.min(0), self.samples.max(0)
         manifest = load_manifest(Path(self.cfg.resolved_dataset_dir)) or {}
-        ranges = {n: (a, b) for n, a, b in ((manifest.get("family") or {}).get("parameters") or [])}
+        ranges = {n: (a, b) for n, a, b in ((manifest.get("family") or {}).get("parameters")
+                                             or (self.fam.parameters if self.fam is not None else []))}
         origin = ((manifest.get("splits") or {}).get("train") or {}).get("origin") or {}
         if origin.get("kind") == "lhs" and not ranges:
             ranges = {n: (origin["low_m"], origin["high_m"]) for n in manifest.get("design_layers") or ()}
@@ -237,39 +248,33 @@ class Explorer(Page):
         return sorted(has, key=lambda k: k != self.default)
 
     def scene_at(self, x):
-        """The training scene with the parameters x (P,) [SI] set (a :class:`pcmgn_jax.scene.Scene`)."""
-        return with_parameters(self.scene0, dict(zip(self.names, np.asarray(x, float))))
+        """The scene of the parameters x (P,) [SI] (a :class:`pcmgn_jax.scene.Scene`; module docstring)."""
+        return scene_at(self.scene0, row_of(self.names, x, self.fam), self.fam)
 
     def query(self, x) -> Trajectory:
         """The design x (P,) [SI] as a trajectory on its own mesh holding the initial state (module docstring)."""
         key = design_key(x)
         if (q := self._queries.get(key)) is not None:
             return q
-        scene = self.scene_at(x)
-        if self.preset is None:
-            mesh = self.ref
-        else:
-            mesh, _ = roi(build_mesh(scene, self.preset), self.preset)
-        T, N = self.ref.n_frames, len(mesh.points)
-        v = np.zeros((T, N, 2))
-        v[0] = initial_velocity(scene, mesh.node_part)
-        meta = {"scene": scene.to_dict(), "part_names": list(scene.part_names), "name": "the explored design",
-                "design": {n: float(t) for n, t in zip(scene.design_layers, scene.design)}}
-        if self.family:
-            meta["scene_params"] = {n: float(t) for n, t in zip(self.names, np.asarray(x, float))}
-        q = Trajectory(points=np.asarray(mesh.points, np.float64), cells=mesh.cells, cell_part=mesh.cell_part,
-                       node_part=mesh.node_part, node_type=mesh.node_type, times=np.asarray(self.ref.times),
-                       displacement=np.zeros((T, N, 2)), velocity=v, von_mises=np.zeros((T, N)), meta=meta)
-        return self._queries.put(key, q)
+        row = row_of(self.names, x, self.fam) if self.family else None
+        return self._queries.put(key, query(self.scene_at(x), self.ref, self.preset, scene_params=row))
+
+    def oled(self, traj) -> int:
+        """The OLED's part id in ``traj`` (a query's or the solver's; a stack's varies with its layers)."""
+        return self.part if self.part is not None else list(traj.meta["part_names"]).index("OLED")
 
     def flags(self, x) -> list[str]:
         """Why x (P,) [SI] is outside the training box (one line per parameter; [] inside), or outside the
         span of the training samples (where the regressions extrapolate), and, for a design of the
         scene's design layers, outside the optimiser's problem (:class:`~pcmgn_jax.opt.problem.DesignBox`)."""
         x = np.asarray(x, float)
-        lo, hi = self.scenes.x.min(0), self.scenes.x.max(0)
+        lo, hi = self.samples.min(0), self.samples.max(0)
+        row = row_of(self.names, x, self.fam) if self.stack else {}
         out = []
         for p, v, a, b in zip(self.params, x, lo, hi):
+            slot, _, what = p.name.partition(".")
+            if what != "present" and row.get(f"{slot}.present", 1.0) < 0.5:
+                continue                  # a stack's absent layer: its sliders are not part of the design
             show = p.text
             if p.outside(v):
                 how = "extrapolated" if p.varied else "training held it fixed: answered as if unchanged"
@@ -277,6 +282,12 @@ class Explorer(Page):
             elif v < a - 1e-9 * abs(b) or v > b + 1e-9 * abs(b):
                 out.append(f"{p.label} = {show(v)} is inside the box but outside the training samples' span "
                            f"{show(a, b)}: the regressions extrapolate")
+        if self.stack:
+            out += range_warnings("this design", row)
+            trained = sorted({stack_layer_count(dict(zip(self.names, r))) for r in self.samples})
+            if stack_layer_count(row) not in trained:
+                out.append(f"a stack of {stack_layer_count(row)} layers: the training stacks have {trained} "
+                           "(a layer count never trained on)")
         if not self.family and len(x) == len(self.scene0.design_layers):
             problem = DesignBox(dim=len(x))
             if problem.violation(x)[0] > 1e-12:
@@ -292,7 +303,7 @@ class Explorer(Page):
     # ---- predictions ---------------------------------------------------------------------------------
 
     def _weights(self, q):
-        return metrics.objective_weights(q.points, q.cells, q.cell_part, q.node_part, part=self.part,
+        return metrics.objective_weights(q.points, q.cells, q.cell_part, q.node_part, part=self.oled(q),
                                          reading=self.reading)
 
     def objective_history(self, q, vm) -> np.ndarray:
@@ -302,8 +313,12 @@ class Explorer(Page):
 
     def _predict_one(self, kind: str, q) -> Prediction:
         mgn = kind == "mgn"
-        return predict_one(kind, self.models[kind], q, reading=self.reading, part=self.part,
-                           lock=self._mgn_lock if mgn else None, spread=self._mgn_spread if mgn else None)
+        t0 = time.perf_counter()
+        try:
+            return predict_one(kind, self.models[kind], q, reading=self.reading, part=self.part,
+                               lock=self._mgn_lock if mgn else None, spread=self._mgn_spread if mgn else None)
+        except ValueError as err:   # a refusal by name (e.g. no training stack of these layers): the row says it
+            return Prediction(kind, None, None, None, None, time.perf_counter() - t0, str(err))
 
     def predict(self, x, kinds: Sequence[str] | None = None) -> dict[str, Prediction]:
         """{predictor: Prediction} at x (P,) [SI] for ``kinds`` (default :attr:`live`), computed once
@@ -343,8 +358,7 @@ class Explorer(Page):
         scene = self.scene_at(x)
         t0 = time.perf_counter()
         with self._solver_lock:
-            result = simulate([scene], self.preset)
-        (traj,) = to_trajectories(result, [scene], self.preset)
+            traj, result = solve_scene(scene, self.preset)
         force = np.concatenate([[0.0], np.asarray(result.force[0])[:, -1]])
         truth = Truth(traj, force, float(metrics.oled_objective_of(traj, part=self.part, reading=self.reading)),
                       time.perf_counter() - t0)

@@ -13,6 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from pcmgn_jax.data.stack import display
 from pcmgn_jax.surrogates.kinds import KINDS, names
 from pcmgn_jax.trajectory import Trajectory
 
@@ -62,11 +63,15 @@ class Parameter:
 
 def parameter(name: str, low: float, high: float) -> Parameter:
     """The slider of scene parameter ``name`` ('ball.radius' [m], 'ball.velocity' [m/s], a layer name
-    (its thickness [m])) over the training box [low, high]."""
+    (its thickness [m]), or a panel stack's padded-row name (:func:`pcmgn_jax.data.stack.display`: a layer's
+    thickness, log10 modulus or presence flag)) over the training box [low, high]."""
     if name == "ball.velocity":
         return Parameter(name, low, high, "m/s", 1.0, "drop speed")
     if name == "ball.radius":
         return Parameter(name, low, high, "mm", 1e3, "ball radius")
+    if (shown := display(name)) is not None:
+        label, unit, scale = shown
+        return Parameter(name, low, high, unit, scale, label)
     return Parameter(name, low, high, "µm", 1e6, f"{name} thickness")
 
 

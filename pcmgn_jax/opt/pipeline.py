@@ -37,7 +37,10 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", **kw) -> dict:
     starts seed; ``grid``: n x n objective map (-1: 21, mgn 7; 0 or 1: none); ``which``: mgn checkpoint;
     ``check``: re-run the solver at the optimum; ``ensemble``: comma-separated runs whose MGNs join the
     run's for the spread of an mgn optimum (:mod:`pcmgn_jax.opt.spread`; without: a residual GP's);
-    ``command``: recorded in the result. Designs in the result
+    ``command``: recorded in the result. A panel-stack run (issue 40) is searched over its scene parameters
+    instead (:mod:`pcmgn_jax.opt.stack_search`, GA only): ``stack`` (comma-separated layer list, '' the
+    paper's six) and ``params`` (comma-separated names to search, '' every layer's thickness and modulus);
+    both are refused on other runs. Designs in the result
     in µm, objectives in MPa. Raises ``ValueError`` for ``screen`` without slsqp or data without a solver
     preset; :class:`pcmgn_jax.mgn.checkpoint.MissingRun` (one line, nothing written) when ``workdir`` is no run
     folder, holds no config.json or (``mgn``) no checkpoint. RUN/optimize is locked while it runs
@@ -53,7 +56,7 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", **kw) -> dict:
 def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", objective: str = "area_mean",
         pop: int = 100, gens: int = 50, starts: int = 4, iters: int = 20, screen: int = 0, seed: int = 0,
         grid: int = -1, which: str = "best", check: bool = True, progress: bool = True,
-        ensemble: str = "", command: str = "") -> dict:
+        ensemble: str = "", stack: str = "", params: str = "", command: str = "") -> dict:
     """:func:`run` once the run is checked and RUN/optimize locked."""
     import numpy as np
 
@@ -64,7 +67,9 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
     from pcmgn_jax.opt.check import solver_objectives, solver_preset
     from pcmgn_jax.opt.objectives import FieldObjective, MGNObjective, SurfaceObjective
     from pcmgn_jax.opt.problem import DesignBox
+    from pcmgn_jax.opt.scenes import PAPER_STACK, family_of, is_stack, parse_names
     from pcmgn_jax.opt.spread import optimum_spread
+    from pcmgn_jax.opt.stack_search import optimize_stack
     from pcmgn_jax.scene import Scene
     from pcmgn_jax.sim.design_map import DesignMap
     from pcmgn_jax.surrogates.inputs import design_of
@@ -81,6 +86,20 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
     ref = train[0]
     scene = Scene.from_dict(ref.meta["scene"])
     preset = solver_preset(ref, cfg.resolved_dataset_dir)
+    tag = result_tag(surrogate, method, objective)
+    if is_stack(family_of(ref)):
+        dest = plots.ensure_dir(run_dir / "optimize")
+        record.update(stack=stack, params=params)
+        out = optimize_stack(run_dir, cfg, train, surrogate=surrogate, method=method, objective=objective, pop=pop,
+                             gens=gens, seed=seed, which=which, check=check, progress=progress,
+                             layers=parse_names(stack) or PAPER_STACK, search_names=parse_names(params) or None,
+                             preset=preset, resume=dest / f"{tag}.resume.json", record=record, command=command)
+        atomic_write_json(dest / f"{tag}.json", out)
+        (dest / f"{tag}.resume.json").unlink(missing_ok=True)
+        return out
+    if stack or params:
+        raise ValueError(f"--stack / --params: only for a panel-stack run; {run_dir} is not one (its data's "
+                         f"meta.family is {ref.meta.get('family')!r})")
     part = scene.part_names.index("OLED")
     box = DesignBox(dim=len(scene.design_layers))
     dmap = DesignMap.build(scene, preset)
@@ -93,7 +112,6 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
     else:
         obj = FieldObjective(fit(kind, train), dmap, **kw)
 
-    tag = result_tag(surrogate, method, objective)
     dest = plots.ensure_dir(run_dir / "optimize")
     resume = dest / f"{tag}.resume.json"
     loaded = 0

@@ -23,6 +23,11 @@ class DesignBox:
         if self.dim * self.low > self.sum_high or self.dim * self.high < self.sum_low:
             raise ValueError(f"design box: no design satisfies both the bounds and the sum band ({self})")
 
+    @property
+    def n_constraints(self) -> int:
+        """The inequality constraints beyond the bounds (:meth:`constraints`: the sum band's two)."""
+        return 2
+
     def constraints(self, designs) -> np.ndarray:
         """(B, 2) inequality constraints g <= 0 [m]: sum_low - sum, sum - sum_high."""
         s = np.atleast_2d(np.asarray(designs, float)).sum(axis=1)

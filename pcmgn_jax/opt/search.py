@@ -15,7 +15,10 @@ from pcmgn_jax.opt.problem import DesignBox
 def ga(objective, box: DesignBox, *, pop: int = 100, gens: int = 50, seed: int = 0,
        progress: bool = True) -> dict:
     """pymoo's single-objective GA with its constraint handling (feasibility first, then objective);
-    each generation's designs go to the objective as one batch. The paper's budget is 100 x 50.
+    each generation's designs go to the objective as one batch. The paper's budget is 100 x 50. ``box``: a
+    :class:`DesignBox` or any box with its ``dim``, ``low``, ``high``, ``n_constraints`` and ``constraints``
+    (a stack search's :class:`pcmgn_jax.opt.scenes.ParameterBox`: bounds only; its values in SI, so the
+    result's ``x_um`` fields hold SI x 1e6 there).
 
     Returns {x (D,) [m], f [MPa], n_evals, seconds, history: per generation best f and feasible best x,
     final_population (P, D) [m]}."""
@@ -29,12 +32,14 @@ def ga(objective, box: DesignBox, *, pop: int = 100, gens: int = 50, seed: int =
 
     class _Problem(Problem):
         def __init__(self):
-            super().__init__(n_var=box.dim, n_obj=1, n_ieq_constr=2, xl=box.low * scale, xu=box.high * scale)
+            super().__init__(n_var=box.dim, n_obj=1, n_ieq_constr=box.n_constraints, xl=box.low * scale,
+                             xu=box.high * scale)
 
         def _evaluate(self, X, out, *args, **kwargs):
             d = np.asarray(X, float) / scale
             out["F"] = objective(d)[:, None]
-            out["G"] = box.constraints(d) * scale
+            if box.n_constraints:
+                out["G"] = box.constraints(d) * scale
 
     bar = tqdm(total=gens, unit="gen", desc=f"GA {getattr(objective, 'name', '')}", disable=not progress,
                dynamic_ncols=True)

@@ -30,9 +30,14 @@ def rows(paths) -> list[str]:
     for p in paths:
         try:
             d = json.loads(Path(p).read_text())
-            d["method"], d["optimum_um"], d["predicted_mpa"]
-        except (OSError, ValueError, KeyError) as e:
+        except (OSError, ValueError) as e:
             raise ValueError(f"{p}: not a result of experiments.optimize ({e})") from e
+        if isinstance(d, dict) and "optimum" in d:
+            raise ValueError(f"{p}: a stack search's result (its optimum is a row of scene parameters, "
+                             "pcmgn_jax/opt/stack_search.py); this table is of design-layer optima")
+        missing = [k for k in ("method", "optimum_um", "predicted_mpa") if not isinstance(d, dict) or k not in d]
+        if missing:
+            raise ValueError(f"{p}: not a result of experiments.optimize (no {', '.join(map(repr, missing))})")
         results.append((Path(p), d))
     if not results:
         raise ValueError("no optimize results given (--files)")

@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fixtures.helpers import make_synthetic_trajectory
+from fixtures.helpers import make_synthetic_trajectory, synthetic_scene_trajectory, synthetic_stack
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.data.stack import (
     BALL_RANGES,
@@ -75,38 +75,10 @@ def test_graph_inputs_have_one_width_for_every_layer_count():
     assert len(set(widths.values())) == 1, widths
 
 
-def _synthetic_stack(count: int, seed: int, n_frames: int = 6):
-    """A trajectory on a real ``stack_tiny`` ROI mesh of a ``count``-layer stack: the ball moves down, the
-    panel dips under it, a stress bump (no solver: the training path's shapes and rules only)."""
-    row = FAM.sample(1, seed, layer_counts=(count,))[0]
-    return _synthetic(_scene(row), {"scene_params": dict(zip(FAM.names, map(float, row))), "family": "stack_tiny",
-                                    "name": f"s{count}"}, n_frames)
-
-
-def _synthetic(scene, meta, n_frames: int = 6):
-    from pcmgn_jax.sim.mesh import build_mesh, roi
-    from pcmgn_jax.trajectory import Trajectory
-    mesh, _ = roi(build_mesh(scene, "stack_tiny"), "stack_tiny")
-    dt = scene.output_dt
-    times = dt * np.arange(n_frames)
-    ph = np.sin(np.pi * times / times[-1])
-    ball = mesh.node_part == 0
-    shape = np.exp(-(mesh.points[:, 0] / 3e-4) ** 2) * ~ball
-    u = np.zeros((n_frames, mesh.n_nodes, 2))
-    u[:, ball, 1] = -2e-6 * ph[:, None]
-    u[:, :, 1] += -1e-6 * ph[:, None] * shape[None]
-    u[:, mesh.fixed[:, 1]] = 0.0
-    v = np.gradient(u, dt, axis=0)
-    vm = 1e7 * ph[:, None] * np.exp(-mesh.points[:, 0] / 2e-4)[None]
-    meta = {"scene": scene.to_dict(), "output_dt": dt, "part_names": list(scene.part_names), "design": {}, **meta}
-    return Trajectory(points=mesh.points, cells=mesh.cells, cell_part=mesh.cell_part, node_part=mesh.node_part,
-                      node_type=mesh.node_type, times=times, displacement=u, velocity=v, von_mises=vm, meta=meta)
-
-
 def test_training_setup_takes_stacks_of_different_layer_counts():
     from pcmgn_jax.train.setup import graph_for, prepare
     cfg = TrainConfig.from_preset("stack_tiny")
-    five, seven, six = (_synthetic_stack(c, c) for c in (5, 7, 6))
+    five, seven, six = (synthetic_stack(c, c) for c in (5, 7, 6))
     setup = prepare(cfg, [five, seven])
     assert np.shape(setup.stats.node_mean)[0] == 6                      # six role types, any layer count
     widths = {g.topology.n_node_types for g in setup.graphs} | {graph_for(setup, six)["topology"].n_node_types}
@@ -122,7 +94,7 @@ def test_generate_records_every_stack_and_shards_alike(tmp_path):
 
     def solve(scene, designs, *, preset):   # the solver's contract, without the solver: one stack per call
         assert np.shape(designs) == (1, 0) and preset == "stack_tiny"
-        return [_synthetic(scene, {"wall_time_s": 0.1}, n_frames=3)]
+        return [synthetic_scene_trajectory(scene, {"wall_time_s": 0.1}, n_frames=3)]
     kw = dict(preset="stack_tiny", n_train=3, n_test=2, seed=0, stack_split="e2", solve_fn=solve, progress=False,
               batch=1)
     whole = load_manifest(ensure_dataset(tmp_path / "whole", **kw))
@@ -201,8 +173,8 @@ def test_rom_refuses_stacks_of_other_layers_by_name():
 
 def test_the_rom_answers_a_stack_from_the_training_stacks_of_its_layer_list():
     from pcmgn_jax.surrogates.rom import StackRom, fit_rom
-    train = [_synthetic_stack(5, s) for s in (11, 12, 13)] + [_synthetic_stack(7, s) for s in (14, 15)]
-    query = _synthetic_stack(5, 16)
+    train = [synthetic_stack(5, s) for s in (11, 12, 13)] + [synthetic_stack(7, s) for s in (14, 15)]
+    query = synthetic_stack(5, 16)
     rom = fit_rom(train)
     assert isinstance(rom, StackRom)
     (u,), (vm,) = rom.predict_trajectories([query])

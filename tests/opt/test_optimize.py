@@ -339,3 +339,7 @@ def test_optimize_table_orders_by_the_solver_and_names_bad_files(tmp_path):
     (tmp_path / "c.json").write_text("{}")
     with pytest.raises(ValueError, match="c.json: not a result of experiments.optimize"):
         optimize_table.main(["--files", str(tmp_path / "*.json")])
+    (tmp_path / "c.json").write_text(json.dumps({"method": "ga", "optimum": {"OCA1.thickness": 1e-4},
+                                                 "predicted_mpa": 1.0}))      # a stack search's result
+    with pytest.raises(ValueError, match="c.json: a stack search's result"):
+        optimize_table.main(["--files", str(tmp_path / "*.json")])

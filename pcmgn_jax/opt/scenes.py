@@ -1,0 +1,159 @@
+"""Designs that are rows of scene parameters, each answered on its own mesh: the scene of a row, its query
+trajectory, the solver at it, and the search box of a panel-stack run (issue 40; shared by the explorer
+and ``experiments.optimize``).
+
+    fam = family_of(ref)                              # the run's scene family (None: a design-layer run)
+    row = row_of(names, x, fam)                       # {name: value} [SI]; a stack's row made canonical
+    scene = scene_at(scene0, row, fam)                # the scene of that row
+    q = query(scene, ref, preset, scene_params=row)   # its mesh and initial state as a trajectory
+    box = stack_box(layers=("CG", ...), search=None)  # a stack search: names, bounds, the fixed base row
+
+A stack's row (:mod:`pcmgn_jax.data.stack`) decides its layer list (the ``.present`` flags), so every row
+builds its own mesh: no design map, no gradient through the mesh. What a row means, its names and their
+ranges live in :mod:`pcmgn_jax.data.stack`; this module only assembles them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from pcmgn_jax.data.designs import FAMILIES
+from pcmgn_jax.data.stack import SLOT_NAMES, StackFamily, canonical, nominal, value_ranges, variant_layers
+from pcmgn_jax.scene import Scene, with_parameters
+from pcmgn_jax.sim.initial import initial_velocity
+from pcmgn_jax.sim.mesh import build_mesh, roi
+from pcmgn_jax.sim.output import to_trajectories
+from pcmgn_jax.sim.solver import simulate
+from pcmgn_jax.trajectory import Trajectory
+
+PAPER_STACK = variant_layers(True, None)   # the paper's six layers: the stack search's default layer list
+
+
+def family_of(traj):
+    """The scene family of a trajectory (its meta['family'], a preset of :data:`FAMILIES`), else None."""
+    return FAMILIES.get(traj.meta.get("family") or "")
+
+
+def is_stack(family) -> bool:
+    return isinstance(family, StackFamily)
+
+
+def row_of(names: Sequence[str], x, family=None) -> dict[str, float]:
+    """{name: value} of parameter values x (P,) [SI] in ``names``' order; for a stack family the canonical
+    row (:func:`pcmgn_jax.data.stack.canonical`: flags 0/1, an absent layer's thickness 0)."""
+    row = {n: float(v) for n, v in zip(names, np.asarray(x, float).reshape(-1))}
+    return canonical(row) if is_stack(family) else row
+
+
+def scene_at(scene0: Scene, row: Mapping[str, float], family=None) -> Scene:
+    """The scene of ``row`` ({name: value} [SI]) on ``scene0`` (a training scene of the run): a stack
+    family's scene (its layers from the row), else :func:`pcmgn_jax.scene.with_parameters`. ValueError
+    naming a bad parameter (e.g. a present layer of thickness 0)."""
+    return family.scene(scene0, row) if is_stack(family) else with_parameters(scene0, row)
+
+
+def query(scene: Scene, ref: Trajectory, preset: str | None, *, scene_params: Mapping[str, float] | None = None,
+          name: str = "the explored design") -> Trajectory:
+    """``scene`` as a trajectory holding only its initial state (the solver's rule,
+    :func:`pcmgn_jax.sim.initial.initial_velocity`) on its own mesh (``preset``, cropped to its region of
+    interest; None: ``ref``'s mesh), ``ref``'s frame times: what a predictor is asked. ``scene_params``
+    (a family's row) goes to meta['scene_params'], where the response surfaces read it."""
+    if preset is None:
+        mesh = ref
+    else:
+        mesh, _ = roi(build_mesh(scene, preset), preset)
+    T, N = ref.n_frames, len(mesh.points)
+    v = np.zeros((T, N, 2))
+    v[0] = initial_velocity(scene, mesh.node_part)
+    meta = {"scene": scene.to_dict(), "part_names": list(scene.part_names), "name": name,
+            "design": {n: float(t) for n, t in zip(scene.design_layers, scene.design)}}
+    if scene_params is not None:
+        meta["scene_params"] = dict(scene_params)
+    return Trajectory(points=np.asarray(mesh.points, np.float64), cells=mesh.cells, cell_part=mesh.cell_part,
+                      node_part=mesh.node_part, node_type=mesh.node_type, times=np.asarray(ref.times),
+                      displacement=np.zeros((T, N, 2)), velocity=v, von_mises=np.zeros((T, N)), meta=meta)
+
+
+def solve_scene(scene: Scene, preset: str):
+    """(ROI-cropped trajectory, the solver's result) of ``scene`` by the built-in solver at ``preset``."""
+    result = simulate([scene], preset)
+    (traj,) = to_trajectories(result, [scene], preset)
+    return traj, result
+
+
+@dataclass(frozen=True)
+class ParameterBox:
+    """A search box of named scene parameters: ``low`` / ``high`` (D,) [SI], no constraint beyond the
+    bounds; the interface of :class:`pcmgn_jax.opt.problem.DesignBox` that :func:`pcmgn_jax.opt.search.ga`
+    uses. ``base``: the full row ({name: value} [SI]) the searched values are set into."""
+
+    names: tuple[str, ...]
+    low: np.ndarray
+    high: np.ndarray
+    base: Mapping[str, float]
+    n_constraints: int = 0
+
+    @property
+    def dim(self) -> int:
+        return len(self.names)
+
+    def constraints(self, designs) -> np.ndarray:
+        return np.zeros((len(np.atleast_2d(designs)), 0))
+
+    def violation(self, designs) -> np.ndarray:
+        d = np.atleast_2d(np.asarray(designs, float))
+        return np.maximum(0.0, np.maximum(self.low - d, d - self.high).max(axis=1))
+
+    def project(self, designs) -> np.ndarray:
+        return np.clip(np.atleast_2d(np.asarray(designs, float)), self.low, self.high)
+
+    def starts(self, n: int, seed: int = 0) -> np.ndarray:
+        from scipy.stats import qmc
+        z = qmc.LatinHypercube(d=self.dim, rng=np.random.default_rng(seed)).random(n)
+        return self.low + z * (self.high - self.low)
+
+    def row(self, x) -> dict[str, float]:
+        """The full row of searched values x (D,) [SI] set into :attr:`base`."""
+        return canonical({**self.base, **dict(zip(self.names, map(float, np.asarray(x, float))))})
+
+
+def stack_box(layers: Sequence[str] = PAPER_STACK, search: Sequence[str] | None = None) -> ParameterBox:
+    """The search box of a stack of ``layers`` (top to bottom, slots of :data:`pcmgn_jax.data.stack.SLOTS`):
+    the parameters ``search`` (default: every layer's thickness [m] and log10 modulus [log10 Pa]; the ball's
+    ``ball.radius`` / ``ball.velocity`` only when named: an impactor is a test condition, not a design) over
+    the family's ranges (:func:`pcmgn_jax.data.stack.value_ranges`), the rest held at the stack's nominal row
+    (:func:`pcmgn_jax.data.stack.nominal`: nominal layers, the ball at the middle of its ranges). ValueError
+    naming an unknown parameter, a layer not in the stack, a presence flag (the layer list is chosen by
+    ``layers``, not searched) or a layer list outside the family."""
+    layers = tuple(layers)
+    order = [n for n in SLOT_NAMES if n in layers]
+    if len(set(layers)) != len(layers) or list(layers) != order or "OLED" not in layers:
+        raise ValueError(f"stack: the layers {list(layers)} are no stack of the family: slots in the order "
+                         f"{list(SLOT_NAMES)}, each once, the OLED among them")
+    base = canonical(nominal(layers))
+    ranges = value_ranges()
+    allowed = [n for n in ranges if n.split(".")[0] in layers or n.startswith("ball.")]
+    names = tuple(search) if search else tuple(n for n in allowed if not n.startswith("ball."))
+    bad = [n for n in names if n not in allowed]
+    if bad:
+        def why(name: str) -> str:
+            slot, _, what = name.partition(".")
+            if slot in SLOT_NAMES and what == "present":
+                return "a presence flag: choose the layer list (--stack) instead"
+            if f"{slot}.{what}" in ranges and slot not in layers:
+                return f"layer {slot} is not in the stack {list(layers)}"
+            return "unknown"
+        why = {n: why(n) for n in bad}
+        raise ValueError("stack search: cannot search " + "; ".join(f"{n!r} ({w})" for n, w in why.items())
+                         + f". Searchable for this stack: {', '.join(allowed)}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"stack search: a parameter is named twice in {list(names)}")
+    low, high = (np.array([ranges[n][i] for n in names]) for i in (0, 1))
+    return ParameterBox(names, low, high, base)
+
+
+def parse_names(text: str) -> tuple[str, ...]:
+    """'A,B' -> ('A', 'B') (blanks dropped)."""
+    return tuple(s.strip() for s in text.split(",") if s.strip())
