@@ -15,6 +15,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from pcmgn_jax import markdown
 from pcmgn_jax.eval.tasks import METRICS, WINNER_METRICS, mean_rows
 from pcmgn_jax.surrogates.kinds import by_rank, names
 
@@ -58,8 +59,7 @@ def curve_table(rows: Mapping[int, dict]) -> str:
     names = [p for p in CURVE_PREDICTORS if any(p in r for r in rows.values())]
     lines = []
     for key in WINNER_METRICS:
-        lines += [f"**{label[key]}**", "", "| solver runs | " + " | ".join(names) + " |",
-                  "|---" * (len(names) + 1) + "|"]
+        body = []
         for n, r in rows.items():
             cells = []
             for p in names:
@@ -68,8 +68,8 @@ def curve_table(rows: Mapping[int, dict]) -> str:
                 if f"{key}_seeds" in v:
                     s += " ({:.3g}–{:.3g})".format(*v[f"{key}_seeds"])
                 cells.append(s)
-            lines.append(f"| {n} | " + " | ".join(cells) + " |")
-        lines.append("")
+            body.append([n, *cells])
+        lines += [f"**{label[key]}**", "", *markdown.table(["solver runs", *names], body), ""]
     cross = crossings(rows)
     for key, per in cross.items():
         said = [f"{b}: at n = {', '.join(map(str, ns))}" + (" (every size)" if len(ns) == len(rows) else "")
