@@ -28,8 +28,10 @@ What is mapped (Abaqus-style keywords, SI units: m, kg, s, Pa, like the project)
   ``*EL FILE`` S at the frame times (``*TIME POINTS``), so the .frd holds the scene's frames.
 
 No gravity, no damping, small strains (``NLGEOM`` off), as in the built-in solver (docs/design.md §2-3).
-:func:`write_inp` writes the deck atomically and returns a summary; :func:`parse_inp` reads a deck this
-module writes back (for the round-trip tests).
+:func:`static_inp_text` is the same model under a static pressure instead of the impact (the ball held, no
+contact): the panel's stiffness alone, e.g. to compare ``C3D8`` with ``C3D8I``, which ccx does not allow in
+``*DYNAMIC`` (its incompatible modes carry no mass). :func:`write_inp` writes the deck atomically and returns a
+summary; :func:`parse_inp` reads a deck this module writes back (for the round-trip tests).
 """
 from __future__ import annotations
 
@@ -47,7 +49,7 @@ from pcmgn_jax.scene import Scene
 from pcmgn_jax.sim.mesh import Mesh, MeshSpec, build_mesh
 
 __all__ = ["CalculixSettings", "ELEMENT_TYPE", "ELEMENTS", "calculix_mesh", "contact_penalty", "inp_text", "parse_inp",
-           "set_name", "write_inp"]
+           "set_name", "static_inp_text", "write_inp"]
 
 #: the scene's analysis -> CalculiX element type (4-node, full integration)
 ELEMENT_TYPE = "C3D8"
@@ -225,6 +227,28 @@ def inp_text(scene: Scene, mesh: Mesh, settings: CalculixSettings = CalculixSett
             "*NODE FILE, TIME POINTS=FRAMES, GLOBAL=YES", "U, V", "*EL FILE, TIME POINTS=FRAMES, GLOBAL=YES", "S",
             "*END STEP"]
     return "\n".join(out) + "\n"
+
+
+def static_inp_text(scene: Scene, mesh: Mesh, settings: CalculixSettings = CalculixSettings(), *,
+                    pressure: float, radius: float, title: str = "pcmgn_jax scene, static pressure") -> str:
+    """The deck of :func:`inp_text` with the impact replaced by a static load: the ball's nodes held (all dofs;
+    it touches nothing), no contact pair and no initial velocity, one linear ``*STATIC`` step with the uniform
+    ``pressure`` [Pa] (> 0 pushes down) on the top layer's upper faces that lie wholly within ``radius`` [m] of
+    the axis (``*DLOAD`` P5), and ``*NODE FILE`` U, ``*EL FILE`` S. The model part (nodes, elements, sets,
+    materials, the axisymmetry's ``*TRANSFORM`` and ``*BOUNDARY``) is :func:`inp_text`'s own, line for line."""
+    if not (math.isfinite(pressure) and math.isfinite(radius) and radius > 0):
+        raise ExportError(f"calculix: static load needs a finite pressure and a radius > 0, got {pressure!r}, "
+                          f"{radius!r}")
+    lines = inp_text(scene, mesh, settings, title=title).splitlines()
+    model = lines[:lines.index("*SURFACE INTERACTION, NAME=IMPACT")]
+    constraints = lines[lines.index(next(ln for ln in lines if ln.startswith("*TRANSFORM"))):
+                        lines.index("*INITIAL CONDITIONS, TYPE=VELOCITY")]
+    faces = [(e, f) for e, f in _top_faces(mesh, 1) if mesh.points[mesh.cells[e - 1], 0].max() <= radius * (1 + 1e-9)]
+    if not faces:
+        raise ExportError(f"calculix: no top-layer face lies within {radius!r} m of the axis")
+    return "\n".join(model + constraints + ["*BOUNDARY", "BALLN, 1, 3", "*STEP", "*STATIC", "*DLOAD"]
+                     + [f"{e}, P{f[1]}, {_num(pressure)}" for e, f in faces]
+                     + ["*NODE FILE", "U", "*EL FILE", "S", "*END STEP"]) + "\n"
 
 
 def write_inp(path: str | os.PathLike, scene: Scene, preset: str | MeshSpec,
