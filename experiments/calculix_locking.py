@@ -1,7 +1,7 @@
 """Shear locking of the full-integration brick on the series' meshes: the panel under a static pressure in
 CalculiX, C3D8 against C3D8I (issue 43).
 
-  python -m experiments.calculix_locking                       # cpu@0.5, cpu, cpu@2 x C3D8, C3D8I (~1 min)
+  python -m experiments.calculix_locking                       # cpu@0.5, cpu, cpu@2, cpu@4 x C3D8, C3D8I (~1 min)
 
 ccx does not allow ``C3D8I`` in ``*DYNAMIC`` (its incompatible modes carry no mass; the impact run on
 ``cpu@0.5`` stops at 127 µs, docs/results/calculix.md), so the two elements are compared where ccx allows both:
@@ -13,7 +13,7 @@ solver's recovery from CalculiX's displacements) as its area mean over the fixed
 (pcmgn_jax/eval/calculix_check.py ``section_weights``) and the objective's readings, and the peak cover-glass
 von Mises. A locking element reads a stiffer panel on coarse meshes, converging from one side as the mesh
 refines; a locking-free one reads nearly the fine mesh's figures already on the coarse mesh. Writes OUT.json
-and OUT.md (decks and results under OUT/, not committed). Heavy: run it under ``flock /tmp/heavy.lock nice -n 5``.
+and OUT.md (decks and results under OUT/runs/, not committed). Heavy: run it under ``flock /tmp/heavy.lock nice -n 5``.
 """
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ class LockingArgs:
 
     design: str = "145.207,99.322"
     """the design [µm], 'T1,T2'"""
-    meshes: str = "cpu@0.5,cpu,cpu@2"
+    meshes: str = "cpu@0.5,cpu,cpu@2,cpu@4"
     """meshes: presets, cpu_fine, or PRESET@F (experiments/objective_convergence.py mesh_for)"""
     elements: str = "C3D8,C3D8I"
     """CalculiX elements"""
@@ -66,7 +66,7 @@ def row(args, name: str, element: str) -> dict:
     mesh = calculix_mesh(scene, spec)
     radius = args.radius_um * 1e-6
     pressure = args.force_n / (math.pi * radius**2)
-    folder = Path(args.out) / f"{name.replace(':', '-')}_{element}"
+    folder = Path(args.out) / "runs" / f"{name.replace(':', '-')}_{element}"
     folder.mkdir(parents=True, exist_ok=True)
     write_text_atomic(folder / "job.inp", static_inp_text(scene, mesh, CalculixSettings(element=element),
                                                           pressure=pressure, radius=radius))

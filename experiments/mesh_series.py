@@ -40,13 +40,12 @@ class SeriesArgs:
     ccx_penalty_factor: float = 0.1
     """the contact penalty factor of the CalculiX rows, in both codes"""
     ccx_elements: str = "C3D8"
-    """CalculiX's elements, each a row: C3D8 (full integration, the built-in Q4's counterpart), \
-C3D8I (incompatible modes)"""   # one line of --help: the backslash joins the lines
+    """CalculiX's elements, each a row: C3D8 (full integration, the built-in Q4's counterpart), C3D8I \
+(incompatible modes; ccx does not allow it in *DYNAMIC: experiments.calculix_locking compares the two statically)"""
     increments_per_frame: int = 2
     """ccx's largest increment = output_dt / this"""
     min_increment_ratio: float = 0.05
-    """ccx's smallest increment / its largest (C3D8I on cpu@0.5 needs 0.005: a contact change at 127 µs is
-    refused down to the default floor, docs/results/calculix.md)"""
+    """ccx's smallest increment / its largest (the series' CalculiX rows: 0.005)"""
     timeout_s: float = 7200.0
     """per ccx run"""
     out: str = "results/calculix/mesh_series"
