@@ -55,6 +55,9 @@ class CheckArgs:
     """Hertz mesh: elements across the contact radius (sim/hertz.py hertz_mesh_spec)"""
     hertz_growth: float = 1.15
     """Hertz mesh: growth ratio of the element sizes outside the fine zone (coarser far field: larger)"""
+    slave_faces: bool = False
+    """the contact's slave surface as the ball's faces, not its nodes (--slave_faces: ccx's springs then act
+    at the nominal k_p; with nodes ~10x stiffer, docs/results/calculix.md)"""
     hertz_min_increment_ratio: float = 0.05
     """Hertz: ccx's smallest increment / its largest (the contact's stiff springs need ~0.1 of a 0.6 µs frame)"""
 

@@ -159,3 +159,27 @@ def test_static_deck_runs_c3d8i_is_never_stiffer(tmp_path):
         centre[element] = -u[top[np.argmin(mesh.points[top, 0])], 1]
         assert centre[element] > 0   # pushed down
     assert centre["C3D8I"] > 1.05 * centre["C3D8"]
+
+
+def test_slave_faces_option_lists_the_ball_surface_faces(tmp_path):
+    import dataclasses
+
+    from pcmgn_jax.data.exporters.calculix import CalculixSettings, inp_text, parse_inp
+
+    scene = dataclasses.replace(default_scene(), n_frames=2)
+    mesh = build_mesh(scene, "tiny")
+    default = inp_text(scene, mesh)
+    assert "*SURFACE, NAME=SBALL, TYPE=NODE\nSBALLN\n" in default      # the default deck is unchanged
+    (tmp_path / "job.inp").write_text(inp_text(scene, mesh, CalculixSettings(slave_faces=True)))
+    deck = parse_inp(tmp_path / "job.inp")
+    lines = (tmp_path / "job.inp").read_text().splitlines()
+    start = lines.index("*SURFACE, NAME=SBALL, TYPE=ELEMENT") + 1
+    faces = [ln.split(", ") for ln in lines[start:lines.index("*SURFACE, NAME=MTOP, TYPE=ELEMENT")]]
+    corners = {"S3": (0, 4, 5, 1), "S4": (1, 5, 6, 2), "S5": (2, 6, 7, 3), "S6": (3, 7, 4, 0)}   # C3D8 faces
+    slaves = set(deck["nsets"]["SBALLN"])
+    surface_off_axis = [i for i in mesh.ball_surface if mesh.points[i, 0] > 0]
+    assert len(faces) == len(surface_off_axis) - 1      # one face between two neighbouring slave nodes
+    for elem, label in faces:
+        nodes = deck["elements"][int(elem)]
+        assert int(elem) in deck["elsets"]["BALL"]
+        assert {nodes[k] for k in corners[label]} <= slaves   # every corner of the face is a slave node

@@ -75,6 +75,10 @@ class CalculixSettings:
                      leaving it at 1e-10 s for thousands of increments
     tension:         ccx's sigma_inf [Pa], the small tension node-to-surface springs keep at large
                      clearance (must be > 0; ccx's own default is MPa-sized, ~1 N over the contact zone)
+    slave_faces:     the slave surface as the ball's surface faces (``TYPE=ELEMENT``) instead of its nodes
+                     (``TYPE=NODE``, the default): ccx then takes each slave node's area from those faces
+                     alone; from a node set it takes the node's external faces, which in a wedge include the
+                     flat side faces, and its springs act ~10x stiffer than k_p (docs/results/calculix.md)
     """
 
     increments_per_frame: int = 8
@@ -85,6 +89,7 @@ class CalculixSettings:
     wedge_deg: float = 2.0
     min_increment_ratio: float = 0.05
     element: str = ELEMENT_TYPE
+    slave_faces: bool = False
 
     def __post_init__(self) -> None:
         if self.element not in ELEMENTS:
@@ -160,6 +165,19 @@ def _top_faces(mesh: Mesh, top_part: int) -> list[tuple[int, str]]:
     return [(e + 1, "S5") for e in rows]
 
 
+def _ball_faces(mesh: Mesh) -> list[tuple[int, str]]:
+    """(element number, face label) of the ball's surface faces: 2D edges of ball cells with both nodes on the
+    ball's (contact) surface and off the axis; quad edge k-(k+1) is brick face S(k+3) (1-2: S3 ... 4-1: S6)."""
+    on = np.zeros(mesh.n_nodes, bool)
+    on[np.asarray(mesh.ball_surface)] = True
+    on &= mesh.points[:, 0] > 0
+    rows = [(int(e) + 1, f"S{k + 3}") for e in np.flatnonzero(mesh.cell_part == 0) for k in range(4)
+            if on[mesh.cells[e, k]] and on[mesh.cells[e, (k + 1) % 4]]]
+    if not rows:
+        raise ExportError("calculix: found no ball surface faces (cells with two surface nodes off the axis)")
+    return rows
+
+
 def inp_text(scene: Scene, mesh: Mesh, settings: CalculixSettings = CalculixSettings(), *,
              title: str = "pcmgn_jax scene") -> str:
     """The .inp deck of ``scene`` on ``mesh`` (see the module docstring for what is mapped)."""
@@ -199,7 +217,11 @@ def inp_text(scene: Scene, mesh: Mesh, settings: CalculixSettings = CalculixSett
     # limits the increment to that node's contact period (1e-10 s); its ring area is < 0.5 % of the contact's
     surf2d = np.asarray(mesh.ball_surface)
     surface = both(surf2d[mesh.points[surf2d, 0] > 0])
-    out += ["*NSET, NSET=SBALLN"] + _id_lines(surface + 1) + ["*SURFACE, NAME=SBALL, TYPE=NODE", "SBALLN"]
+    out += ["*NSET, NSET=SBALLN"] + _id_lines(surface + 1)
+    if settings.slave_faces:   # the faces between two slave nodes (so not the pole's: see above)
+        out += ["*SURFACE, NAME=SBALL, TYPE=ELEMENT"] + [f"{e}, {f}" for e, f in _ball_faces(mesh)]
+    else:
+        out += ["*SURFACE, NAME=SBALL, TYPE=NODE", "SBALLN"]
     out += ["*SURFACE, NAME=MTOP, TYPE=ELEMENT"] + [f"{e}, {f}" for e, f in _top_faces(mesh, 1)]
     for name, (e, nu, rho) in zip(names, props):
         out += [f"*MATERIAL, NAME={set_name(name)}", "*ELASTIC", f"{_num(e)}, {_num(nu)}",
