@@ -43,8 +43,9 @@ class CheckArgs:
     frames: int = 0
     """panel frames of 4 µs (0: the scene's 100, a 400 µs window); fewer for a smoke run"""
     hertz: bool = False
-    """also run the Hertz case (--hertz; expensive: ~12 s per implicit increment on its 5,974-node mesh, and
-    ccx's impact control wants 0.01-0.1 µs increments at penalty factor 1, docs/results/calculix.md)"""
+    """also run the Hertz case (--hertz; ~30 s with --slave_faces --hertz_elems_per_radius 4 --hertz_growth 1.3
+    --hertz_frames 120 --increments_per_frame 1 --hertz_min_increment_ratio 0.005; ~12 s per implicit increment
+    on the default 5,974-node mesh, docs/results/calculix.md)"""
     hertz_penalty_factor: float = 1.0
     """contact penalty factor of the Hertz case in both codes (sim/hertz.py's own check uses 2)"""
     timeout_s: float = 1200.0
