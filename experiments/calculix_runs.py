@@ -56,7 +56,8 @@ def hertz_case(out: Path, args) -> dict[str, Any]:
     scene = dataclasses.replace(scene, output_dt=window / args.hertz_frames, n_frames=args.hertz_frames)
     settings = CalculixSettings(increments_per_frame=args.increments_per_frame,
                                 penalty_factor=args.hertz_penalty_factor,
-                                min_increment_ratio=args.hertz_min_increment_ratio)
+                                min_increment_ratio=args.hertz_min_increment_ratio,
+                                slave_faces=args.slave_faces)
     tc, fc, wall_c = _ccx(out / "runs" / "hertz", scene, spec, settings, args.timeout_s)
     tb, fb, wall_b, _ = _builtin(scene, spec, args.hertz_penalty_factor)
     figs = {"calculix": impact_figures(tc, fc["force_N"]), "builtin": impact_figures(tb, fb)}
@@ -75,7 +76,8 @@ def panel_case(out: Path, args, design: list[float], label: str) -> dict[str, An
     scene = default_scene().with_design(*design)
     if args.frames:
         scene = dataclasses.replace(scene, n_frames=int(args.frames))
-    settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=args.penalty_factor)
+    settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=args.penalty_factor,
+                                slave_faces=args.slave_faces)
     tc, extra, wall_c = _ccx(out / "runs" / label, scene, args.preset, settings, args.timeout_s)
     tb, fb, wall_b, _ = _builtin(scene, args.preset, args.penalty_factor)
     figs = {"calculix": impact_figures(tc, extra["force_N"]), "builtin": impact_figures(tb, fb)}

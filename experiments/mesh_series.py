@@ -40,10 +40,12 @@ class SeriesArgs:
     ccx_penalty_factor: float = 0.1
     """the contact penalty factor of the CalculiX rows, in both codes"""
     ccx_elements: str = "C3D8"
-    """CalculiX's elements, each a row: C3D8 (full integration, the built-in Q4's counterpart), \
-C3D8I (incompatible modes)"""   # one line of --help: the backslash joins the lines
+    """CalculiX's elements, each a row: C3D8 (full integration, the built-in Q4's counterpart), C3D8I \
+(incompatible modes; ccx does not allow it in *DYNAMIC: experiments.calculix_locking compares the two statically)"""
     increments_per_frame: int = 2
     """ccx's largest increment = output_dt / this"""
+    min_increment_ratio: float = 0.05
+    """ccx's smallest increment / its largest (the series' CalculiX rows: 0.005)"""
     timeout_s: float = 7200.0
     """per ccx run"""
     out: str = "results/calculix/mesh_series"
@@ -73,7 +75,7 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
     spec = mesh_spec(mesh_for(name))
     if code == "calculix":
         settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=penalty,
-                                    element=element)
+                                    element=element, min_increment_ratio=args.min_increment_ratio)
         traj, extra, wall = _ccx(Path(args.out) / "runs" / f"{name}_{element}", scene, spec, settings,
                                  args.timeout_s)
         force = extra["force_N"]
@@ -89,6 +91,9 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
            "section_end_mm": float(traj.points[w_area > 0, 0].max() * 1e3),
            "objective_fixed_section_mpa": float(metrics.oled_objective(traj.von_mises, w_fixed)),
            "section_x_mm": args.section_x_mm, "wall_s": wall, **figs}
+    if code == "calculix":   # the row cache's name does not hold these: record them with the figures
+        rec["ccx_settings"] = {"increments_per_frame": args.increments_per_frame,
+                               "min_increment_ratio": args.min_increment_ratio}
     cache.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(cache, rec)
     return rec
@@ -104,6 +109,9 @@ def report(args, rows: list[dict], command: str) -> list[str]:
              "| mesh | code | penalty | nodes (full / ROI) | OLED elements | h_contact [µm] | section end [mm] | "
              f"area mean [MPa] | area mean, x <= {x:g} mm [MPa] | node mean [MPa] | disc mean [MPa] | "
              "peak force [N] | contact [µs] | wall [s] |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    notes = [f"{r['mesh']} {r['code']}: ccx increments per frame {r['ccx_settings']['increments_per_frame']}, "
+             f"smallest increment ratio {r['ccx_settings']['min_increment_ratio']:g}"
+             for r in rows if "ccx_settings" in r]
     for r in rows:
         wall = f"{r['wall_s']:.0f}" if r["wall_s"] is not None else "–"
         lines.append(
@@ -112,6 +120,7 @@ def report(args, rows: list[dict], command: str) -> list[str]:
             f"{r['objective_area_mean_mpa']:.4f} | {r['objective_fixed_section_mpa']:.4f} | "
             f"{r['objective_node_mean_mpa']:.4f} | {r['objective_disc_mean_mpa']:.4f} | {r['peak_force_N']:.3f} | "
             f"{r['contact_duration_s'] * 1e6:.0f} | {wall} |")
+    lines += [""] + notes if notes else []
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(f"{args.out}.json", {"command": command, "design_um": args.design, "section_x_mm": x,
                                            "rows": rows})

@@ -15,6 +15,8 @@ rest of the library, and a missing ``ccx`` is :class:`CalculixNotFoundError` whe
   :func:`pcmgn_jax.sim.solver._frame_stress`), so a comparison sees the two solvers, not two post-
   processors; ``stress="frd"``: CalculiX's nodal stresses (integration points extrapolated to the nodes
   and averaged over every element at the node, across materials), von Mises of all six components.
+* :func:`static_fields`: the .frd of a static deck (the panel under a pressure, no impact) -> displacement
+  and the recovered von Mises on the full mesh.
 * :func:`ball_force`: the contact force on the ball per frame interval [N] from the ball's momentum
   (row-sum masses x CalculiX's velocities; the momentum of a consistent mass matrix is exactly that), the
   interval mean of the contact force, since the ball feels no other force.
@@ -49,7 +51,7 @@ from pcmgn_jax.sim.mesh import Mesh, MeshSpec, roi
 from pcmgn_jax.trajectory import Trajectory
 
 __all__ = ["CCX_INSTALL", "CalculixNotFoundError", "CalculixRunError", "STRESS_READINGS", "ball_force",
-           "ball_masses", "find_ccx", "frd_trajectory", "run_ccx", "run_scene"]
+           "ball_masses", "find_ccx", "frd_trajectory", "run_ccx", "run_scene", "static_fields"]
 
 CCX_INSTALL = "apt install calculix-ccx"
 STRESS_READINGS = ("recovered", "frd")
@@ -121,10 +123,9 @@ def ball_force(velocity: np.ndarray, mass: np.ndarray, dt: float) -> np.ndarray:
     return np.diff(momentum) / dt
 
 
-def _full_fields(res: FrdResult, mesh: Mesh, half_angle: float, where: str) -> tuple[np.ndarray, ...]:
-    """(times, u, v, stress) on the mesh's nodes, frame 0 excluded: the wedge's +half_angle face (CalculiX
-    node i + 1 = mesh node i) turned back to the (radius, height) plane: u, v (T, N, 2); stress (T, N, 6) as
-    (s_rr, s_zz, s_tt, s_rz, s_rt, s_tz) with z the height and t the hoop direction."""
+def _face_rows(res: FrdResult, mesh: Mesh, half_angle: float, where: str) -> np.ndarray:
+    """Rows of the .frd's node table holding the mesh's nodes on the wedge's +half_angle face (CalculiX node
+    i + 1 = mesh node i), their coordinates checked against the mesh; InputFileError otherwise."""
     n = mesh.n_nodes
     index = np.full(int(res.node_ids.max()) + 1, -1, np.int64)
     index[res.node_ids] = np.arange(len(res.node_ids))
@@ -132,12 +133,26 @@ def _full_fields(res: FrdResult, mesh: Mesh, half_angle: float, where: str) -> t
         raise InputFileError(f"{where}: nodes 1..{n} (the mesh's nodes on the wedge's face) are not all in the "
                              "file (was the deck written for this scene and preset?)")
     rows = index[1:n + 1]
-    c, s = math.cos(half_angle), math.sin(half_angle)
     xyz = res.nodes[rows]
     worst = float(np.max(np.abs(np.stack([np.hypot(xyz[:, 0], xyz[:, 1]), xyz[:, 2]], 1) - mesh.points)))
     if worst > 1e-5 * max(float(np.ptp(mesh.points)), 1e-30):   # the .frd keeps 6 significant digits
         raise InputFileError(f"{where}: node coordinates differ from the scene's mesh by up to {worst:.3e} m "
                              "(another design or preset?)")
+    return rows
+
+
+def _planar(a: np.ndarray, half_angle: float) -> np.ndarray:
+    """Global (x, y, z) vectors at angle +half_angle -> (radial, height)."""
+    c, s = math.cos(half_angle), math.sin(half_angle)
+    return np.stack([a[..., 0] * c + a[..., 1] * s, a[..., 2]], axis=-1)
+
+
+def _full_fields(res: FrdResult, mesh: Mesh, half_angle: float, where: str) -> tuple[np.ndarray, ...]:
+    """(times, u, v, stress) on the mesh's nodes, frame 0 excluded: the wedge's +half_angle face (CalculiX
+    node i + 1 = mesh node i) turned back to the (radius, height) plane: u, v (T, N, 2); stress (T, N, 6) as
+    (s_rr, s_zz, s_tt, s_rz, s_rt, s_tz) with z the height and t the hoop direction."""
+    rows = _face_rows(res, mesh, half_angle, where)
+    c, s = math.cos(half_angle), math.sin(half_angle)
     missing = [k for k in ("DISP", "VELO", "STRESS") if k not in res.results]
     if missing:
         raise InputFileError(f"{where}: no {missing} result blocks (the deck asks *NODE FILE U, V and "
@@ -145,17 +160,14 @@ def _full_fields(res: FrdResult, mesh: Mesh, half_angle: float, where: str) -> t
     u, v, st = (res.results[k][:, rows] for k in ("DISP", "VELO", "STRESS"))
     if not (np.isfinite(u).all() and np.isfinite(v).all() and np.isfinite(st).all()):
         raise InputFileError(f"{where}: a result block misses nodes or holds a non-finite value")
-
-    def planar(a):   # global (x, y, z) at angle +half_angle -> (radial, height)
-        return np.stack([a[..., 0] * c + a[..., 1] * s, a[..., 2]], axis=-1)
-
     sxx, syy, szz, sxy, syz, szx = (st[..., k] for k in range(6))
     srr = c * c * sxx + s * s * syy + 2 * c * s * sxy
     stt = s * s * sxx + c * c * syy - 2 * c * s * sxy
     srt = (syy - sxx) * c * s + sxy * (c * c - s * s)
     srz = c * szx + s * syz
     stz = c * syz - s * szx
-    return res.times, planar(u), planar(v), np.stack([srr, szz, stt, srz, srt, stz], axis=-1)
+    stress = np.stack([srr, szz, stt, srz, srt, stz], axis=-1)
+    return res.times, _planar(u, half_angle), _planar(v, half_angle), stress
 
 
 def _recovered_vm(u: np.ndarray, scene: Scene, mesh: Mesh) -> np.ndarray:
@@ -204,6 +216,24 @@ def frd_trajectory(frd: str | os.PathLike, scene: Scene, preset: str | MeshSpec,
                       meta=info)
     traj.validate(where)
     return traj, {"force_N": force, "von_mises_full": vms, "mesh": mesh, "node_map": node_map}
+
+
+def static_fields(frd: str | os.PathLike, scene: Scene, preset: str | MeshSpec, *,
+                  wedge_deg: float = CalculixSettings().wedge_deg) -> tuple[np.ndarray, np.ndarray]:
+    """The .frd of a static deck (:func:`pcmgn_jax.data.exporters.calculix.static_inp_text`) of ``scene`` at
+    ``preset`` -> (displacement (N, 2) [m], von Mises (N,) [Pa]) on the full mesh, the last (only) result; von
+    Mises is the built-in solver's recovery applied to CalculiX's displacements (``stress="recovered"`` of
+    :func:`frd_trajectory`)."""
+    where = str(frd)
+    mesh = calculix_mesh(scene, preset)
+    res = read_frd(frd)
+    rows = _face_rows(res, mesh, math.radians(wedge_deg) / 2, where)
+    if "DISP" not in res.results:
+        raise InputFileError(f"{where}: no DISP result block (the deck asks *NODE FILE U)")
+    u = _planar(res.results["DISP"][-1, rows], math.radians(wedge_deg) / 2)
+    if not np.isfinite(u).all():
+        raise InputFileError(f"{where}: the DISP block misses nodes or holds a non-finite value")
+    return u, _recovered_vm(u[None], scene, mesh)[0]
 
 
 def run_scene(scene: Scene, preset: str | MeshSpec, folder: str | os.PathLike, *,

@@ -111,3 +111,75 @@ def test_c3d8i_deck_runs_and_reads_back(tmp_path):
     # free flight before contact: the ball moved down by v t, the panel is at rest
     assert traj.displacement[-1, ball, 1].mean() == pytest.approx(-scene.ball.velocity * 2 * scene.output_dt, rel=1e-3)
     assert np.abs(traj.displacement[-1, ~ball]).max() < 1e-12
+
+
+def test_static_deck_keeps_the_model_and_replaces_the_impact():
+    import math
+
+    from pcmgn_jax.data.exporters.calculix import ExportError, calculix_mesh, inp_text, static_inp_text
+
+    scene = default_scene()
+    mesh = calculix_mesh(scene, "tiny")
+    dynamic, static = inp_text(scene, mesh).splitlines(), static_inp_text(scene, mesh, pressure=1e6, radius=2.5e-4)
+    model = dynamic[:dynamic.index("*SURFACE INTERACTION, NAME=IMPACT")]
+    assert static.splitlines()[1:len(model)] == model[1:]   # the same model, line for line (the title differs)
+    for gone in ("*CONTACT PAIR", "*INITIAL CONDITIONS", "*DYNAMIC"):
+        assert gone not in static
+    assert "*STATIC" in static and "BALLN, 1, 3" in static and "*TRANSFORM, NSET=OFFAXIS, TYPE=C" in static
+    top = np.sort(mesh.points[mesh.panel_top, 0])
+    loads = [ln for ln in static.splitlines() if ", P5, " in ln]
+    assert len(loads) == np.count_nonzero(top[1:] <= 2.5e-4 * (1 + 1e-9))   # faces wholly inside the radius
+    assert all(math.isclose(float(ln.split(",")[2]), 1e6) for ln in loads)
+    for bad in (0.0, float("nan")):
+        with pytest.raises(ExportError, match="radius > 0"):
+            static_inp_text(scene, mesh, pressure=1e6, radius=bad)
+    with pytest.raises(ExportError, match="no top-layer face"):
+        static_inp_text(scene, mesh, pressure=1e6, radius=top[1] / 2)
+
+
+@pytest.mark.skipif(shutil.which("ccx") is None, reason="CalculiX 'ccx' not installed (apt install calculix-ccx)")
+def test_static_deck_runs_c3d8i_is_never_stiffer(tmp_path):
+    """The static deck runs in ccx and reads back; incompatible modes only add deformation modes, so C3D8I's
+    deflection under the same load is at least C3D8's (on `tiny`, with its long far-field elements, more)."""
+    from pcmgn_jax.data.calculix import run_ccx, static_fields
+    from pcmgn_jax.data.exporters.calculix import CalculixSettings, calculix_mesh, static_inp_text
+
+    scene = default_scene()
+    mesh = calculix_mesh(scene, "tiny")
+    centre = {}
+    for element in ("C3D8", "C3D8I"):
+        (tmp_path / element).mkdir()
+        (tmp_path / element / "job.inp").write_text(
+            static_inp_text(scene, mesh, CalculixSettings(element=element), pressure=1e8, radius=2.5e-4))
+        u, vm = static_fields(run_ccx(tmp_path / element / "job.inp", timeout=60)["frd"], scene, "tiny")
+        assert np.isfinite(u).all() and np.isfinite(vm).all() and vm.min() >= 0
+        ball = np.unique(mesh.cells[mesh.cell_part == 0])
+        assert np.abs(u[mesh.fixed.all(axis=1)]).max() == 0.0 and np.abs(u[ball]).max() == 0.0   # clamped, held
+        top = np.asarray(mesh.panel_top)
+        centre[element] = -u[top[np.argmin(mesh.points[top, 0])], 1]
+        assert centre[element] > 0   # pushed down
+    assert centre["C3D8I"] > 1.05 * centre["C3D8"]
+
+
+def test_slave_faces_option_lists_the_ball_surface_faces(tmp_path):
+    import dataclasses
+
+    from pcmgn_jax.data.exporters.calculix import CalculixSettings, inp_text, parse_inp
+
+    scene = dataclasses.replace(default_scene(), n_frames=2)
+    mesh = build_mesh(scene, "tiny")
+    default = inp_text(scene, mesh)
+    assert "*SURFACE, NAME=SBALL, TYPE=NODE\nSBALLN\n" in default      # the default deck is unchanged
+    (tmp_path / "job.inp").write_text(inp_text(scene, mesh, CalculixSettings(slave_faces=True)))
+    deck = parse_inp(tmp_path / "job.inp")
+    lines = (tmp_path / "job.inp").read_text().splitlines()
+    start = lines.index("*SURFACE, NAME=SBALL, TYPE=ELEMENT") + 1
+    faces = [ln.split(", ") for ln in lines[start:lines.index("*SURFACE, NAME=MTOP, TYPE=ELEMENT")]]
+    corners = {"S3": (0, 4, 5, 1), "S4": (1, 5, 6, 2), "S5": (2, 6, 7, 3), "S6": (3, 7, 4, 0)}   # C3D8 faces
+    slaves = set(deck["nsets"]["SBALLN"])
+    surface_off_axis = [i for i in mesh.ball_surface if mesh.points[i, 0] > 0]
+    assert len(faces) == len(surface_off_axis) - 1      # one face between two neighbouring slave nodes
+    for elem, label in faces:
+        nodes = deck["elements"][int(elem)]
+        assert int(elem) in deck["elsets"]["BALL"]
+        assert {nodes[k] for k in corners[label]} <= slaves   # every corner of the face is a slave node

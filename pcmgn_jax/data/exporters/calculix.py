@@ -28,8 +28,10 @@ What is mapped (Abaqus-style keywords, SI units: m, kg, s, Pa, like the project)
   ``*EL FILE`` S at the frame times (``*TIME POINTS``), so the .frd holds the scene's frames.
 
 No gravity, no damping, small strains (``NLGEOM`` off), as in the built-in solver (docs/design.md §2-3).
-:func:`write_inp` writes the deck atomically and returns a summary; :func:`parse_inp` reads a deck this
-module writes back (for the round-trip tests).
+:func:`static_inp_text` is the same model under a static pressure instead of the impact (the ball held, no
+contact): the panel's stiffness alone, e.g. to compare ``C3D8`` with ``C3D8I``, which ccx does not allow in
+``*DYNAMIC`` (its incompatible modes carry no mass). :func:`write_inp` writes the deck atomically and returns a
+summary; :func:`parse_inp` reads a deck this module writes back (for the round-trip tests).
 """
 from __future__ import annotations
 
@@ -47,7 +49,7 @@ from pcmgn_jax.scene import Scene
 from pcmgn_jax.sim.mesh import Mesh, MeshSpec, build_mesh
 
 __all__ = ["CalculixSettings", "ELEMENT_TYPE", "ELEMENTS", "calculix_mesh", "contact_penalty", "inp_text", "parse_inp",
-           "set_name", "write_inp"]
+           "set_name", "static_inp_text", "write_inp"]
 
 #: the scene's analysis -> CalculiX element type (4-node, full integration)
 ELEMENT_TYPE = "C3D8"
@@ -73,6 +75,10 @@ class CalculixSettings:
                      leaving it at 1e-10 s for thousands of increments
     tension:         ccx's sigma_inf [Pa], the small tension node-to-surface springs keep at large
                      clearance (must be > 0; ccx's own default is MPa-sized, ~1 N over the contact zone)
+    slave_faces:     the slave surface as the ball's surface faces (``TYPE=ELEMENT``) instead of its nodes
+                     (``TYPE=NODE``, the default): ccx then takes each slave node's area from those faces
+                     alone; from a node set it takes the node's external faces, which in a wedge include the
+                     flat side faces, and its springs act ~10x stiffer than k_p (docs/results/calculix.md)
     """
 
     increments_per_frame: int = 8
@@ -83,6 +89,7 @@ class CalculixSettings:
     wedge_deg: float = 2.0
     min_increment_ratio: float = 0.05
     element: str = ELEMENT_TYPE
+    slave_faces: bool = False
 
     def __post_init__(self) -> None:
         if self.element not in ELEMENTS:
@@ -158,6 +165,19 @@ def _top_faces(mesh: Mesh, top_part: int) -> list[tuple[int, str]]:
     return [(e + 1, "S5") for e in rows]
 
 
+def _ball_faces(mesh: Mesh) -> list[tuple[int, str]]:
+    """(element number, face label) of the ball's surface faces: 2D edges of ball cells with both nodes on the
+    ball's (contact) surface and off the axis; quad edge k-(k+1) is brick face S(k+3) (1-2: S3 ... 4-1: S6)."""
+    on = np.zeros(mesh.n_nodes, bool)
+    on[np.asarray(mesh.ball_surface)] = True
+    on &= mesh.points[:, 0] > 0
+    rows = [(int(e) + 1, f"S{k + 3}") for e in np.flatnonzero(mesh.cell_part == 0) for k in range(4)
+            if on[mesh.cells[e, k]] and on[mesh.cells[e, (k + 1) % 4]]]
+    if not rows:
+        raise ExportError("calculix: found no ball surface faces (cells with two surface nodes off the axis)")
+    return rows
+
+
 def inp_text(scene: Scene, mesh: Mesh, settings: CalculixSettings = CalculixSettings(), *,
              title: str = "pcmgn_jax scene") -> str:
     """The .inp deck of ``scene`` on ``mesh`` (see the module docstring for what is mapped)."""
@@ -197,7 +217,11 @@ def inp_text(scene: Scene, mesh: Mesh, settings: CalculixSettings = CalculixSett
     # limits the increment to that node's contact period (1e-10 s); its ring area is < 0.5 % of the contact's
     surf2d = np.asarray(mesh.ball_surface)
     surface = both(surf2d[mesh.points[surf2d, 0] > 0])
-    out += ["*NSET, NSET=SBALLN"] + _id_lines(surface + 1) + ["*SURFACE, NAME=SBALL, TYPE=NODE", "SBALLN"]
+    out += ["*NSET, NSET=SBALLN"] + _id_lines(surface + 1)
+    if settings.slave_faces:   # the faces between two slave nodes (so not the pole's: see above)
+        out += ["*SURFACE, NAME=SBALL, TYPE=ELEMENT"] + [f"{e}, {f}" for e, f in _ball_faces(mesh)]
+    else:
+        out += ["*SURFACE, NAME=SBALL, TYPE=NODE", "SBALLN"]
     out += ["*SURFACE, NAME=MTOP, TYPE=ELEMENT"] + [f"{e}, {f}" for e, f in _top_faces(mesh, 1)]
     for name, (e, nu, rho) in zip(names, props):
         out += [f"*MATERIAL, NAME={set_name(name)}", "*ELASTIC", f"{_num(e)}, {_num(nu)}",
@@ -225,6 +249,28 @@ def inp_text(scene: Scene, mesh: Mesh, settings: CalculixSettings = CalculixSett
             "*NODE FILE, TIME POINTS=FRAMES, GLOBAL=YES", "U, V", "*EL FILE, TIME POINTS=FRAMES, GLOBAL=YES", "S",
             "*END STEP"]
     return "\n".join(out) + "\n"
+
+
+def static_inp_text(scene: Scene, mesh: Mesh, settings: CalculixSettings = CalculixSettings(), *,
+                    pressure: float, radius: float, title: str = "pcmgn_jax scene, static pressure") -> str:
+    """The deck of :func:`inp_text` with the impact replaced by a static load: the ball's nodes held (all dofs;
+    it touches nothing), no contact pair and no initial velocity, one linear ``*STATIC`` step with the uniform
+    ``pressure`` [Pa] (> 0 pushes down) on the top layer's upper faces that lie wholly within ``radius`` [m] of
+    the axis (``*DLOAD`` P5), and ``*NODE FILE`` U, ``*EL FILE`` S. The model part (nodes, elements, sets,
+    materials, the axisymmetry's ``*TRANSFORM`` and ``*BOUNDARY``) is :func:`inp_text`'s own, line for line."""
+    if not (math.isfinite(pressure) and math.isfinite(radius) and radius > 0):
+        raise ExportError(f"calculix: static load needs a finite pressure and a radius > 0, got {pressure!r}, "
+                          f"{radius!r}")
+    lines = inp_text(scene, mesh, settings, title=title).splitlines()
+    model = lines[:lines.index("*SURFACE INTERACTION, NAME=IMPACT")]
+    constraints = lines[lines.index(next(ln for ln in lines if ln.startswith("*TRANSFORM"))):
+                        lines.index("*INITIAL CONDITIONS, TYPE=VELOCITY")]
+    faces = [(e, f) for e, f in _top_faces(mesh, 1) if mesh.points[mesh.cells[e - 1], 0].max() <= radius * (1 + 1e-9)]
+    if not faces:
+        raise ExportError(f"calculix: no top-layer face lies within {radius!r} m of the axis")
+    return "\n".join(model + constraints + ["*BOUNDARY", "BALLN, 1, 3", "*STEP", "*STATIC", "*DLOAD"]
+                     + [f"{e}, P{f[1]}, {_num(pressure)}" for e, f in faces]
+                     + ["*NODE FILE", "U", "*EL FILE", "S", "*END STEP"]) + "\n"
 
 
 def write_inp(path: str | os.PathLike, scene: Scene, preset: str | MeshSpec,
