@@ -20,7 +20,7 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
-from pcmgn_jax import cli
+from pcmgn_jax import cli, markdown
 
 
 @dataclass(frozen=True)
@@ -105,10 +105,11 @@ def report(args, rows: list[dict], command: str) -> list[str]:
     lines = [f"Command: `{command}`", "",
              f"Design {args.design} µm; static pressure {args.force_n:g} N over r <= {args.radius_um:g} µm; "
              f"fixed OLED section x <= {args.section_x_mm:g} mm. In brackets: against the same element on "
-             f"{rows[-1]['mesh']}.", "",
-             "| mesh | element | nodes (2D) | far growth | loaded-zone deflection [µm] | top centre [µm] | "
-             f"OLED, x <= {args.section_x_mm:g} mm [MPa] | OLED area mean [MPa] | OLED node mean [MPa] | "
-             "peak CG vM [MPa] | ccx [s] |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+             f"{rows[-1]['mesh']}.", ""]
+    head = ["mesh", "element", "nodes (2D)", "far growth", "loaded-zone deflection [µm]", "top centre [µm]",
+            f"OLED, x <= {args.section_x_mm:g} mm [MPa]", "OLED area mean [MPa]", "OLED node mean [MPa]",
+            "peak CG vM [MPa]", "ccx [s]"]
+    body = []
     for r in rows:
         base = ref.get(r["element"], r)
 
@@ -116,11 +117,12 @@ def report(args, rows: list[dict], command: str) -> list[str]:
             text = fmt.format(r[key])
             return text if base is r else f"{text} ({100 * (r[key] / base[key] - 1):+.1f} %)"
 
-        lines.append(f"| {r['mesh']} | {r['element']} | {r['full_nodes']:,} | {r['far_growth']:.3f} | "
-                     f"{cell('loaded_mean_deflection_um')} | {cell('top_centre_deflection_um')} | "
-                     f"{cell('oled_fixed_section_mpa', '{:.4f}')} | {cell('oled_area_mean_mpa', '{:.4f}')} | "
-                     f"{cell('oled_node_mean_mpa', '{:.4f}')} | {cell('peak_cg_von_mises_mpa', '{:.1f}')} | "
-                     f"{r['ccx_wall_s']:.1f} |")
+        body.append([r["mesh"], r["element"], f"{r['full_nodes']:,}", f"{r['far_growth']:.3f}",
+                     cell("loaded_mean_deflection_um"), cell("top_centre_deflection_um"),
+                     cell("oled_fixed_section_mpa", "{:.4f}"), cell("oled_area_mean_mpa", "{:.4f}"),
+                     cell("oled_node_mean_mpa", "{:.4f}"), cell("peak_cg_von_mises_mpa", "{:.1f}"),
+                     f"{r['ccx_wall_s']:.1f}"])
+    lines += markdown.table(head, body)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(f"{args.out}.json", {"command": command, "args": vars(args) if hasattr(args, "__dict__")
                                            else {}, "rows": rows})

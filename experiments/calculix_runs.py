@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from pcmgn_jax import markdown
 from pcmgn_jax.data.calculix import frd_trajectory, run_ccx
 from pcmgn_jax.data.exporters.calculix import CalculixSettings, calculix_mesh, inp_text
 from pcmgn_jax.data.exporters.common import write_text_atomic
@@ -111,11 +112,11 @@ def write_report(out: Path, cases: list[dict], args, command: str) -> list[str]:
     lines = [f"Command: `{command}`", ""]
     for c in cases:
         if c["case"] == "hertz":
-            lines += ["| Hertz (steel on glass) | theory | CalculiX | built-in |", "|---|---|---|---|"]
-            for k, unit, s in (("peak_force_N", "N", 1.0), ("contact_duration_s", "µs", 1e6)):
-                lines.append(f"| {k} [{unit}] | {c['theory'][k] * s:.2f} | {c['figures']['calculix'][k] * s:.2f} "
-                             f"({pct(c['vs_theory']['calculix'][k])}) | {c['figures']['builtin'][k] * s:.2f} "
-                             f"({pct(c['vs_theory']['builtin'][k])}) |")
+            lines += markdown.table(["Hertz (steel on glass)", "theory", "CalculiX", "built-in"], (
+                [f"{k} [{unit}]", f"{c['theory'][k] * s:.2f}",
+                 f"{c['figures']['calculix'][k] * s:.2f} ({pct(c['vs_theory']['calculix'][k])})",
+                 f"{c['figures']['builtin'][k] * s:.2f} ({pct(c['vs_theory']['builtin'][k])})"]
+                for k, unit, s in (("peak_force_N", "N", 1.0), ("contact_duration_s", "µs", 1e6))))
             lines += ["", f"Hertz: {c['n_nodes_2d']} nodes, penalty factor {c['penalty_factor']}, frames of "
                       f"{c['output_dt_s'] * 1e6:.3f} µs; ccx {c['ccx_wall_s'] or float('nan'):.0f} s, built-in "
                       f"{c['builtin_wall_s']:.0f} s; goal (CalculiX within 5 % of theory) "
@@ -126,7 +127,7 @@ def write_report(out: Path, cases: list[dict], args, command: str) -> list[str]:
                 ("peak_cg_von_mises_mpa", "peak CG vM [MPa]", 1.0), ("objective_area_mean_mpa", "area mean [MPa]", 1.0),
                 ("objective_node_mean_mpa", "node mean [MPa]", 1.0),
                 ("max_ball_approach_um", "ball approach [µm]", 1.0))
-        lines += ["| design [µm] | code | " + " | ".join(k[1] for k in keys) + " |", "|---|---|" + "---|" * len(keys)]
+        body = []
         for c in panel:
             d = f"{c['design_um'][0]:.1f}, {c['design_um'][1]:.1f}"
             for code, name in (("builtin", "built-in"), ("calculix", "CalculiX"),
@@ -141,13 +142,12 @@ def write_report(out: Path, cases: list[dict], args, command: str) -> list[str]:
                     if code != "builtin":
                         cell += f" ({pct(f[k] / c['figures']['builtin'][k] - 1)})"
                     cells.append(cell)
-                lines.append(f"| {d} | {name} | " + " | ".join(cells) + " |")
+                body.append([d, name, *cells])
+        lines += markdown.table(["design [µm]", "code", *(k[1] for k in keys)], body)
         lines += ["", "Fields (CalculiX vs built-in, relative L2 over the region's nodes):", "",
-                  "| design | t [µs] | displacement | von Mises |", "|---|---|---|---|"]
-        for c in panel:
-            for f in c["fields"]:
-                lines.append(f"| {c['label']} | {f['time_us']:.0f} | {100 * f['displacement_rel_l2']:.1f} % | "
-                             f"{100 * f['von_mises_rel_l2']:.1f} % |")
+                  *markdown.table(["design", "t [µs]", "displacement", "von Mises"], (
+                      [c["label"], f"{f['time_us']:.0f}", f"{100 * f['displacement_rel_l2']:.1f} %",
+                       f"{100 * f['von_mises_rel_l2']:.1f} %"] for c in panel for f in c["fields"]))]
         rank = {k: _ranking(cases, k) for k in ("objective_area_mean_mpa", "objective_node_mean_mpa")}
         lines += ["", "Ranking (best first): " + "; ".join(f"{k}: CalculiX {v['calculix']}, built-in {v['builtin']}"
                                                          for k, v in rank.items()),

@@ -20,7 +20,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from pcmgn_jax import cli
+from pcmgn_jax import cli, markdown
 
 
 @dataclass(frozen=True)
@@ -105,21 +105,20 @@ def report(args, rows: list[dict], command: str) -> list[str]:
     from pcmgn_jax.data.trajectory_io import atomic_write_json
 
     x = args.section_x_mm
-    lines = [f"Command: `{command}`", "", f"Design {args.design} µm. Fixed section: OLED at 0 <= x <= {x:g} mm.", "",
-             "| mesh | code | penalty | nodes (full / ROI) | OLED elements | h_contact [µm] | section end [mm] | "
-             f"area mean [MPa] | area mean, x <= {x:g} mm [MPa] | node mean [MPa] | disc mean [MPa] | "
-             "peak force [N] | contact [µs] | wall [s] |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    head = ["mesh", "code", "penalty", "nodes (full / ROI)", "OLED elements", "h_contact [µm]", "section end [mm]",
+            "area mean [MPa]", f"area mean, x <= {x:g} mm [MPa]", "node mean [MPa]", "disc mean [MPa]",
+            "peak force [N]", "contact [µs]", "wall [s]"]
     notes = [f"{r['mesh']} {r['code']}: ccx increments per frame {r['ccx_settings']['increments_per_frame']}, "
              f"smallest increment ratio {r['ccx_settings']['min_increment_ratio']:g}"
              for r in rows if "ccx_settings" in r]
-    for r in rows:
-        wall = f"{r['wall_s']:.0f}" if r["wall_s"] is not None else "–"
-        lines.append(
-            f"| {r['mesh']} | {r['code']} | {r['penalty_factor']:g} | {r['full_nodes']:,} / {r['roi_nodes']:,} | "
-            f"{r['oled_elements']} | {r['h_contact_um']:.2f} | {r['section_end_mm']:.3f} | "
-            f"{r['objective_area_mean_mpa']:.4f} | {r['objective_fixed_section_mpa']:.4f} | "
-            f"{r['objective_node_mean_mpa']:.4f} | {r['objective_disc_mean_mpa']:.4f} | {r['peak_force_N']:.3f} | "
-            f"{r['contact_duration_s'] * 1e6:.0f} | {wall} |")
+    body = [[r["mesh"], r["code"], f"{r['penalty_factor']:g}", f"{r['full_nodes']:,} / {r['roi_nodes']:,}",
+             r["oled_elements"], f"{r['h_contact_um']:.2f}", f"{r['section_end_mm']:.3f}",
+             f"{r['objective_area_mean_mpa']:.4f}", f"{r['objective_fixed_section_mpa']:.4f}",
+             f"{r['objective_node_mean_mpa']:.4f}", f"{r['objective_disc_mean_mpa']:.4f}", f"{r['peak_force_N']:.3f}",
+             f"{r['contact_duration_s'] * 1e6:.0f}", f"{r['wall_s']:.0f}" if r["wall_s"] is not None else "–"]
+            for r in rows]
+    lines = [f"Command: `{command}`", "", f"Design {args.design} µm. Fixed section: OLED at 0 <= x <= {x:g} mm.", "",
+             *markdown.table(head, body)]
     lines += [""] + notes if notes else []
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(f"{args.out}.json", {"command": command, "design_um": args.design, "section_x_mm": x,
