@@ -37,8 +37,12 @@ class CalculixArgs:
     """mesh preset (the project's own mesh)"""
     frames: Optional[int] = None
     """frames of output_dt to simulate (default: the scene's n_frames)"""
-    penalty_factor: float = 0.1
-    """contact penalty k_p = factor x E'/h [Pa/m], as the built-in solver's SolverSettings.penalty_factor"""
+    penalty_factor: float = 1.0
+    """contact penalty k_p = factor x E'/h [Pa/m], as the built-in solver's SolverSettings.penalty_factor (1: its
+    production value)"""
+    slave_faces: bool = True
+    """the ball's surface faces as the contact's slave surface, so ccx's springs are as stiff as k_p says
+    (--no_slave_faces: its nodes, which act ~10x stiffer; docs/results/calculix.md, Hertz)"""
     increments_per_frame: int = 2
     """largest implicit increment = output_dt / this (ccx's impact control shortens it in contact)"""
     alpha: float = 0.0
@@ -68,7 +72,7 @@ def main(argv=None) -> int:
     if args.frames:
         scene = dataclasses.replace(scene, n_frames=int(args.frames))
     settings = CalculixSettings(increments_per_frame=args.increments_per_frame, alpha=args.alpha,
-                                penalty_factor=args.penalty_factor)
+                                penalty_factor=args.penalty_factor, slave_faces=args.slave_faces)
     out = Path(args.out)
     try:
         traj, extra = run_scene(scene, args.preset, out, settings=settings, ccx=args.ccx, threads=args.threads,

@@ -78,7 +78,10 @@ class CalculixSettings:
     slave_faces:     the slave surface as the ball's surface faces (``TYPE=ELEMENT``) instead of its nodes
                      (``TYPE=NODE``, the default): ccx then takes each slave node's area from those faces
                      alone; from a node set it takes the node's external faces, which in a wedge include the
-                     flat side faces, and its springs act ~10x stiffer than k_p (docs/results/calculix.md)
+                     flat side faces, and its springs act ~10x stiffer than k_p (docs/results/calculix.md).
+                     The default stays node slaves so the committed cross-check tables (made with them) and
+                     the mesh series' cached rows reproduce; ``experiments.calculix`` (one design to a
+                     trajectory, e.g. a CalculiX dataset) uses face slaves at penalty factor 1
     """
 
     increments_per_frame: int = 8
