@@ -1,6 +1,6 @@
 """Validate the solver against Hertz impact theory.
 
-python -m experiments.hertz_check --radius-mm 5 --velocity 0.62631 --target glass --json hertz.json
+python -m experiments.hertz_check --radius_mm 5 --velocity 0.62631 --target glass --json hertz.json
 """
 from __future__ import annotations
 
