@@ -43,7 +43,7 @@ class CheckArgs:
     frames: int = 0
     """panel frames of 4 µs (0: the scene's 100, a 400 µs window); fewer for a smoke run"""
     hertz: bool = False
-    """also run the Hertz case (--hertz; ~30 s with --slave_faces --hertz_elems_per_radius 4 --hertz_growth 1.3
+    """also run the Hertz case (--hertz; ~30 s with --hertz_elems_per_radius 4 --hertz_growth 1.3
     --hertz_frames 120 --increments_per_frame 1 --hertz_min_increment_ratio 0.005; ~12 s per implicit increment
     on the default 5,974-node mesh, docs/results/calculix.md)"""
     hertz_penalty_factor: float = 1.0
@@ -56,9 +56,9 @@ class CheckArgs:
     """Hertz mesh: elements across the contact radius (sim/hertz.py hertz_mesh_spec)"""
     hertz_growth: float = 1.15
     """Hertz mesh: growth ratio of the element sizes outside the fine zone (coarser far field: larger)"""
-    slave_faces: bool = False
-    """the contact's slave surface as the ball's faces, not its nodes (--slave_faces: ccx's springs then act
-    at the nominal k_p; with nodes ~10x stiffer, docs/results/calculix.md)"""
+    slave_faces: bool = True
+    """the contact's slave surface as the ball's faces, so ccx's springs act at the nominal k_p
+    (--no_slave_faces: its nodes, ~10x stiffer, how the first tables were made; docs/results/calculix.md)"""
     hertz_min_increment_ratio: float = 0.05
     """Hertz: ccx's smallest increment / its largest (the contact's stiff springs need ~0.1 of a 0.6 µs frame)"""
 

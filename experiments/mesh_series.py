@@ -46,6 +46,9 @@ class SeriesArgs:
     """ccx's largest increment = output_dt / this"""
     min_increment_ratio: float = 0.05
     """ccx's smallest increment / its largest (the series' CalculiX rows: 0.005)"""
+    slave_faces: bool = True
+    """CalculiX rows: the ball's faces as the contact's slave surface (--no_slave_faces: its nodes, ~10x stiffer
+    springs, how the committed C3D8 row was made; docs/results/calculix.md)"""
     timeout_s: float = 7200.0
     """per ccx run"""
     out: str = "results/calculix/mesh_series"
@@ -66,7 +69,7 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
 
     design = [float(v) * 1e-6 for v in args.design.split(",")]
     penalty = args.penalty_factor if code == "builtin" else args.ccx_penalty_factor
-    tag = f"{code}_{element}" if code == "calculix" else code
+    tag = (f"{code}_{element}" + ("_faces" if args.slave_faces else "")) if code == "calculix" else code
     design_tag = "_".join(args.design.split(","))
     cache = Path(args.out) / "rows" / f"{name.replace(':', '-')}_{tag}_{design_tag}_p{penalty:g}.json"
     if cache.is_file():
@@ -75,7 +78,8 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
     spec = mesh_spec(mesh_for(name))
     if code == "calculix":
         settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=penalty,
-                                    element=element, min_increment_ratio=args.min_increment_ratio)
+                                    element=element, min_increment_ratio=args.min_increment_ratio,
+                                    slave_faces=args.slave_faces)
         traj, extra, wall = _ccx(Path(args.out) / "runs" / f"{name}_{element}", scene, spec, settings,
                                  args.timeout_s)
         force = extra["force_N"]
@@ -93,7 +97,7 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
            "section_x_mm": args.section_x_mm, "wall_s": wall, **figs}
     if code == "calculix":   # the row cache's name does not hold these: record them with the figures
         rec["ccx_settings"] = {"increments_per_frame": args.increments_per_frame,
-                               "min_increment_ratio": args.min_increment_ratio}
+                               "min_increment_ratio": args.min_increment_ratio, "slave_faces": args.slave_faces}
     cache.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(cache, rec)
     return rec
@@ -136,7 +140,8 @@ def plot(rows: list[dict], png: str, section_x_mm: float) -> None:
             ("objective_fixed_section_mpa", f"area mean, x ≤ {section_x_mm:g} mm [MPa]"),
             ("objective_node_mean_mpa", "node mean [MPa]"))
     styles = {"builtin": ("o", "built-in (penalty 1)"), "builtin_ccx_penalty": ("s", "built-in (ccx penalty)"),
-              "calculix_C3D8": ("x", "CalculiX C3D8"), "calculix_C3D8I": ("+", "CalculiX C3D8I")}
+              "calculix_C3D8": ("x", "CalculiX C3D8, node slaves"), "calculix_C3D8_faces": ("x", "CalculiX C3D8"),
+              "calculix_C3D8I_faces": ("+", "CalculiX C3D8I")}
     for code, (marker, label) in styles.items():
         sel = [r for r in rows if r["code"] == code]
         if not sel:

@@ -168,9 +168,10 @@ def test_slave_faces_option_lists_the_ball_surface_faces(tmp_path):
 
     scene = dataclasses.replace(default_scene(), n_frames=2)
     mesh = build_mesh(scene, "tiny")
-    default = inp_text(scene, mesh)
-    assert "*SURFACE, NAME=SBALL, TYPE=NODE\nSBALLN\n" in default      # the default deck is unchanged
-    (tmp_path / "job.inp").write_text(inp_text(scene, mesh, CalculixSettings(slave_faces=True)))
+    nodes_deck = inp_text(scene, mesh, CalculixSettings(slave_faces=False))
+    assert "*SURFACE, NAME=SBALL, TYPE=NODE\nSBALLN\n" in nodes_deck   # --no_slave_faces: the node set
+    assert inp_text(scene, mesh) == inp_text(scene, mesh, CalculixSettings(slave_faces=True))   # faces: the default
+    (tmp_path / "job.inp").write_text(inp_text(scene, mesh))
     deck = parse_inp(tmp_path / "job.inp")
     lines = (tmp_path / "job.inp").read_text().splitlines()
     start = lines.index("*SURFACE, NAME=SBALL, TYPE=ELEMENT") + 1

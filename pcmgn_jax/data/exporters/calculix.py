@@ -75,13 +75,11 @@ class CalculixSettings:
                      leaving it at 1e-10 s for thousands of increments
     tension:         ccx's sigma_inf [Pa], the small tension node-to-surface springs keep at large
                      clearance (must be > 0; ccx's own default is MPa-sized, ~1 N over the contact zone)
-    slave_faces:     the slave surface as the ball's surface faces (``TYPE=ELEMENT``) instead of its nodes
-                     (``TYPE=NODE``, the default): ccx then takes each slave node's area from those faces
+    slave_faces:     the slave surface as the ball's surface faces (``TYPE=ELEMENT``, the default) instead
+                     of its nodes (``TYPE=NODE``): ccx then takes each slave node's area from those faces
                      alone; from a node set it takes the node's external faces, which in a wedge include the
                      flat side faces, and its springs act ~10x stiffer than k_p (docs/results/calculix.md).
-                     The default stays node slaves so the committed cross-check tables (made with them) and
-                     the mesh series' cached rows reproduce; ``experiments.calculix`` (one design to a
-                     trajectory, e.g. a CalculiX dataset) uses face slaves at penalty factor 1
+                     The first cross-check tables were made with node slaves (``--no_slave_faces`` redoes them)
     """
 
     increments_per_frame: int = 8
@@ -92,7 +90,7 @@ class CalculixSettings:
     wedge_deg: float = 2.0
     min_increment_ratio: float = 0.05
     element: str = ELEMENT_TYPE
-    slave_faces: bool = False
+    slave_faces: bool = True
 
     def __post_init__(self) -> None:
         if self.element not in ELEMENTS:
