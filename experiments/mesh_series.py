@@ -6,7 +6,7 @@
 One design (default: the paper's physics-constrained optimum, 145.207 / 99.322 µm) on meshes coarse to fine
 (``PRESET@F`` is the preset refined by F, experiments/objective_convergence.py's ``mesh_for``). Per mesh: the
 nodes (full mesh, region of interest), the elements through the OLED, the end of the objective's section (its
-last node under 3 mm), the objective's readings (pcmgn_jax/eval/metrics.py), the area mean over the fixed
+last node under 3 mm), the objective's readings (pcmgn_jax/metrics.py), the area mean over the fixed
 section 0 <= x <= --section_x_mm (pcmgn_jax/eval/calculix_check.py ``section_weights``), the peak contact
 force (mean over a 4 µs frame interval) and the contact duration. The built-in solver runs at its production
 penalty (--penalty_factor 1); a mesh in --ccx_meshes also runs in CalculiX and in the built-in solver at
