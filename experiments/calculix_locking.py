@@ -20,15 +20,14 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 
+from experiments.mesh_series import DesignSectionArgs
 from pcmgn_jax import cli, markdown
 
 
 @dataclass(frozen=True)
-class LockingArgs:
+class LockingArgs(DesignSectionArgs):
     """The panel's static stiffness in CalculiX, C3D8 against C3D8I, on several meshes."""
 
-    design: str = "145.207,99.322"
-    """the design [µm], 'T1,T2'"""
     meshes: str = "cpu@0.5,cpu,cpu@2,cpu@4"
     """meshes: presets, cpu_fine, or PRESET@F (experiments/objective_convergence.py mesh_for)"""
     elements: str = "C3D8,C3D8I"
@@ -37,8 +36,6 @@ class LockingArgs:
     """total load [N] (about the impact's peak contact force)"""
     radius_um: float = 250.0
     """loaded radius [µm] (a node radius of every mesh here: their contact zones are uniform to 0.5 mm)"""
-    section_x_mm: float = 2.4
-    """end of the fixed OLED section [mm]"""
     timeout_s: float = 900.0
     """per ccx run"""
     out: str = "results/calculix/locking"

@@ -24,17 +24,23 @@ from pcmgn_jax import cli, markdown
 
 
 @dataclass(frozen=True)
-class SeriesArgs:
-    """Mesh-refinement series of one design in both codes."""
+class DesignSectionArgs:
+    """The flags a study of one design on several meshes shares (this series, experiments.calculix_locking)."""
 
     design: str = "145.207,99.322"
     """the design [µm], 'T1,T2'"""
+    section_x_mm: float = 2.4
+    """end of the fixed OLED section [mm] (inside every mesh's region of interest)"""
+
+
+@dataclass(frozen=True)
+class SeriesArgs(DesignSectionArgs):
+    """Mesh-refinement series of one design in both codes."""
+
     meshes: str = "cpu@0.5,cpu,cpu_fine,paper,cpu@2,paper@2,cpu@4"
     """built-in solver meshes: presets, cpu_fine, or PRESET@F (refined by F)"""
     ccx_meshes: str = ""
     """meshes also run in CalculiX (and in the built-in solver at --ccx_penalty_factor)"""
-    section_x_mm: float = 2.4
-    """end of the fixed section [mm] (inside every mesh's region of interest)"""
     penalty_factor: float = 1.0
     """the built-in solver's contact penalty factor in the series"""
     ccx_penalty_factor: float = 0.1
