@@ -23,7 +23,7 @@ import numpy as np
 from pcmgn_jax import metrics
 from pcmgn_jax.opt import search
 from pcmgn_jax.opt.objectives import FieldObjective
-from pcmgn_jax.opt.scenes import PAPER_STACK, ParameterBox, query, scene_at, solve_scene, stack_box
+from pcmgn_jax.opt.scenes import PAPER_STACK, ParameterBox, family_of, query, scene_at, solve_scene, stack_box
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.surrogates.kinds import AUTO, KINDS
 from pcmgn_jax.surrogates.registry import fit
@@ -69,15 +69,20 @@ class StackObjective(FieldObjective):
             warnings.simplefilter("ignore")      # extrapolation notes of the surfaces: the box is the family's
             if KINDS[self.kind].objective_surface:
                 surface = self.surrogate.objective
-                rows = [self.box.row(x) for x in d]
-                x = np.array([[r[n] for n in surface.names] for r in rows])
-                return np.asarray(surface.predict(x)[self.reading], float)
+                return np.asarray(surface.predict(_surface_inputs(surface, self.box, d))[self.reading], float)
             qs = self.queries(d)
             _, vms = self.surrogate.predict_trajectories(qs)
         return np.array([float(metrics.oled_objective_of(q, vm, reading=self.reading)) for q, vm in zip(qs, vms)])
 
     def value_and_grad(self, designs):
         raise ValueError("a stack search has no gradient (every candidate has its own mesh): use --method ga")
+
+
+def _surface_inputs(surface, box: ParameterBox, designs) -> np.ndarray:
+    """(B, P) inputs of an objective ``surface`` (its ``names`` order) at designs (B, D) [SI] of ``box``: each
+    design's full row (:meth:`ParameterBox.row`)."""
+    rows = [box.row(x) for x in np.atleast_2d(np.asarray(designs, float))]
+    return np.array([[r[n] for n in surface.names] for r in rows])
 
 
 def _fit(kind: str, train, run_dir: Path, which: str, reading: str):
@@ -100,7 +105,6 @@ def optimize_stack(run_dir: Path, cfg, train: Sequence, *, surrogate: str, metho
     """The stack search (module docstring): its result dict (``optimum``: {name: value} [SI] of the full
     row, ``searched``, ``predicted_mpa`` and its spread, the solver's check). ValueError naming a method
     other than ga, a surrogate that cannot answer, or a bad parameter name (:func:`stack_box`)."""
-    from pcmgn_jax.opt.scenes import family_of
     if method != "ga":
         raise ValueError(f"--method {method}: a stack search has no gradient (every candidate has its own mesh); "
                          "use --method ga")
@@ -160,8 +164,7 @@ def _spread(kind: str, model, obj: StackObjective, x, train, reading: str) -> di
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         surface = (model if kind == SPREAD_OF else fit(SPREAD_OF, train, readings=(reading,), fields=False)).objective
-        row = obj.box.row(x)
-        _, sd = surface.predict(np.array([[row[n] for n in surface.names]]), return_std=True)
+        _, sd = surface.predict(_surface_inputs(surface, obj.box, x), return_std=True)
     source = f"{kind} posterior std" if kind == SPREAD_OF else \
         f"proxy: the kriging std of the same training stacks ({kind} has no spread of its own here)"
     return {"predicted_std_mpa": float(sd[reading][0]), "spread": {"std_mpa": float(sd[reading][0]), "source": source}}
