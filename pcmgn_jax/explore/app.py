@@ -47,7 +47,7 @@ def _slider(i: int, p, value: float):
              float(np.round(p.high * p.scale, 6)): {"label": f"box {p.high * p.scale:.4g}",
                                                     "style": {"color": "seagreen"}}}
     return html.Div([
-        html.Label(f"{p.label} [{p.unit}]", htmlFor=f"p-{i}", style={"fontWeight": "bold"}),
+        html.Label(p.heading, htmlFor=f"p-{i}", style={"fontWeight": "bold"}),
         dcc.Slider(id=f"p-{i}", min=_snap(np.floor(lo / step) * step, step), max=_snap(np.ceil(hi / step) * step, step),
                    step=step, value=_snap(np.round(value * p.scale / step) * step, step), marks=marks,
                    updatemode="mouseup", tooltip={"placement": "bottom", "always_visible": False},

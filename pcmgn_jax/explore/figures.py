@@ -181,8 +181,8 @@ def box_figure(params, x, samples, outside: Sequence[bool], *, band: tuple[float
                 data.append({"type": "scatter", "mode": "lines", "x": list(ra), "y": [s - ra[0], s - ra[1]],
                              "name": "optimiser's sum band", "showlegend": s == band[0] * a.scale,
                              "line": {"color": "grey", "dash": "dot"}, "hoverinfo": "skip"})
-        layout = {"xaxis": {"title": {"text": f"{a.label} [{a.unit}]"}, "range": list(ra)},
-                  "yaxis": {"title": {"text": f"{b.label} [{b.unit}]"}, "range": list(rb)}, "shapes": shapes}
+        layout = {"xaxis": {"title": {"text": a.heading}, "range": list(ra)},
+                  "yaxis": {"title": {"text": b.heading}, "range": list(rb)}, "shapes": shapes}
     else:
         def z(v, p):
             return (((np.asarray(v) - p.low) / (p.high - p.low)).tolist() if p.varied

@@ -50,6 +50,11 @@ class Parameter:
         tol = 1e-9 * max(self.high - self.low, abs(self.high))
         return bool(value < self.low - tol or value > self.high + tol)
 
+    @property
+    def heading(self) -> str:
+        """'label [unit]', or the label alone for a unitless parameter (a stack's presence flag)."""
+        return f"{self.label} [{self.unit}]" if self.unit else self.label
+
     def text(self, *values: float) -> str:
         """Values [SI] on the page: '30 µm', or a range '50–150 µm'."""
         return "–".join(f"{v * self.scale:.4g}" for v in values) + f" {self.unit}"

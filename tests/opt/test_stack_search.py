@@ -194,3 +194,10 @@ def test_the_stack_runs_mgn_in_the_explorer_and_the_optimiser(stack_run, tmp_pat
     out = run(run_dir, surrogate="mgn", method="ga", pop=4, gens=1, check=True, progress=False,
               params="OCA1.thickness")
     assert np.isfinite(out["predicted_mpa"]) and np.isfinite(out["solver_mpa"]) and "proxy" in out["spread"]["source"]
+
+
+def test_slider_headings_name_a_unit_only_where_there_is_one():
+    from pcmgn_jax.explore.types import parameter
+    assert parameter("CG.present", 1.0, 1.0).heading == "CG present (1/0)"
+    assert parameter("CG.thickness", 6e-5, 1.4e-4).heading == "CG thickness [µm]"
+    assert parameter("ball.radius", 4e-3, 6e-3).heading == "ball radius [mm]"
