@@ -5,6 +5,24 @@ stiffness, mass and nodal forces are for the whole ring, so a nodal force is a t
 Strain vector: (eps_xx, eps_yy, gamma_xy, eps_zz) where eps_zz is the hoop strain u_r / r
 (axisymmetric) or 0 (plane strain). Written by hand because the explicit solver needs the
 per-element matrices as dense arrays for JAX; scikit-fem is used in the tests as the check.
+
+Elements (:data:`ELEMENTS`, the default first):
+
+- ``q4i``: the Q4 with incompatible modes, statically condensed (Wilson, Taylor, Doherty & Ghaboussi 1973,
+  "Incompatible displacement models"; Taylor, Beresford & Wilson 1976, "A non-conforming element for stress
+  analysis", IJNME 10: the "QM6" form, derivatives of the modes taken with the centre Jacobian). Two bubble
+  modes per displacement component, (1 - xi^2) and (1 - eta^2), add the bending the bilinear field lacks, so
+  the element does not lock in bending (the full-integration Q4 does: a thin layer bent through one or two
+  elements is ~10 % too stiff on the ``cpu`` mesh). The modes' strain operator G is made orthogonal to
+  constant stress over the element volume, G~ = G - (int G dV) / V, Simo & Rifai 1990 (IJNME 29, eq. 3.8 /
+  the patch-test condition of §4.2): in plane strain the QM6 form already satisfies it (the subtraction
+  removes round-off only); in axisymmetry the weight 2 pi r and the hoop row M / r break it, and the
+  subtraction restores the patch test there. With the internal dofs a condensed once per element,
+  K = K_uu - K_ua K_aa^-1 K_au is a constant 8x8 stiffness (the explicit loop applies it unchanged), the
+  modes carry no mass (lumped mass from the bilinear shape functions, as for ``q4``), and the centroid
+  stress reads the condensed modes: sigma_c = D (B_c - G~_c K_aa^-1 K_au) u (the ``db`` operator).
+  CalculiX's ``C3D8I`` is the 3D element of this family.
+- ``q4``: the fully integrated bilinear quad (2x2 Gauss), kept for comparison: it locks in bending.
 """
 from __future__ import annotations
 
@@ -13,6 +31,10 @@ import numpy as np
 _G = 1.0 / np.sqrt(3.0)
 GAUSS_2x2 = np.array([[-_G, -_G], [_G, -_G], [_G, _G], [-_G, _G]])
 _XI = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=float)
+
+#: element formulations, the default first (module docstring)
+ELEMENTS = ("q4i", "q4")
+DEFAULT_ELEMENT = ELEMENTS[0]
 
 
 def shape_functions(xi: float, eta: float) -> tuple[np.ndarray, np.ndarray]:
@@ -63,33 +85,80 @@ def b_matrices(xy: np.ndarray, xi: float, eta: float, axisymmetric: bool):
     return b, weight, n
 
 
+def _incompatible_g(xy: np.ndarray, xi: float, eta: float, axisymmetric: bool) -> np.ndarray:
+    """The incompatible modes' strain operator G (E,4,4) at (xi, eta), before the patch-test correction.
+
+    Modes (Wilson et al. 1973): u_x and u_y each get a1 (1 - xi^2) + a2 (1 - eta^2); internal dofs ordered
+    (a1x, a2x, a1y, a2y). The in-plane derivatives use the Jacobian at the element centre scaled by
+    det J0 / det J (Taylor, Beresford & Wilson 1976, "QM6"); the hoop row is M / r (axisymmetric).
+    """
+    modes = np.array([1.0 - xi * xi, 1.0 - eta * eta])
+    dnat = np.array([[-2.0 * xi, 0.0], [0.0, -2.0 * eta]])       # d(mode)/d(xi, eta): rows xi, eta
+    _, dn0 = shape_functions(0.0, 0.0)
+    _, dn = shape_functions(xi, eta)
+    jac0 = np.einsum("ak,ekb->eab", dn0, xy)
+    jac = np.einsum("ak,ekb->eab", dn, xy)
+    det0 = jac0[:, 0, 0] * jac0[:, 1, 1] - jac0[:, 0, 1] * jac0[:, 1, 0]
+    det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
+    dxy = np.einsum("eab,bk->eak", np.linalg.inv(jac0), dnat) * (det0 / det)[:, None, None]  # (E,2,2)
+    g = np.zeros((xy.shape[0], 4, 4))
+    g[:, 0, 0:2] = dxy[:, 0]
+    g[:, 1, 2:4] = dxy[:, 1]
+    g[:, 2, 0:2] = dxy[:, 1]
+    g[:, 2, 2:4] = dxy[:, 0]
+    if axisymmetric:
+        n, _ = shape_functions(xi, eta)
+        r = xy[:, :, 0] @ n
+        g[:, 3, 0:2] = modes[None, :] / np.maximum(r, 1e-300)[:, None]
+    return g
+
+
 def element_matrices(points: np.ndarray, cells: np.ndarray, youngs: np.ndarray,
-                     poisson: np.ndarray, density: np.ndarray, *, analysis: str):
+                     poisson: np.ndarray, density: np.ndarray, *, analysis: str,
+                     element: str = DEFAULT_ELEMENT):
     """Per-element stiffness (E,8,8) [N/m], row-sum lumped nodal masses (E,4) [kg], and the
     centroid stress operator D B_c (E,4,8) [Pa/m] giving (s_xx, s_yy, s_xy, s_zz).
 
-    dof order inside an element: (u_x0, u_y0, u_x1, u_y1, ...).
+    ``element``: one of :data:`ELEMENTS` (module docstring); for ``q4i`` the stiffness and the stress
+    operator are those of the condensed element. dof order inside an element: (u_x0, u_y0, u_x1, u_y1, ...).
     """
     if analysis not in ("axisymmetric", "plane_strain"):
         raise ValueError(f"fem: unknown analysis {analysis!r}")
+    if element not in ELEMENTS:
+        raise ValueError(f"fem: unknown element {element!r}; one of {ELEMENTS}")
     axi = analysis == "axisymmetric"
     xy = points[cells]  # (E,4,2)
     # plane strain: row 3 of B is zero (eps_zz = 0) and row 3 of D then gives
     # sigma_zz = lambda (eps_xx + eps_yy), which enters the von Mises stress.
     d = elasticity_matrix(youngs, poisson)
-    ke = np.zeros((len(cells), 8, 8))
-    mass = np.zeros((len(cells), 4))
+    ne = len(cells)
+    mass = np.zeros((ne, 4))
+    bs, gs, ws = [], [], []
     for xi, eta in GAUSS_2x2:
         b, w, n = b_matrices(xy, xi, eta, axi)
         if not axi:
             b[:, 3, :] = 0.0
-        ke += np.einsum("eki,ekl,elj->eij", b, d, b) * w[:, None, None]
+        bs.append(b)
+        ws.append(w)
+        gs.append(_incompatible_g(xy, xi, eta, axi) if element == "q4i" else None)
         mass += np.asarray(density)[:, None] * n[None, :] * w[:, None]
+    ke = sum(np.einsum("eki,ekl,elj->eij", b, d, b) * w[:, None, None] for b, w in zip(bs, ws))
     bc, _, _ = b_matrices(xy, 0.0, 0.0, axi)
     if not axi:
         bc[:, 3, :] = 0.0
-    db = np.einsum("ekl,elj->ekj", d, bc)
-    return ke, mass, db
+    if element == "q4":
+        return ke, mass, np.einsum("ekl,elj->ekj", d, bc)
+    # orthogonality to constant stress (Simo & Rifai 1990): subtract the volume mean of G
+    vol = sum(ws)
+    g_mean = sum(g * w[:, None, None] for g, w in zip(gs, ws)) / vol[:, None, None]
+    gs = [g - g_mean for g in gs]
+    k_aa = sum(np.einsum("eki,ekl,elj->eij", g, d, g) * w[:, None, None] for g, w in zip(gs, ws))
+    k_au = sum(np.einsum("eki,ekl,elj->eij", g, d, b) * w[:, None, None] for g, w, b in zip(gs, ws, bs))
+    cond = np.linalg.solve(k_aa, k_au)                      # (E,4,8): a = -cond @ u
+    ke = ke - np.einsum("eai,eaj->eij", k_au, cond)
+    ke = 0.5 * (ke + np.swapaxes(ke, 1, 2))                 # symmetric to round-off
+    gc = _incompatible_g(xy, 0.0, 0.0, axi) - g_mean
+    return ke, mass, np.einsum("ekl,elj->ekj", d, bc - np.einsum("eka,eaj->ekj", gc, cond))
 
 
 def von_mises(stress: np.ndarray) -> np.ndarray:

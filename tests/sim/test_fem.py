@@ -43,12 +43,14 @@ def _polygon_area_and_moment(points, cells):
 # ---- against scikit-fem ------------------------------------------------------------------------
 @pytest.mark.parametrize("seed", [0, 1])
 def test_plane_strain_stiffness_matches_scikit_fem(seed):
+    """The full-integration element against scikit-fem (the incompatible-mode one: the tests below)."""
     skfem = pytest.importorskip("skfem")
     from skfem.models.elasticity import lame_parameters, linear_elasticity
 
     pts, cells, _ = distorted_grid(5, 4, seed=seed, amp=0.3)
     youngs, nu = 77e9, 0.21
-    ke, _, _ = fem.element_matrices(pts, cells, *_mats(len(cells), youngs, nu), analysis="plane_strain")
+    ke, _, _ = fem.element_matrices(pts, cells, *_mats(len(cells), youngs, nu), analysis="plane_strain",
+                                    element="q4")
     k_ours = fem.assemble_csr(cells, ke, len(pts)).toarray()
 
     mesh = skfem.MeshQuad(pts.T.copy(), cells.T.copy())
@@ -73,7 +75,8 @@ def test_axisymmetric_stiffness_matches_scikit_fem_form():
     youngs, nu = 5.15e9, 0.3
     lam = youngs * nu / ((1 + nu) * (1 - 2 * nu))
     mu = youngs / (2 * (1 + nu))
-    ke, _, _ = fem.element_matrices(pts, cells, *_mats(len(cells), youngs, nu), analysis="axisymmetric")
+    ke, _, _ = fem.element_matrices(pts, cells, *_mats(len(cells), youngs, nu), analysis="axisymmetric",
+                                    element="q4")
     k_ours = fem.assemble_csr(cells, ke, len(pts)).toarray()
 
     @BilinearForm
@@ -98,8 +101,8 @@ def test_axisymmetric_stiffness_matches_scikit_fem_form():
 
 
 # ---- patch tests ------------------------------------------------------------------------------
-def _strain_and_forces(pts, cells, u, analysis, youngs=77e9, nu=0.21):
-    ke, _, db = fem.element_matrices(pts, cells, *_mats(len(cells), youngs, nu), analysis=analysis)
+def _strain_and_forces(pts, cells, u, analysis, youngs=77e9, nu=0.21, element=fem.DEFAULT_ELEMENT):
+    ke, _, db = fem.element_matrices(pts, cells, *_mats(len(cells), youngs, nu), analysis=analysis, element=element)
     k = fem.assemble_csr(cells, ke, len(pts))
     f = (k @ u.ravel()).reshape(-1, 2)
     sig = np.einsum("ekj,ej->ek", db, u[cells].reshape(len(cells), 8))
@@ -107,13 +110,14 @@ def _strain_and_forces(pts, cells, u, analysis, youngs=77e9, nu=0.21):
     return f, sig, d, ke
 
 
+@pytest.mark.parametrize("element", fem.ELEMENTS)
 @pytest.mark.parametrize("seed", [0, 5])
-def test_patch_plane_strain(seed):
+def test_patch_plane_strain(seed, element):
     pts, cells, boundary = distorted_grid(5, 4, seed=seed, amp=0.3)
     a = np.array([[2.0e-3, -0.7e-3], [1.1e-3, -1.5e-3]])
     b = np.array([3e-6, -2e-6])
     u = pts @ a.T + b
-    f, sig, d, ke = _strain_and_forces(pts, cells, u, "plane_strain")
+    f, sig, d, ke = _strain_and_forces(pts, cells, u, "plane_strain", element=element)
     scale = np.abs(ke).max() * np.abs(u).max()
     assert np.abs(f[~boundary]).max() < 1e-12 * scale
     assert np.abs(f[boundary]).max() > 1e-3 * scale  # the traction is really there
@@ -123,14 +127,15 @@ def test_patch_plane_strain(seed):
     np.testing.assert_allclose(f.sum(0), 0.0, atol=1e-12 * scale)
 
 
+@pytest.mark.parametrize("element", fem.ELEMENTS)
 @pytest.mark.parametrize("x0", [0.0, 1e-3])  # touching the axis, and off the axis
-def test_patch_axisymmetric(x0):
+def test_patch_axisymmetric(x0, element):
     """u_r = a r, u_z = b z + c: uniform strain (a, b, 0, a) incl. the hoop strain; it is in
     equilibrium without body force, so interior nodal forces vanish."""
     pts, cells, boundary = distorted_grid(5, 4, x0=x0, seed=2, amp=0.3)
     aa, bb, cc = 1.7e-3, -0.9e-3, 4e-6
     u = np.stack([aa * pts[:, 0], bb * pts[:, 1] + cc], 1)
-    f, sig, d, ke = _strain_and_forces(pts, cells, u, "axisymmetric")
+    f, sig, d, ke = _strain_and_forces(pts, cells, u, "axisymmetric", element=element)
     scale = np.abs(ke).max() * np.abs(u).max()
     assert np.abs(f[~boundary]).max() < 1e-12 * scale
     eps = np.array([aa, bb, 0.0, aa])
@@ -142,23 +147,24 @@ def test_patch_axisymmetric(x0):
     assert f[top, 1].sum() == pytest.approx((d @ eps)[1] * np.pi * (r1**2 - r0**2), rel=1e-10)
 
 
+@pytest.mark.parametrize("element", fem.ELEMENTS)
 @pytest.mark.parametrize("analysis", ["plane_strain", "axisymmetric"])
-def test_rigid_vertical_translation_is_force_free(analysis):
+def test_rigid_vertical_translation_is_force_free(analysis, element):
     pts, cells, _ = distorted_grid(4, 4, seed=7, amp=0.3)
     u = np.zeros_like(pts)
     u[:, 1] = 1e-5
-    f, sig, _, ke = _strain_and_forces(pts, cells, u, analysis)
+    f, sig, _, ke = _strain_and_forces(pts, cells, u, analysis, element=element)
     assert np.abs(f).max() < 1e-12 * np.abs(ke).max() * 1e-5
     assert np.abs(sig).max() < 1e-12 * 77e9 * 1e-5 / 1e-3
     if analysis == "plane_strain":  # in-plane rigid rotation too (not rigid in axisymmetry)
         th = 1e-4
         u = th * np.stack([-pts[:, 1], pts[:, 0]], 1)
-        f, sig, _, _ = _strain_and_forces(pts, cells, u, analysis)
+        f, sig, _, _ = _strain_and_forces(pts, cells, u, analysis, element=element)
         assert np.abs(f).max() < 1e-12 * np.abs(ke).max() * np.abs(u).max()
     else:  # a radial translation stretches the hoops
         u = np.zeros_like(pts)
         u[:, 0] = 1e-5
-        f, _, _, _ = _strain_and_forces(pts, cells, u, analysis)
+        f, _, _, _ = _strain_and_forces(pts, cells, u, analysis, element=element)
         assert np.abs(f).max() > 1e-3 * np.abs(ke).max() * 1e-5
 
 
@@ -195,6 +201,8 @@ def test_clockwise_element_rejected():
         fem.element_matrices(pts, bad, *_mats(len(cells)), analysis="plane_strain")
     with pytest.raises(ValueError, match="analysis"):
         fem.element_matrices(pts, cells, *_mats(len(cells)), analysis="plane_stress")
+    with pytest.raises(ValueError, match="element 'c3d8'"):
+        fem.element_matrices(pts, cells, *_mats(len(cells)), analysis="plane_strain", element="c3d8")
 
 
 def test_von_mises():
@@ -219,13 +227,15 @@ def test_plane_strain_out_of_plane_stress():
     np.testing.assert_allclose(sig, [(lam + 2 * mu) * 1e-3, lam * 1e-3, 0, lam * 1e-3], rtol=1e-12)
 
 
-def test_element_stiffness_invariant_under_rigid_motion_of_mesh():
+@pytest.mark.parametrize("element", fem.ELEMENTS)
+def test_element_stiffness_invariant_under_rigid_motion_of_mesh(element):
     """Translating the mesh (plane strain) or shifting it along the axis (axisymmetric) does
     not change the element matrices."""
     pts, cells, _ = distorted_grid(3, 2, x0=0.2e-3, seed=9)
     for analysis, shift in (("plane_strain", [5e-3, -2e-3]), ("axisymmetric", [0.0, 7e-3])):
-        k1, m1, d1 = fem.element_matrices(pts, cells, *_mats(len(cells)), analysis=analysis)
-        k2, m2, d2 = fem.element_matrices(pts + np.array(shift), cells, *_mats(len(cells)), analysis=analysis)
+        k1, m1, d1 = fem.element_matrices(pts, cells, *_mats(len(cells)), analysis=analysis, element=element)
+        k2, m2, d2 = fem.element_matrices(pts + np.array(shift), cells, *_mats(len(cells)), analysis=analysis,
+                                          element=element)
         np.testing.assert_allclose(k2, k1, rtol=1e-9, atol=1e-9 * np.abs(k1).max())
         np.testing.assert_allclose(m2, m1, rtol=1e-9)
         np.testing.assert_allclose(d2, d1, rtol=1e-9, atol=1e-9 * np.abs(d1).max())
@@ -234,6 +244,7 @@ def test_element_stiffness_invariant_under_rigid_motion_of_mesh():
 # ---- node stencil (the explicit solver's layout of K) -------------------------------------------
 @pytest.mark.parametrize("analysis", ["plane_strain", "axisymmetric"])
 def test_node_stencil_equals_assembled_stiffness(analysis):
+    # the default (condensed incompatible-mode) element: the stencil only needs symmetric 8x8 blocks
     """(K u)_i = sum_k blocks[k, :, :, i] @ u[neighbours[i, k]] for a batch of two designs."""
     pts, cells, _ = distorted_grid(5, 4, x0=0.2e-3, seed=3, amp=0.3)
     ke, _, _ = fem.element_matrices(pts, cells, *_mats(len(cells)), analysis=analysis)
@@ -244,3 +255,98 @@ def test_node_stencil_equals_assembled_stiffness(analysis):
     for scale, b in zip((1.0, 2.5), blocks):
         f = np.einsum("kabn,nkb->na", b, u[neighbours])
         np.testing.assert_allclose(f, scale * ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+
+
+# ---- bending: the incompatible-mode element does not lock -----------------------------------------
+def _beam(nx, ny, length=10.0, height=1.0):
+    xs, ys = np.linspace(0, length, nx + 1), np.linspace(-height / 2, height / 2, ny + 1)
+    xx, yy = np.meshgrid(xs, ys)
+    pts = np.stack([xx.ravel(), yy.ravel()], 1)
+    idx = np.arange(len(pts)).reshape(ny + 1, nx + 1)
+    cells = np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 4)
+    return pts, cells, idx
+
+
+def _solve_static(pts, cells, ke, f, fixed):
+    import scipy.sparse.linalg as spla
+
+    k = fem.assemble_csr(cells, ke, len(pts)).tocsc()
+    free = np.setdiff1d(np.arange(2 * len(pts)), fixed)
+    u = np.zeros(2 * len(pts))
+    u[free] = spla.spsolve(k[free][:, free], f[free])
+    return u.reshape(-1, 2)
+
+
+@pytest.mark.parametrize("ny", [1, 2])
+def test_cantilever_tip_deflection_does_not_lock(ny):
+    """Plane-strain cantilever (L/h = 10) under a tip shear, 10 elements long and 1 or 2 through the depth:
+    q4i within 2 % of beam theory with shear, E' = E / (1 - nu^2); q4 locks (25-35 % too stiff)."""
+    e, nu, p, length, h = 1e3, 0.25, 1.0, 10.0, 1.0
+    pts, cells, idx = _beam(10, ny)
+    ep, g = e / (1 - nu**2), e / (2 * (1 + nu))
+    ref = p * length**3 / (3 * ep * h**3 / 12) + p * length / (5 / 6 * g * h)
+    tip = idx[:, -1]
+    f = np.zeros(2 * len(pts))
+    f[2 * tip + 1] = p / len(tip)
+    fixed = np.concatenate([2 * idx[:, 0], 2 * idx[:, 0] + 1])
+    got = {}
+    for element in fem.ELEMENTS:
+        ke, _, _ = fem.element_matrices(pts, cells, *_mats(len(cells), e, nu), analysis="plane_strain", element=element)
+        got[element] = _solve_static(pts, cells, ke, f, fixed)[tip, 1].mean() / ref
+    assert abs(got["q4i"] - 1) < 0.02, got
+    assert got["q4"] < 0.75, got
+
+
+def test_pure_bending_centroid_stress_reads_the_condensed_modes():
+    """End moment on a 2-element-deep beam: the centroid stress s_xx = M y / I exactly for q4i (the condensed
+    modes enter the stress operator), and not for D B_c alone (q4: ~40 % low)."""
+    e, nu, length, h, m = 1e3, 0.3, 10.0, 1.0, 2.0
+    pts, cells, idx = _beam(8, 2, length, h)
+    end = idx[:, -1]
+    y = pts[end, 1]
+    f = np.zeros(2 * len(pts))
+    # consistent nodal forces of the linear traction s_xx = M y / I over the end face (two segments)
+    seg = h / 2
+    tr = m * y / (h**3 / 12)
+    f[2 * end] = np.array([tr[0] * seg / 3 + tr[1] * seg / 6, tr[1] * 2 * seg / 3 + (tr[0] + tr[2]) * seg / 6,
+                           tr[2] * seg / 3 + tr[1] * seg / 6])
+    fixed = np.concatenate([2 * idx[:, 0], [2 * idx[1, 0] + 1]])  # x fixed on the root face, one y
+    for element, tol in (("q4i", 1e-8), ("q4", None)):
+        ke, _, db = fem.element_matrices(pts, cells, *_mats(len(cells), e, nu), analysis="plane_strain", element=element)
+        u = _solve_static(pts, cells, ke, f, fixed)
+        sig = np.einsum("ekj,ej->ek", db, u[cells].reshape(len(cells), 8))
+        yc = pts[cells, 1].mean(1)
+        want = m * yc / (h**3 / 12)
+        err = np.abs(sig[:, 0] - want).max() / np.abs(want).max()
+        if tol is None:
+            assert err > 0.2, err
+        else:
+            assert err < tol, err
+        np.testing.assert_allclose(sig[:, 2], 0.0, atol=1e-8 * np.abs(want).max())
+
+
+def test_axisymmetric_clamped_plate_does_not_lock():
+    """A clamped circular plate (radius a, thickness t = a / 20) under uniform pressure, 20 x 2 elements:
+    centre deflection against Kirchhoff's p a^4 / (64 D) plus the shear term p a^2 / (4 k G t) (k = 5/6,
+    Mindlin): q4i within 2 %, q4 far stiffer."""
+    e, nu, a, t, p = 1e9, 0.3, 1.0, 0.05, 1e3
+    xs, ys = np.linspace(0, a, 21), np.linspace(0, t, 3)
+    xx, yy = np.meshgrid(xs, ys)
+    pts = np.stack([xx.ravel(), yy.ravel()], 1)
+    idx = np.arange(len(pts)).reshape(3, 21)
+    cells = np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 4)
+    top = idx[-1]
+    r = pts[top, 0]
+    mid = 0.5 * (r[1:] + r[:-1])
+    ring = np.pi * (np.concatenate([mid, [a]]) ** 2 - np.concatenate([[0.0], mid]) ** 2)  # tributary areas
+    f = np.zeros(2 * len(pts))
+    f[2 * top + 1] = -p * ring
+    fixed = np.concatenate([2 * idx[:, -1], 2 * idx[:, -1] + 1, 2 * idx[:, 0]])  # clamped rim, symmetry axis
+    dplate = e * t**3 / (12 * (1 - nu**2))
+    ref = p * a**4 / (64 * dplate) + p * a**2 / (4 * (5 / 6) * e / (2 * (1 + nu)) * t)
+    got = {}
+    for element in fem.ELEMENTS:
+        ke, _, _ = fem.element_matrices(pts, cells, *_mats(len(cells), e, nu), analysis="axisymmetric", element=element)
+        got[element] = -_solve_static(pts, cells, ke, f, fixed)[idx[1, 0], 1] / ref
+    assert abs(got["q4i"] - 1) < 0.02, got
+    assert got["q4"] < 0.8, got
