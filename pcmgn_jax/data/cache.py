@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from pcmgn_jax.atomic import atomic_dir
-from pcmgn_jax.data.layout import check_entry, load_manifest, split_stems
+from pcmgn_jax.data.layout import check_entry, load_manifest, manifest_element, split_stems
 from pcmgn_jax.data.trajectory_io import (
     ARRAY_FIELDS,
     RESERVED_KEYS,
@@ -74,7 +74,7 @@ def _sources(dataset_dir: Path, split: str) -> list[dict[str, Any]]:
     for i, stem in enumerate(split_stems(dataset_dir, split)):
         side = read_sidecar(stem)
         if entries is not None:
-            check_entry(dataset_dir, entries[i], side, man.get("design_layers", ()))
+            check_entry(dataset_dir, entries[i], side, man.get("design_layers", ()), manifest_element(man))
         out.append({"name": stem.name, "path": str(stem.relative_to(dataset_dir)), "sha256": side["sha256"],
                     "files": _stat(stem), "n_nodes": side["n_nodes"], "n_cells": side["n_cells"],
                     "n_frames": side["n_frames"], "dtypes": side["dtypes"]})

@@ -55,11 +55,13 @@ from pcmgn_jax.data.layout import (
     MANIFEST,
     SHARD_PARTS,
     DatasetError,
+    check_element,
     dataset_source,
     entry_mismatch,
     has_shard_parts,
     has_trajectory_files,
     load_manifest,
+    manifest_element,
     split_stems,
 )
 from pcmgn_jax.data.stack import StackFamily
@@ -100,7 +102,7 @@ def _entry(split: str, i: int, design: np.ndarray, family: SceneFamily | None = 
     return out
 
 
-def _is_done(root: Path, entry: dict[str, Any], layers: Sequence[str]) -> bool:
+def _is_done(root: Path, entry: dict[str, Any], layers: Sequence[str], element: str) -> bool:
     try:
         traj = read_trajectory(root / entry["path"], verify=True)
     except TrajectoryFileError:
@@ -108,7 +110,7 @@ def _is_done(root: Path, entry: dict[str, Any], layers: Sequence[str]) -> bool:
     digest = content_hash(traj)
     if entry.get("sha256") not in (None, digest):
         return False
-    if entry_mismatch(entry, traj.meta, layers) is not None:
+    if entry_mismatch(entry, traj.meta, layers, element) is not None:
         return False
     entry["sha256"] = digest
     if entry.get("wall_time_s") is None and traj.meta.get("wall_time_s") is not None:
@@ -238,7 +240,10 @@ def _generate(root: Path, plan: dict[str, tuple[np.ndarray, dict[str, Any]]], *,
     man = load_manifest(root)
     manifest_path = root / MANIFEST
     if man is None:
-        man = {"format": DATASET_FORMAT, "format_version": 1, "preset": preset, "scene": scene.to_dict(),
+        from pcmgn_jax.sim.fem import DEFAULT_ELEMENT
+
+        man = {"format": DATASET_FORMAT, "format_version": 1, "preset": preset, "element": DEFAULT_ELEMENT,
+               "scene": scene.to_dict(),
                "family": None if family is None else {"parameters": [list(p) for p in family.parameters]},
                "design_layers": list(scene.design_layers),
                "units": {"design_m": "m", "design_um": "µm", "wall_time_s": "s"}, "splits": {}}
@@ -248,6 +253,7 @@ def _generate(root: Path, plan: dict[str, tuple[np.ndarray, dict[str, Any]]], *,
                                f"not {preset!r}; use another --out")
         if man.get("scene") != scene.to_dict():
             raise DatasetError(f"{manifest_path}: dataset was generated for a different scene; use another --out")
+        check_element(root, man)
     for name, (des, origin) in plan.items():
         old = man["splits"].get(name)
         entries = [_entry(name, i, d, family, scene) for i, d in enumerate(des)]
@@ -277,7 +283,7 @@ def _generate(root: Path, plan: dict[str, tuple[np.ndarray, dict[str, Any]]], *,
         if shard is not None and shards.owner(pos, batch=batch, n=shard[1]) != shard[0]:
             continue
         own.append(e)
-        if not _is_done(root, e, layers):
+        if not _is_done(root, e, layers, manifest_element(man)):
             e["sha256"], e["wall_time_s"] = None, None
             todo.append((name, e))
             chunks.setdefault(pos // batch, []).append((name, e))

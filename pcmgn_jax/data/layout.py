@@ -35,9 +35,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["DATASET_FORMAT", "GENERATE", "IMPORTED", "MANIFEST", "SHARD_PARTS", "SPLITS", "DatasetError",
-           "check_entry", "dataset_source", "entry_mismatch", "has_shard_parts", "has_trajectory_files",
-           "load_manifest", "meta_design", "read_format_json", "split_stems"]
+__all__ = ["DATASET_FORMAT", "GENERATE", "IMPORTED", "LEGACY_ELEMENT", "MANIFEST", "SHARD_PARTS", "SPLITS",
+           "DatasetError", "check_element", "check_entry", "dataset_source", "entry_mismatch", "has_shard_parts",
+           "has_trajectory_files", "load_manifest", "manifest_element", "meta_design", "read_format_json",
+           "split_stems", "trajectory_element"]
 
 MANIFEST = "manifest.json"
 SHARD_PARTS = ".shards"                # folder of the per-shard manifest parts (pcmgn_jax.data.shards)
@@ -45,6 +46,9 @@ GENERATE = "generate"                  # dataset_source: absent directory or gen
 IMPORTED = "imported"                  # dataset_source: trajectory files without a manifest -> read as they are
 SPLITS = ("train", "test")             # the splits a directory without a manifest is recognised by
 DATASET_FORMAT = "pcmgn_jax.dataset"
+#: the element of every solver trajectory and generated manifest written before the element was recorded
+#: (full-integration Q4, which locks in bending: pcmgn_jax.sim.fem)
+LEGACY_ELEMENT = "q4"
 
 
 class DatasetError(ValueError):
@@ -142,9 +146,42 @@ def meta_design(meta: dict[str, Any], layers: Sequence[str]) -> list[float] | No
     return None
 
 
-def entry_mismatch(entry: dict[str, Any], meta: dict[str, Any], layers: Sequence[str]) -> str | None:
+def manifest_element(man: dict[str, Any]) -> str:
+    """The solver element a generated dataset's manifest was made with (:data:`LEGACY_ELEMENT` where it
+    records none: it predates the record)."""
+    return str(man.get("element", LEGACY_ELEMENT))
+
+
+def trajectory_element(meta: dict[str, Any]) -> str | None:
+    """The solver element a trajectory's meta records (``meta['solver']['settings']['element']``;
+    :data:`LEGACY_ELEMENT` for a solver trajectory that predates the record); None for a trajectory that does
+    not come from the built-in solver (imported, synthetic)."""
+    solver = meta.get("solver")
+    if not isinstance(solver, dict) or not isinstance(solver.get("settings"), dict):
+        return None
+    return str(solver["settings"].get("element", LEGACY_ELEMENT))
+
+
+def check_element(root: Path, man: dict[str, Any]) -> None:
+    """DatasetError when a generated dataset was made with another element than the solver's default: its
+    trajectories must not be trained on, scored or extended beside the current solver's."""
+    from pcmgn_jax.sim.fem import DEFAULT_ELEMENT
+
+    have = manifest_element(man)
+    if have != DEFAULT_ELEMENT:
+        raise DatasetError(f"{root / MANIFEST}: generated with the {have!r} element, the solver now makes "
+                           f"{DEFAULT_ELEMENT!r}: regenerate into another --out (or delete {root}); the two are "
+                           "never mixed (pcmgn_jax.sim.fem)")
+
+
+def entry_mismatch(entry: dict[str, Any], meta: dict[str, Any], layers: Sequence[str],
+                   element: str | None = None) -> str | None:
     """What a manifest entry records that its trajectory's meta (or sidecar) does not (the design [m], the
-    scene parameters), or None when they agree (relative tolerance 1e-9)."""
+    scene parameters; the solver element where ``element`` is given and the trajectory records one), or None
+    when they agree (relative tolerance 1e-9)."""
+    made = trajectory_element(meta)
+    if element is not None and made is not None and made != element:
+        return f"element {element!r} in the manifest, {made!r} in the trajectory"
     d = meta_design(meta, layers)
     if d is not None and (len(d) != len(entry["design_m"])
                           or not np.allclose(d, entry["design_m"], rtol=1e-9, atol=0)):
@@ -157,13 +194,14 @@ def entry_mismatch(entry: dict[str, Any], meta: dict[str, Any], layers: Sequence
     return None
 
 
-def check_entry(root: Path, entry: dict[str, Any], side: dict[str, Any], layers: Sequence[str]) -> None:
+def check_entry(root: Path, entry: dict[str, Any], side: dict[str, Any], layers: Sequence[str],
+                element: str | None = None) -> None:
     """DatasetError naming the manifest, the entry and the sidecar when a finished manifest entry disagrees
     with its trajectory's sidecar (content hash, design, scene parameters): one of them was changed."""
     why = None
     if entry.get("sha256") and entry["sha256"] != side.get("sha256"):
         why = f"sha256 {entry['sha256'][:12]}... in the manifest, {str(side.get('sha256'))[:12]}... in the sidecar"
-    why = why or entry_mismatch(entry, side, layers)
+    why = why or entry_mismatch(entry, side, layers, element)
     if why:
         raise DatasetError(f"{root / MANIFEST}: entry {entry.get('name')!r} disagrees with {root / entry['path']}.json "
                            f"({why}): the manifest or the trajectory was changed; regenerate it "

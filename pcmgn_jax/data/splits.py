@@ -13,7 +13,7 @@ from pathlib import Path
 
 from pcmgn_jax.data.cache import load_split
 from pcmgn_jax.data.dataset import ensure_dataset
-from pcmgn_jax.data.layout import GENERATE, IMPORTED, DatasetError, dataset_source, load_manifest
+from pcmgn_jax.data.layout import GENERATE, IMPORTED, DatasetError, check_element, dataset_source, load_manifest
 from pcmgn_jax.data.trajectory_io import TrajectoryFileError, read_sidecar, read_trajectory, write_trajectory
 from pcmgn_jax.lock import hold
 from pcmgn_jax.trajectory import Trajectory
@@ -48,6 +48,9 @@ def prepare_dataset(dataset_dir: str | os.PathLike, *, preset: str, n_train: int
     """
     root = Path(dataset_dir)
     source = dataset_source(root)
+    man = load_manifest(root) if source == GENERATE else None
+    if man is not None:
+        check_element(root, man)
     if source == GENERATE and not _covers(root, preset=preset, n_train=n_train, n_test=n_test, seed=seed):
         ensure_dataset(root, preset=preset, n_train=n_train, n_test=n_test, seed=seed, **generate)
     return root, source

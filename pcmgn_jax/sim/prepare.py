@@ -22,7 +22,9 @@ from pcmgn_jax.sim.mesh import Mesh, MeshSpec, build_mesh, mesh_spec
 class SolverSettings:
     """safety: fraction of the stable time step; penalty_factor: k_p = factor * E'/h [N/m^3]
     with E' the plane-strain modulus of the softer contact body and h the master element size;
-    energy_tol: allowed |E(t) - E(0)| / KE(0); dtype: 'float32' or 'float64' (float64 needs
+    energy_tol: allowed |E(t) - E(0)| / KE(0); element: the Q4 formulation, one of
+    :data:`pcmgn_jax.sim.fem.ELEMENTS` (``q4i``, incompatible modes condensed, the default; ``q4``, full
+    integration, which locks in bending: kept for comparison); dtype: 'float32' or 'float64' (float64 needs
     ``jax.enable_x64``); designs_per_call: designs of a batch integrated together in one
     compiled call (0 = the device's default, :func:`pcmgn_jax.sim.solver.designs_per_call`:
     64 on an accelerator, one at a time on CPU, where the vectorised batch of 8 runs at 0.7-0.8x
@@ -33,6 +35,7 @@ class SolverSettings:
     safety: float = 0.9
     penalty_factor: float = 1.0
     energy_tol: float = 0.01
+    element: str = fem.DEFAULT_ELEMENT
     dtype: str = "float32"
     designs_per_call: int = 0
 
@@ -144,7 +147,7 @@ def prepare(scenes: Sequence[Scene], preset: str | MeshSpec,
     for scene, m in zip(scenes, meshes):
         youngs, poisson, density = _material_arrays(scene, m.cell_part)
         ke, me, db = fem.element_matrices(m.points, m.cells, youngs, poisson, density,
-                                          analysis=scene.analysis)
+                                          analysis=scene.analysis, element=settings.element)
         mass = np.zeros(n)
         np.add.at(mass, m.cells, me)
         k_glob = fem.assemble_csr(m.cells, ke, n)
