@@ -9,8 +9,7 @@ import sys
 import pytest
 
 from fixtures.synthetic import FakeSolver, synthetic_trajectory
-from pcmgn_jax.data import dataset as ds
-from pcmgn_jax.data import layout
+from pcmgn_jax.data import dataset as ds, layout
 from pcmgn_jax.data.splits import prepare_dataset
 from pcmgn_jax.sim import fem
 

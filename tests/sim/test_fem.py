@@ -312,7 +312,8 @@ def test_pure_bending_centroid_stress_reads_the_condensed_modes():
                            tr[2] * seg / 3 + tr[1] * seg / 6])
     fixed = np.concatenate([2 * idx[:, 0], [2 * idx[1, 0] + 1]])  # x fixed on the root face, one y
     for element, tol in (("q4i", 1e-8), ("q4", None)):
-        ke, _, db = fem.element_matrices(pts, cells, *_mats(len(cells), e, nu), analysis="plane_strain", element=element)
+        ke, _, db = fem.element_matrices(pts, cells, *_mats(len(cells), e, nu), analysis="plane_strain",
+                                         element=element)
         u = _solve_static(pts, cells, ke, f, fixed)
         sig = np.einsum("ekj,ej->ek", db, u[cells].reshape(len(cells), 8))
         yc = pts[cells, 1].mean(1)
