@@ -18,6 +18,7 @@ and OUT.md (decks and results under OUT/runs/, not committed). Heavy: run it und
 from __future__ import annotations
 
 import sys
+import time
 from dataclasses import dataclass
 
 from experiments.mesh_series import DesignSectionArgs
@@ -32,6 +33,9 @@ class LockingArgs(DesignSectionArgs):
     """meshes: presets, cpu_fine, or PRESET@F (experiments/objective_convergence.py mesh_for)"""
     elements: str = "C3D8,C3D8I"
     """CalculiX elements"""
+    builtin_elements: str = "q4,q4i"
+    """the built-in solver's elements (pcmgn_jax.sim.fem.Q4_ELEMENTS), each a static row of the same model on the
+same mesh (pcmgn_jax.sim.static): q4 is C3D8's counterpart, q4i C3D8I's"""
     force_n: float = 25.0
     """total load [N] (about the impact's peak contact force)"""
     radius_um: float = 250.0
@@ -43,32 +47,48 @@ class LockingArgs(DesignSectionArgs):
 
 
 def row(args, name: str, element: str) -> dict:
-    """One mesh and element: the static figures."""
+    """One mesh and element (a CalculiX element, or ``builtin_`` + a built-in element): the static figures."""
     import math
     from pathlib import Path
 
-    import numpy as np
-
     from experiments.objective_convergence import mesh_for
-    from pcmgn_jax import metrics
     from pcmgn_jax.data.calculix import run_ccx, static_fields
     from pcmgn_jax.data.exporters.calculix import CalculixSettings, calculix_mesh, static_inp_text
     from pcmgn_jax.data.exporters.common import write_text_atomic
-    from pcmgn_jax.eval.calculix_check import section_weights
     from pcmgn_jax.scene import default_scene
     from pcmgn_jax.sim.mesh import mesh_spec
+    from pcmgn_jax.sim.static import static_pressure
 
     scene = default_scene().with_design(*[float(v) * 1e-6 for v in args.design.split(",")])
     spec = mesh_spec(mesh_for(name))
-    mesh = calculix_mesh(scene, spec)
     radius = args.radius_um * 1e-6
     pressure = args.force_n / (math.pi * radius**2)
-    folder = Path(args.out) / "runs" / f"{name.replace(':', '-')}_{element}"
-    folder.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(folder / "job.inp", static_inp_text(scene, mesh, CalculixSettings(element=element),
-                                                          pressure=pressure, radius=radius))
-    run = run_ccx(folder / "job.inp", timeout=args.timeout_s)
-    u, vm = static_fields(run["frd"], scene, spec)
+    if element.startswith("builtin_"):
+        t0 = time.perf_counter()
+        mesh, u, vm = static_pressure(scene, spec, pressure=pressure, radius=radius,
+                                      element=element.removeprefix("builtin_"))
+        wall = time.perf_counter() - t0
+    else:
+        mesh = calculix_mesh(scene, spec)
+        folder = Path(args.out) / "runs" / f"{name.replace(':', '-')}_{element}"
+        folder.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(folder / "job.inp", static_inp_text(scene, mesh, CalculixSettings(element=element),
+                                                              pressure=pressure, radius=radius))
+        run = run_ccx(folder / "job.inp", timeout=args.timeout_s)
+        u, vm = static_fields(run["frd"], scene, spec, ccx_element=element)
+        wall = run["wall_time_s"]
+    return {"mesh": name, "element": element, "full_nodes": int(mesh.n_nodes), "h_contact_um": spec.h_contact * 1e6,
+            "far_growth": spec.growth, "pressure_pa": pressure, "loaded_faces_radius_um": args.radius_um,
+            **_figures(args, scene, mesh, u, vm, radius), "wall_s": wall}
+
+
+def _figures(args, scene, mesh, u, vm, radius: float) -> dict:
+    """The static figures of one displacement field u (N, 2) [m] and its von Mises vm (N,) [Pa]."""
+    import numpy as np
+
+    from pcmgn_jax import metrics
+    from pcmgn_jax.eval.calculix_check import section_weights
+
     top = np.asarray(mesh.panel_top)
     top = top[np.argsort(mesh.points[top, 0])]
     x, uy = mesh.points[top, 0], u[top, 1]
@@ -82,13 +102,11 @@ def row(args, name: str, element: str) -> dict:
     w_fixed = section_weights(mesh.points, mesh.cells, mesh.cell_part, part=oled, x_end=args.section_x_mm * 1e-3)
     w_area = metrics.objective_weights(mesh.points, mesh.cells, mesh.cell_part, mesh.node_part, part=oled)
     node_oled = mesh.node_part == oled
-    return {"mesh": name, "element": element, "full_nodes": int(mesh.n_nodes), "h_contact_um": spec.h_contact * 1e6,
-            "far_growth": spec.growth, "pressure_pa": pressure, "loaded_faces_radius_um": args.radius_um,
-            "loaded_mean_deflection_um": -loaded_mean * 1e6, "compliance_um_per_n": -loaded_mean * 1e6 / args.force_n,
+    return {"loaded_mean_deflection_um": -loaded_mean * 1e6, "compliance_um_per_n": -loaded_mean * 1e6 / args.force_n,
             "top_centre_deflection_um": float(-uy[0] * 1e6),
             "oled_fixed_section_mpa": float(w_fixed @ vm / 1e6), "oled_area_mean_mpa": float(w_area @ vm / 1e6),
             "oled_node_mean_mpa": float(vm[node_oled].mean() / 1e6),
-            "peak_cg_von_mises_mpa": float(vm[mesh.node_part == cg].max() / 1e6), "ccx_wall_s": run["wall_time_s"]}
+            "peak_cg_von_mises_mpa": float(vm[mesh.node_part == cg].max() / 1e6)}
 
 
 def report(args, rows: list[dict], command: str) -> list[str]:
@@ -99,16 +117,23 @@ def report(args, rows: list[dict], command: str) -> list[str]:
     from pcmgn_jax.data.trajectory_io import atomic_write_json
 
     ref = {r["element"]: r for r in rows if r["mesh"] == rows[-1]["mesh"]}   # the last mesh: the finest
+    twin = {(r["mesh"], r["element"]): r for r in rows}
     lines = [f"Command: `{command}`", "",
              f"Design {args.design} µm; static pressure {args.force_n:g} N over r <= {args.radius_um:g} µm; "
-             f"fixed OLED section x <= {args.section_x_mm:g} mm. In brackets: against the same element on "
-             f"{rows[-1]['mesh']}.", ""]
+             f"fixed OLED section x <= {args.section_x_mm:g} mm. In brackets: CalculiX rows against the same "
+             f"element on {rows[-1]['mesh']}; built-in rows against CalculiX's counterpart (q4: C3D8, q4i: C3D8I) "
+             "on the same mesh.", ""]
     head = ["mesh", "element", "nodes (2D)", "far growth", "loaded-zone deflection [µm]", "top centre [µm]",
             f"OLED, x <= {args.section_x_mm:g} mm [MPa]", "OLED area mean [MPa]", "OLED node mean [MPa]",
-            "peak CG vM [MPa]", "ccx [s]"]
+            "peak CG vM [MPa]", "wall [s]"]
     body = []
     for r in rows:
         base = ref.get(r["element"], r)
+        if r["element"].startswith("builtin_"):
+            from pcmgn_jax.data.exporters.calculix import CCX_COUNTERPART
+
+            ccx = {v: k for k, v in CCX_COUNTERPART.items()}[r["element"].removeprefix("builtin_")]
+            base = twin.get((r["mesh"], ccx), r)
 
         def cell(key, fmt="{:.3f}"):
             text = fmt.format(r[key])
@@ -118,7 +143,7 @@ def report(args, rows: list[dict], command: str) -> list[str]:
                      cell("loaded_mean_deflection_um"), cell("top_centre_deflection_um"),
                      cell("oled_fixed_section_mpa", "{:.4f}"), cell("oled_area_mean_mpa", "{:.4f}"),
                      cell("oled_node_mean_mpa", "{:.4f}"), cell("peak_cg_von_mises_mpa", "{:.1f}"),
-                     f"{r['ccx_wall_s']:.1f}"])
+                     f"{r['wall_s']:.1f}"])
     lines += markdown.table(head, body)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(f"{args.out}.json", {"command": command, "args": vars(args) if hasattr(args, "__dict__")
@@ -139,11 +164,12 @@ def main(argv=None) -> int:
     command = cli.command_line("experiments.calculix_locking", argv)
     rows = []
     for name in [m.strip() for m in args.meshes.split(",") if m.strip()]:
-        for element in [e.strip() for e in args.elements.split(",") if e.strip()]:
+        builtin = [f"builtin_{e.strip()}" for e in args.builtin_elements.split(",") if e.strip()]
+        for element in [e.strip() for e in args.elements.split(",") if e.strip()] + builtin:
             rows.append(row(args, name, element))
             r = rows[-1]
-            print(f"{name:10s} {element:6s} deflection {r['loaded_mean_deflection_um']:.3f} µm  OLED fixed "
-                  f"{r['oled_fixed_section_mpa']:.4f} MPa  ccx {r['ccx_wall_s']:.1f} s", flush=True)
+            print(f"{name:10s} {element:12s} deflection {r['loaded_mean_deflection_um']:.3f} µm  OLED fixed "
+                  f"{r['oled_fixed_section_mpa']:.4f} MPa  {r['wall_s']:.1f} s", flush=True)
             report(args, rows, command)
     print("\n".join(report(args, rows, command)))
     return 0

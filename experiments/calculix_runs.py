@@ -37,9 +37,9 @@ def _ccx(folder: Path, scene: Scene, preset, settings: CalculixSettings, timeout
     return traj, extra, wall
 
 
-def _builtin(scene: Scene, preset, penalty_factor: float):
+def _builtin(scene: Scene, preset, penalty_factor: float, element: str = solver.DEFAULT_SETTINGS.element):
     t0 = time.perf_counter()
-    settings = solver.SolverSettings(penalty_factor=penalty_factor)
+    settings = solver.SolverSettings(penalty_factor=penalty_factor, element=element)
     res = solver.simulate([scene], preset, settings=settings)
     traj = solver.to_trajectories(res, [scene], preset, settings=settings)[0]
     # the frame interval's mean contact force: the same quantity as CalculiX's momentum difference

@@ -11,6 +11,7 @@ from typing import Literal
 
 from pcmgn_jax import cli
 from pcmgn_jax.data.trajectory_io import atomic_write_json
+from pcmgn_jax.sim.fem import DEFAULT_ELEMENT, Q4_ELEMENTS
 from pcmgn_jax.sim.hertz import ELEMS_PER_RADIUS, TARGETS, hertz_check
 
 
@@ -21,13 +22,15 @@ class HertzArgs:
     target: Literal[tuple(TARGETS)] = "glass"       # block material
     elems_per_radius: float = ELEMS_PER_RADIUS      # elements across the Hertz contact radius
     penalty_factor: float = 2.0                     # contact penalty k_p = factor x E'/h (solver.SolverSettings)
+    element: Literal[Q4_ELEMENTS] = DEFAULT_ELEMENT  # the Q4 formulation (pcmgn_jax.sim.fem)
     json: str | None = None                         # write the result here (JSON)
 
 
 def main(argv=None) -> int:
     args = cli.parse(HertzArgs, argv, description=__doc__, prog="python -m experiments.hertz_check")
     result = hertz_check(radius=args.radius_mm * 1e-3, velocity=args.velocity, target=args.target,
-                         elems_per_radius=args.elems_per_radius, penalty_factor=args.penalty_factor)
+                         elems_per_radius=args.elems_per_radius, penalty_factor=args.penalty_factor,
+                         element=args.element)
     if args.json:
         atomic_write_json(args.json, result)
     print(json.dumps(result, indent=2))

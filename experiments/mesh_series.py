@@ -39,6 +39,9 @@ class SeriesArgs(DesignSectionArgs):
 
     meshes: str = "cpu@0.5,cpu,cpu_fine,paper,cpu@2,paper@2,cpu@4"
     """built-in solver meshes: presets, cpu_fine, or PRESET@F (refined by F)"""
+    elements: str = "q4i,q4"
+    """the built-in solver's elements, each a row per mesh (pcmgn_jax.sim.fem.Q4_ELEMENTS: q4i the default, q4 the
+full-integration element that locks)"""
     ccx_meshes: str = ""
     """meshes also run in CalculiX (and in the built-in solver at --ccx_penalty_factor)"""
     penalty_factor: float = 1.0
@@ -62,8 +65,8 @@ class SeriesArgs(DesignSectionArgs):
 
 
 def row(args, name: str, code: str, element: str = "C3D8") -> dict:
-    """One mesh's figures in one code ('builtin', 'builtin_ccx_penalty' or 'calculix' with ``element``), cached
-    as JSON."""
+    """One mesh's figures in one code ('builtin' with the Q4 ``element``, 'builtin_ccx_penalty' (q4, the C3D8
+    counterpart) or 'calculix' with the ccx ``element``), cached as JSON."""
     from experiments.calculix_runs import _builtin, _ccx
     from experiments.objective_convergence import mesh_for
     from pcmgn_jax import metrics
@@ -75,7 +78,8 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
 
     design = [float(v) * 1e-6 for v in args.design.split(",")]
     penalty = args.penalty_factor if code == "builtin" else args.ccx_penalty_factor
-    tag = (f"{code}_{element}" + ("_faces" if args.slave_faces else "")) if code == "calculix" else code
+    tag = ((f"{code}_{element}" + ("_faces" if args.slave_faces else "")) if code == "calculix"
+           else f"{code}_{element}" if code == "builtin" else code)
     design_tag = "_".join(args.design.split(","))
     cache = Path(args.out) / "rows" / f"{name.replace(':', '-')}_{tag}_{design_tag}_p{penalty:g}.json"
     if cache.is_file():
@@ -90,12 +94,13 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
                                  args.timeout_s)
         force = extra["force_N"]
     else:
-        traj, force, wall, _ = _builtin(scene, spec, penalty)
+        traj, force, wall, _ = _builtin(scene, spec, penalty, element if code == "builtin" else "q4")
     figs = impact_figures(traj, force)
     oled = list(traj.meta["part_names"]).index("OLED")
     w_area = metrics.objective_weights(traj.points, traj.cells, traj.cell_part, traj.node_part, part=oled)
     w_fixed = section_weights(traj.points, traj.cells, traj.cell_part, part=oled, x_end=args.section_x_mm * 1e-3)
-    rec = {"mesh": name, "code": tag, "penalty_factor": penalty, "design_um": [d * 1e6 for d in design],
+    rec = {"mesh": name, "code": tag, "element": element if code != "builtin_ccx_penalty" else "q4",
+           "penalty_factor": penalty, "design_um": [d * 1e6 for d in design],
            "full_nodes": int(traj.meta["solver"]["full_mesh_nodes"]), "roi_nodes": int(traj.n_nodes),
            "oled_elements": int(spec.layer_elems["OLED"]), "h_contact_um": spec.h_contact * 1e6,
            "section_end_mm": float(traj.points[w_area > 0, 0].max() * 1e3),
@@ -145,7 +150,8 @@ def plot(rows: list[dict], png: str, section_x_mm: float) -> None:
     keys = (("objective_area_mean_mpa", "area mean [MPa]"),
             ("objective_fixed_section_mpa", f"area mean, x ≤ {section_x_mm:g} mm [MPa]"),
             ("objective_node_mean_mpa", "node mean [MPa]"))
-    styles = {"builtin": ("o", "built-in (penalty 1)"), "builtin_ccx_penalty": ("s", "built-in (ccx penalty)"),
+    styles = {"builtin_q4i": ("o", "built-in q4i (penalty 1)"), "builtin_q4": ("^", "built-in q4 (penalty 1)"),
+              "builtin_ccx_penalty": ("s", "built-in q4 (ccx penalty)"),
               "calculix_C3D8": ("x", "CalculiX C3D8, node slaves"), "calculix_C3D8_faces": ("x", "CalculiX C3D8"),
               "calculix_C3D8I_faces": ("+", "CalculiX C3D8I")}
     for code, (marker, label) in styles.items():
@@ -154,7 +160,7 @@ def plot(rows: list[dict], png: str, section_x_mm: float) -> None:
             continue
         for ax, (k, title) in zip(axes, keys):
             ax.plot([r["roi_nodes"] for r in sel], [r[k] for r in sel], marker, label=label)
-            if code == "builtin":
+            if code == "builtin_q4i":
                 for r in sel:
                     ax.annotate(r["mesh"], (r["roi_nodes"], r[k]), fontsize=7, xytext=(3, 3),
                                 textcoords="offset points")
@@ -176,7 +182,14 @@ def main(argv=None) -> int:
     from pcmgn_jax.data.calculix import CalculixNotFoundError, find_ccx
 
     command = "python -m experiments.mesh_series " + " ".join(sys.argv[1:] if argv is None else argv)
-    todo = [(m.strip(), "builtin", "") for m in args.meshes.split(",") if m.strip()]
+    from pcmgn_jax.sim.fem import Q4_ELEMENTS
+
+    q4s = [e.strip() for e in args.elements.split(",") if e.strip()]
+    bad = [e for e in q4s if e not in Q4_ELEMENTS]
+    if bad or not q4s:
+        print(f"error: --elements {args.elements!r}: each must be one of {Q4_ELEMENTS}", file=sys.stderr)
+        return 2
+    todo = [(m.strip(), "builtin", e) for e in q4s for m in args.meshes.split(",") if m.strip()]
     ccx = [m.strip() for m in args.ccx_meshes.split(",") if m.strip()]
     if ccx:
         try:
@@ -190,7 +203,7 @@ def main(argv=None) -> int:
     for name, code, element in todo:
         rows.append(row(args, name, code, element or "C3D8"))
         r = rows[-1]
-        print(f"{name:10s} {code:20s} area {r['objective_area_mean_mpa']:.4f} "
+        print(f"{name:10s} {r['code']:20s} area {r['objective_area_mean_mpa']:.4f} "
               f"fixed {r['objective_fixed_section_mpa']:.4f} "
               f"node {r['objective_node_mean_mpa']:.4f} force {r['peak_force_N']:.3f} N", flush=True)
         report(args, rows, command)   # after every row: a long run keeps what it has

@@ -35,6 +35,8 @@ from typing import Any
 import numpy as np
 
 from pcmgn_jax.data.exporters.calculix import (
+    CCX_COUNTERPART,
+    ELEMENT_TYPE,
     CalculixSettings,
     calculix_mesh,
     write_inp,
@@ -46,8 +48,9 @@ from pcmgn_jax.data.importers.errors import InputFileError
 from pcmgn_jax.data.importers.frd import FrdResult, read_frd
 from pcmgn_jax.data.trajectory_io import SI_UNITS
 from pcmgn_jax.scene import Scene
-from pcmgn_jax.sim import fem, solver
+from pcmgn_jax.sim import fem
 from pcmgn_jax.sim.mesh import Mesh, MeshSpec, roi
+from pcmgn_jax.sim.static import recovered_von_mises
 from pcmgn_jax.trajectory import Trajectory
 
 __all__ = ["CCX_INSTALL", "CalculixNotFoundError", "CalculixRunError", "STRESS_READINGS", "ball_force",
@@ -170,14 +173,6 @@ def _full_fields(res: FrdResult, mesh: Mesh, half_angle: float, where: str) -> t
     return res.times, _planar(u, half_angle), _planar(v, half_angle), stress
 
 
-def _recovered_vm(u: np.ndarray, scene: Scene, mesh: Mesh) -> np.ndarray:
-    youngs, poisson, density = solver._material_arrays(scene, mesh.cell_part)
-    _, _, db = fem.element_matrices(mesh.points, mesh.cells, youngs, poisson, density, analysis=scene.analysis)
-    slots, weight = solver._node_slots(mesh.cells, mesh.n_nodes, mesh.cell_part, mesh.node_part)
-    rigid_x = scene.analysis == "plane_strain"
-    return np.stack([np.asarray(solver._frame_stress(ut, db, mesh.cells, slots, weight, rigid_x)) for ut in u])
-
-
 def frd_trajectory(frd: str | os.PathLike, scene: Scene, preset: str | MeshSpec, *, stress: str = "recovered",
                    crop: bool = True, meta: dict[str, Any] | None = None) -> tuple[Trajectory, dict[str, Any]]:
     """The .frd of ``scene`` at ``preset`` -> (trajectory [SI], extra) where extra holds the full-mesh
@@ -199,7 +194,7 @@ def frd_trajectory(frd: str | os.PathLike, scene: Scene, preset: str | MeshSpec,
     v0[0, np.unique(mesh.cells[mesh.cell_part == 0]), 1] = -scene.ball.velocity   # the solver's initial state
     u = np.concatenate([np.zeros((1, n, 2)), u])
     v = np.concatenate([v0, v])
-    vms = {"recovered": _recovered_vm(u, scene, mesh),
+    vms = {"recovered": recovered_von_mises(u, scene, mesh, CCX_COUNTERPART[ELEMENT_TYPE]),   # *DYNAMIC: C3D8
            "frd": np.concatenate([np.zeros((1, n)), von_mises_from_tensor(s)])}
     force = ball_force(v, ball_masses(scene, mesh), scene.output_dt)
     sub, node_map = roi(mesh, preset) if crop else (mesh, np.arange(n))
@@ -219,11 +214,13 @@ def frd_trajectory(frd: str | os.PathLike, scene: Scene, preset: str | MeshSpec,
 
 
 def static_fields(frd: str | os.PathLike, scene: Scene, preset: str | MeshSpec, *,
-                  wedge_deg: float = CalculixSettings().wedge_deg) -> tuple[np.ndarray, np.ndarray]:
+                  wedge_deg: float = CalculixSettings().wedge_deg,
+                  ccx_element: str = ELEMENT_TYPE) -> tuple[np.ndarray, np.ndarray]:
     """The .frd of a static deck (:func:`pcmgn_jax.data.exporters.calculix.static_inp_text`) of ``scene`` at
     ``preset`` -> (displacement (N, 2) [m], von Mises (N,) [Pa]) on the full mesh, the last (only) result; von
     Mises is the built-in solver's recovery applied to CalculiX's displacements (``stress="recovered"`` of
-    :func:`frd_trajectory`)."""
+    :func:`frd_trajectory`) with the 2D counterpart of the deck's ``ccx_element`` (:data:`CCX_COUNTERPART`: ``q4``
+    for C3D8, ``q4i`` for C3D8I)."""
     where = str(frd)
     mesh = calculix_mesh(scene, preset)
     res = read_frd(frd)
@@ -233,7 +230,7 @@ def static_fields(frd: str | os.PathLike, scene: Scene, preset: str | MeshSpec, 
     u = _planar(res.results["DISP"][-1, rows], math.radians(wedge_deg) / 2)
     if not np.isfinite(u).all():
         raise InputFileError(f"{where}: the DISP block misses nodes or holds a non-finite value")
-    return u, _recovered_vm(u[None], scene, mesh)[0]
+    return u, recovered_von_mises(u[None], scene, mesh, CCX_COUNTERPART[ccx_element])[0]
 
 
 def run_scene(scene: Scene, preset: str | MeshSpec, folder: str | os.PathLike, *,

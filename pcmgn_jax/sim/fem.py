@@ -6,7 +6,7 @@ Strain vector: (eps_xx, eps_yy, gamma_xy, eps_zz) where eps_zz is the hoop strai
 (axisymmetric) or 0 (plane strain). Written by hand because the explicit solver needs the
 per-element matrices as dense arrays for JAX; scikit-fem is used in the tests as the check.
 
-Elements (:data:`ELEMENTS`, the default first):
+Elements (:data:`Q4_ELEMENTS`, the default first):
 
 - ``q4i``: the Q4 with incompatible modes, statically condensed (Wilson, Taylor, Doherty & Ghaboussi 1973,
   "Incompatible displacement models"; Taylor, Beresford & Wilson 1976, "A non-conforming element for stress
@@ -33,8 +33,8 @@ GAUSS_2x2 = np.array([[-_G, -_G], [_G, -_G], [_G, _G], [-_G, _G]])
 _XI = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=float)
 
 #: element formulations, the default first (module docstring)
-ELEMENTS = ("q4i", "q4")
-DEFAULT_ELEMENT = ELEMENTS[0]
+Q4_ELEMENTS = ("q4i", "q4")
+DEFAULT_ELEMENT = Q4_ELEMENTS[0]
 
 
 def shape_functions(xi: float, eta: float) -> tuple[np.ndarray, np.ndarray]:
@@ -119,13 +119,13 @@ def element_matrices(points: np.ndarray, cells: np.ndarray, youngs: np.ndarray,
     """Per-element stiffness (E,8,8) [N/m], row-sum lumped nodal masses (E,4) [kg], and the
     centroid stress operator D B_c (E,4,8) [Pa/m] giving (s_xx, s_yy, s_xy, s_zz).
 
-    ``element``: one of :data:`ELEMENTS` (module docstring); for ``q4i`` the stiffness and the stress
+    ``element``: one of :data:`Q4_ELEMENTS` (module docstring); for ``q4i`` the stiffness and the stress
     operator are those of the condensed element. dof order inside an element: (u_x0, u_y0, u_x1, u_y1, ...).
     """
     if analysis not in ("axisymmetric", "plane_strain"):
         raise ValueError(f"fem: unknown analysis {analysis!r}")
-    if element not in ELEMENTS:
-        raise ValueError(f"fem: unknown element {element!r}; one of {ELEMENTS}")
+    if element not in Q4_ELEMENTS:
+        raise ValueError(f"fem: unknown element {element!r}; one of {Q4_ELEMENTS}")
     axi = analysis == "axisymmetric"
     xy = points[cells]  # (E,4,2)
     # plane strain: row 3 of B is zero (eps_zz = 0) and row 3 of D then gives

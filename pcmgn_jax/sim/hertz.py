@@ -62,7 +62,7 @@ def hertz_mesh_spec(theory: dict[str, float], *, elems_per_radius: float = ELEMS
 
 def hertz_check(*, radius: float = 5e-3, velocity: float = 0.62631, target: str = "glass",
                 elems_per_radius: float = ELEMS_PER_RADIUS, penalty_factor: float = 2.0,
-                frames: int = 60) -> dict[str, Any]:
+                frames: int = 60, element: str = solver.DEFAULT_SETTINGS.element) -> dict[str, Any]:
     """Simulate the Hertz impact with the built-in solver and compare with theory.
 
     Force histories are taken every solver substep. The solver's indentation is the approach
@@ -75,7 +75,7 @@ def hertz_check(*, radius: float = 5e-3, velocity: float = 0.62631, target: str 
     spec = hertz_mesh_spec(theory, elems_per_radius=elems_per_radius)
     window = scene.ball.gap / velocity + 1.4 * theory["contact_time_s"]
     scene = dataclasses.replace(scene, output_dt=window / frames, n_frames=frames)
-    settings = solver.SolverSettings(penalty_factor=penalty_factor)
+    settings = solver.SolverSettings(penalty_factor=penalty_factor, element=element)
     res = solver.simulate([scene], spec, settings=settings)
     force = res.force[0].ravel()
     phases = solver.contact_phases(force, res.dt)
@@ -100,6 +100,6 @@ def hertz_check(*, radius: float = 5e-3, velocity: float = 0.62631, target: str 
                         "hertz_elastic_impulse_Ns": theory["impulse_Ns"],
                         "fe_ball_mass_kg": float(m_ball.sum()), "theory_mass_kg": mass,
                         "contact_radius_m": theory["contact_radius_m"],
-                        "h_contact_m": spec.h_contact, "penalty_factor": penalty_factor,
+                        "h_contact_m": spec.h_contact, "penalty_factor": penalty_factor, "element": element,
                         "nodes": prep.mesh.n_nodes, "dt_s": res.dt,
                         "substeps": int(res.n_sub * frames), "wall_time_s": res.wall_time_s}}

@@ -23,7 +23,7 @@ class SolverSettings:
     """safety: fraction of the stable time step; penalty_factor: k_p = factor * E'/h [N/m^3]
     with E' the plane-strain modulus of the softer contact body and h the master element size;
     energy_tol: allowed |E(t) - E(0)| / KE(0); element: the Q4 formulation, one of
-    :data:`pcmgn_jax.sim.fem.ELEMENTS` (``q4i``, incompatible modes condensed, the default; ``q4``, full
+    :data:`pcmgn_jax.sim.fem.Q4_ELEMENTS` (``q4i``, incompatible modes condensed, the default; ``q4``, full
     integration, which locks in bending: kept for comparison); dtype: 'float32' or 'float64' (float64 needs
     ``jax.enable_x64``); designs_per_call: designs of a batch integrated together in one
     compiled call (0 = the device's default, :func:`pcmgn_jax.sim.solver.designs_per_call`:

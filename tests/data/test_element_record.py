@@ -55,7 +55,7 @@ def test_the_solver_records_its_element_in_every_trajectory():
     from pcmgn_jax.sim import solver
 
     scene = default_scene()
-    for element in fem.ELEMENTS:
+    for element in fem.Q4_ELEMENTS:
         settings = solver.SolverSettings(element=element)
         result = solver.simulate([scene], "tiny", n_frames=2, settings=settings)
         (traj,) = solver.to_trajectories(result, [scene], "tiny", settings=settings)

@@ -48,13 +48,16 @@ from pcmgn_jax.data.exporters.common import ExportError, write_text_atomic
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.sim.mesh import Mesh, MeshSpec, build_mesh
 
-__all__ = ["CalculixSettings", "ELEMENT_TYPE", "ELEMENTS", "calculix_mesh", "contact_penalty", "inp_text", "parse_inp",
-           "set_name", "static_inp_text", "write_inp"]
+__all__ = ["CCX_COUNTERPART", "CalculixSettings", "ELEMENT_TYPE", "ELEMENTS", "calculix_mesh", "contact_penalty",
+           "inp_text", "parse_inp", "set_name", "static_inp_text", "write_inp"]
 
 #: the scene's analysis -> CalculiX element type (4-node, full integration)
 ELEMENT_TYPE = "C3D8"
 #: the element types a deck may use (CalculixSettings.element)
 ELEMENTS = ("C3D8", "C3D8I")
+#: the built-in solver's 2D element (pcmgn_jax.sim.fem.Q4_ELEMENTS) each ccx element is the 3D counterpart of; a
+#: ccx displacement field is read into stresses with it
+CCX_COUNTERPART = {"C3D8": "q4", "C3D8I": "q4i"}
 _PER_LINE = 8
 
 
