@@ -35,6 +35,7 @@ class SolverSpeedArgs(common.Outputs):
     probe_frames: int = 5        # frames of the short probe run
     budget: float = 120.0        # max predicted seconds of one full timed run; longer runs are extrapolated
     designs_per_call: int = 0    # SolverSettings.designs_per_call (0 = the solver's default)
+    elements: str = "q4i"        # comma list of Q4 elements (pcmgn_jax.sim.fem.Q4_ELEMENTS); several: a ratio line
 
 
 def designs(n: int) -> list[tuple[float, float]]:
@@ -42,10 +43,10 @@ def designs(n: int) -> list[tuple[float, float]]:
     return [tuple(x) for x in rng.uniform(50e-6, 150e-6, size=(n, 2))]
 
 
-def timed_simulate(scenes, preset, n_frames: int, designs_per_call: int = 0) -> dict:
+def timed_simulate(scenes, preset, n_frames: int, designs_per_call: int = 0, element: str = "q4i") -> dict:
     """Compile run + timed run; returns timing dict for the batch."""
     from pcmgn_jax.sim import solver
-    settings = solver.SolverSettings(designs_per_call=designs_per_call)
+    settings = solver.SolverSettings(designs_per_call=designs_per_call, element=element)
     t0 = time.perf_counter()
     first = solver.simulate(scenes, preset, n_frames=n_frames, settings=settings)
     first_total = time.perf_counter() - t0
@@ -70,17 +71,19 @@ def main(argv=None) -> dict:
     base = default_scene()
     frames = a.frames or base.n_frames
     presets = [p for p in a.presets.split(",") if p]
+    elements = [e for e in a.elements.split(",") if e]
     out, rows = {}, []
     t_start = time.perf_counter()
-    for preset in presets:
+    for preset, element in [(p, e) for p in presets for e in elements]:
+        key = preset if len(elements) == 1 else f"{preset}:{element}"
         res = {}
         for b in (1, a.batch):
             scenes = [base.with_design(*d) for d in designs(b)]
-            probe = timed_simulate(scenes, preset, a.probe_frames, a.designs_per_call)
+            probe = timed_simulate(scenes, preset, a.probe_frames, a.designs_per_call, element)
             predicted = probe["wall_s"] * frames / a.probe_frames
             entry = dict(probe=probe, predicted_full_wall_s=predicted)
             if predicted <= a.budget and frames != a.probe_frames:
-                full = timed_simulate(scenes, preset, frames, a.designs_per_call)
+                full = timed_simulate(scenes, preset, frames, a.designs_per_call, element)
                 entry.update(full=full, wall_s_trajectory=full["wall_s"], extrapolated=False,
                              substeps_per_s=full["substeps_per_s"])
             else:
@@ -90,13 +93,13 @@ def main(argv=None) -> dict:
             entry["designs_per_s"] = b / entry["wall_s_trajectory"]
             res[str(b)] = entry
             info = entry.get("full", probe)
-            rows.append([preset, info["n_nodes"], b, info["n_sub_per_frame"], f"{info['dt_s']:.3g}",
+            rows.append([key, info["n_nodes"], b, info["n_sub_per_frame"], f"{info['dt_s']:.3g}",
                          entry["substeps_per_s"], entry["wall_s_trajectory"], entry["wall_s_per_design"],
                          "extrapolated" if entry["extrapolated"] else "measured"])
         if "1" in res and str(a.batch) in res:
             res["batch_throughput_ratio"] = res["1"]["wall_s_per_design"] / res[str(a.batch)]["wall_s_per_design"]
-        out[preset] = res
-    config = dict(presets=presets, batch=a.batch, designs_per_call=a.designs_per_call, frames=frames,
+        out[key] = res
+    config = dict(presets=presets, elements=elements, batch=a.batch, designs_per_call=a.designs_per_call, frames=frames,
                   probe_frames=a.probe_frames, budget_s=a.budget,
                   scene="default_scene (axisymmetric, 8 mm half width, full mesh, 6 layers)",
                   command=cli.command_line("benchmarks.solver_speed", argv),
@@ -111,6 +114,10 @@ def main(argv=None) -> dict:
         if "batch_throughput_ratio" in r:
             md.append(f"\n{p}: batch of {a.batch} gives {r['batch_throughput_ratio']:.2f}x the per-design "
                       f"throughput of single runs.")
+    for p in presets if len(elements) > 1 else ():
+        cost = [out[f"{p}:{e}"]["1"]["wall_s_per_design"] for e in elements]
+        md.append(f"\n{p}: one design costs " + ", ".join(f"{e} {c / cost[-1]:.2f}x" for e, c in zip(elements, cost))
+                  + f" of {elements[-1]}'s (same run).")
     md.append("\n")
     jp, mp = common.default_paths("solver_speed", a.json, a.md)
     common.write_outputs(result, jp, mp, "".join(md))

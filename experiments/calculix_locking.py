@@ -30,7 +30,7 @@ class LockingArgs(DesignSectionArgs):
     """The panel's static stiffness in CalculiX, C3D8 against C3D8I, on several meshes."""
 
     meshes: str = "cpu@0.5,cpu,cpu@2,cpu@4"
-    """meshes: presets, cpu_fine, or PRESET@F (experiments/objective_convergence.py mesh_for)"""
+    """meshes: presets, cpu_fine, or PRESET@F (pcmgn_jax.sim.mesh named_spec)"""
     elements: str = "C3D8,C3D8I"
     """CalculiX elements"""
     builtin_elements: str = "q4,q4i"
@@ -51,7 +51,6 @@ def row(args, name: str, element: str) -> dict:
     import math
     from pathlib import Path
 
-    from experiments.objective_convergence import mesh_for
     from pcmgn_jax.data.calculix import run_ccx, static_fields
     from pcmgn_jax.data.exporters.calculix import CalculixSettings, calculix_mesh, static_inp_text
     from pcmgn_jax.data.exporters.common import write_text_atomic
@@ -60,7 +59,7 @@ def row(args, name: str, element: str) -> dict:
     from pcmgn_jax.sim.static import static_pressure
 
     scene = default_scene().with_design(*[float(v) * 1e-6 for v in args.design.split(",")])
-    spec = mesh_spec(mesh_for(name))
+    spec = mesh_spec(name)
     radius = args.radius_um * 1e-6
     pressure = args.force_n / (math.pi * radius**2)
     if element.startswith("builtin_"):

@@ -4,7 +4,7 @@
   python -m experiments.mesh_series --ccx_meshes cpu@0.5,cpu          # also CalculiX on those (hours for the finer)
 
 One design (default: the paper's physics-constrained optimum, 145.207 / 99.322 µm) on meshes coarse to fine
-(``PRESET@F`` is the preset refined by F, experiments/objective_convergence.py's ``mesh_for``). Per mesh: the
+(``PRESET@F`` is the preset refined by F, pcmgn_jax.sim.mesh ``named_spec``). Per mesh: the
 nodes (full mesh, region of interest), the elements through the OLED, the end of the objective's section (its
 last node under 3 mm), the objective's readings (pcmgn_jax/metrics.py), the area mean over the fixed
 section 0 <= x <= --section_x_mm (pcmgn_jax/eval/calculix_check.py ``section_weights``), the peak contact
@@ -68,7 +68,6 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
     """One mesh's figures in one code ('builtin' with the Q4 ``element``, 'builtin_ccx_penalty' (q4, the C3D8
     counterpart) or 'calculix' with the ccx ``element``), cached as JSON."""
     from experiments.calculix_runs import _builtin, _ccx
-    from experiments.objective_convergence import mesh_for
     from pcmgn_jax import metrics
     from pcmgn_jax.data.exporters.calculix import CalculixSettings
     from pcmgn_jax.data.trajectory_io import atomic_write_json
@@ -85,7 +84,7 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
     if cache.is_file():
         return json.loads(cache.read_text())
     scene = default_scene().with_design(*design)
-    spec = mesh_spec(mesh_for(name))
+    spec = mesh_spec(name)
     if code == "calculix":
         settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=penalty,
                                     element=element, min_increment_ratio=args.min_increment_ratio,

@@ -22,39 +22,6 @@ class ConvergenceArgs:
     out: str = "results/objective_convergence"  # output stem (.json, .md) and solver cache folder
 
 
-def mesh_for(name: str):
-    """A mesh by name: a preset, ``cpu_fine``, ``PRESET@F``: the preset refined by the factor F
-    (:func:`pcmgn_jax.sim.mesh.refined`; ``cpu@0.5`` coarsens), or ``PRESET@F:ZONE`` with only one zone refined:
-    ``far`` (the radial growth ratio to the power 1/F: the graded far field), ``layers`` (the element counts of
-    the layers above the bottom one, x F) or ``plate`` (the bottom layer's count x F, its growth to the power 1/F)."""
-    from pcmgn_jax.sim.mesh import mesh_spec, refined, with_spec
-    if "@" in name:
-        preset, _, rest = name.partition("@")
-        factor, _, zone = rest.partition(":")
-        try:
-            f = float(factor)
-            full = refined(preset, f)
-            base = mesh_spec(preset)
-        except ValueError as err:
-            raise ValueError(f"mesh {name!r}: {err}") from None
-        bottom = list(base.layer_elems)[-1] if base.layer_elems else None
-        zones = {"": full,
-                 "far": with_spec(base, growth=full.growth),
-                 "layers": with_spec(base, layer_elems={k: full.layer_elems[k] if k != bottom else v
-                                                        for k, v in base.layer_elems.items()}),
-                 "plate": with_spec(base, bottom_growth=full.bottom_growth,
-                                    layer_elems={k: full.layer_elems[k] if k == bottom else v
-                                                 for k, v in base.layer_elems.items()})}
-        if zone not in zones:
-            raise ValueError(f"mesh {name!r}: zone must be one of far, layers, plate, got {zone!r}")
-        return zones[zone]
-    if name == "cpu_fine":
-        base = mesh_spec("cpu")
-        return with_spec("cpu", h_contact=base.h_contact / 2, h_layer=base.h_layer / 2,
-                         layer_elems={k: 2 * v for k, v in base.layer_elems.items()})
-    return name
-
-
 def main(argv=None) -> int:
     args = cli.parse(ConvergenceArgs, argv, description=__doc__, prog="python -m experiments.objective_convergence")
     from pathlib import Path
@@ -64,6 +31,7 @@ def main(argv=None) -> int:
     from pcmgn_jax.metrics import OBJECTIVES
     from pcmgn_jax.opt.check import solver_objectives
     from pcmgn_jax.scene import default_scene
+    from pcmgn_jax.sim.mesh import named_spec
 
     scene = default_scene()
     designs = parse_designs(args.designs, dim=2)
@@ -71,7 +39,7 @@ def main(argv=None) -> int:
     rows = []
     for d in designs:
         for m in meshes:
-            r = solver_objectives(scene, d, mesh_for(m), Path(args.out) / "solver", label=m)
+            r = solver_objectives(scene, d, named_spec(m), Path(args.out) / "solver", label=m)
             rows.append({"mesh": m, **r})
             print(f"{m:9s} {d * 1e6} µm: " + ", ".join(f"{k} {r[k]:.4f}" for k in OBJECTIVES), flush=True)
     ref = {tuple(r["design_um"]): r for r in rows if r["mesh"] == meshes[-1]}

@@ -61,8 +61,11 @@ MESH_PRESETS: dict[str, MeshSpec] = {name: MeshSpec(**p.mesh) for name, p in PRE
 
 
 def mesh_spec(preset: str | MeshSpec) -> MeshSpec:
+    """A preset's mesh, or a mesh by name (:func:`named_spec`: ``cpu_fine``, ``PRESET@F``, ``PRESET@F:ZONE``)."""
     if isinstance(preset, MeshSpec):
         return preset
+    if preset not in MESH_PRESETS and ("@" in preset or preset == "cpu_fine"):
+        return mesh_spec(named_spec(preset))
     if preset not in MESH_PRESETS:
         raise ValueError(f"unknown mesh preset {preset!r}; choose one of {sorted(MESH_PRESETS)}")
     return MESH_PRESETS[preset]
@@ -338,3 +341,44 @@ def refined(preset: str | MeshSpec, factor: float) -> MeshSpec:
         spec, h_contact=spec.h_contact / factor, h_layer=spec.h_layer / factor,
         growth=spec.growth ** (1.0 / factor), bottom_growth=spec.bottom_growth ** (1.0 / factor),
         layer_elems={k: max(1, math.ceil(v * factor - 1e-9)) for k, v in spec.layer_elems.items()})
+
+
+def named_spec(name: str) -> str | MeshSpec:
+    """A mesh by name: a preset, ``cpu_fine``, ``PRESET@F``: the preset refined by the factor F
+    (:func:`refined`; ``cpu@0.5`` coarsens), or ``PRESET@F:ZONE`` with only that zone refined
+    (several joined by ``+``, e.g. ``cpu@0.5:layers+far``):
+    ``far`` (the radial growth ratio to the power 1/F: the graded far field), ``layers`` (the element counts of
+    the layers above the bottom one, x F) or ``plate`` (the bottom layer's count x F, its growth to the power 1/F)."""
+    if "@" in name:
+        preset, _, rest = name.partition("@")
+        factor, _, zone = rest.partition(":")
+        try:
+            f = float(factor)
+            full = refined(preset, f)
+            base = mesh_spec(preset)
+        except ValueError as err:
+            raise ValueError(f"mesh {name!r}: {err}") from None
+        bottom = list(base.layer_elems)[-1] if base.layer_elems else None
+        overrides = {"far": {"growth": full.growth},
+                     "layers": {"layer_elems": {k: full.layer_elems[k] if k != bottom else v
+                                                for k, v in base.layer_elems.items()}},
+                     "plate": {"bottom_growth": full.bottom_growth, "layer_elems": {
+                         k: full.layer_elems[k] if k == bottom else v for k, v in base.layer_elems.items()}}}
+        if not zone:
+            return full
+        spec = base
+        for part in zone.split("+"):
+            if part not in overrides:
+                raise ValueError(f"mesh {name!r}: zone must be far, layers, plate or several joined by '+', "
+                                 f"got {part!r}")
+            kw = dict(overrides[part])
+            if "layer_elems" in kw:   # a zone's counts on top of the others' (layers+plate: both)
+                kw["layer_elems"] = {k: (v if kw["layer_elems"][k] != base.layer_elems[k] else spec.layer_elems[k])
+                                     for k, v in kw["layer_elems"].items()}
+            spec = with_spec(spec, **kw)
+        return spec
+    if name == "cpu_fine":
+        base = mesh_spec("cpu")
+        return with_spec("cpu", h_contact=base.h_contact / 2, h_layer=base.h_layer / 2,
+                         layer_elems={k: 2 * v for k, v in base.layer_elems.items()})
+    return name

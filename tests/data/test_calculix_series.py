@@ -1,4 +1,4 @@
-"""The mesh-refinement series' pieces (issue 43): sim.mesh.refined, experiments.objective_convergence.mesh_for's
+"""The mesh-refinement series' pieces (issue 43): sim.mesh.refined, sim.mesh.named_spec's
 PRESET@F names, and eval.calculix_check.section_weights (the area mean over a fixed section)."""
 from __future__ import annotations
 
@@ -7,11 +7,10 @@ import shutil
 import numpy as np
 import pytest
 
-from experiments.objective_convergence import mesh_for
 from pcmgn_jax import metrics
 from pcmgn_jax.eval.calculix_check import section_weights
 from pcmgn_jax.scene import default_scene
-from pcmgn_jax.sim.mesh import build_mesh, graded_coords, mesh_spec, refined, roi
+from pcmgn_jax.sim.mesh import build_mesh, graded_coords, mesh_spec, named_spec, refined, roi
 
 
 def test_refined_halves_sizes_and_doubles_counts():
@@ -31,20 +30,24 @@ def test_refined_halves_sizes_and_doubles_counts():
             refined("cpu", bad)
 
 
-def test_mesh_for_names():
-    assert mesh_for("cpu") == "cpu"
-    assert mesh_for("paper@2") == refined("paper", 2)
-    assert mesh_for("cpu_fine").layer_elems["OLED"] == 4
+def test_named_spec_names():
+    assert named_spec("cpu") == "cpu"
+    assert named_spec("paper@2") == refined("paper", 2)
+    assert named_spec("cpu_fine").layer_elems["OLED"] == 4
     with pytest.raises(ValueError, match="cpu@x"):
-        mesh_for("cpu@x")
+        named_spec("cpu@x")
     base, full = mesh_spec("cpu"), refined("cpu", 2)
-    far, layers, plate = (mesh_for(f"cpu@2:{z}") for z in ("far", "layers", "plate"))
+    far, layers, plate = (named_spec(f"cpu@2:{z}") for z in ("far", "layers", "plate"))
     assert far.growth == full.growth and dict(far.layer_elems) == dict(base.layer_elems)
     assert layers.growth == base.growth and layers.layer_elems["OLED"] == 4 and layers.layer_elems["PLATE"] == 6
     assert plate.layer_elems["PLATE"] == 12 and plate.layer_elems["OLED"] == 2
     assert plate.bottom_growth == full.bottom_growth and plate.h_contact == base.h_contact
-    with pytest.raises(ValueError, match="zone must be one of"):
-        mesh_for("cpu@2:ball")
+    with pytest.raises(ValueError, match="zone must be far, layers, plate"):
+        named_spec("cpu@2:ball")
+    both = named_spec("cpu@0.5:layers+far")   # zones joined: each zone's change, the rest the preset's
+    assert both.growth == refined("cpu", 0.5).growth and both.layer_elems["OLED"] == 1
+    assert both.layer_elems["PLATE"] == 6 and both.h_contact == base.h_contact
+    assert mesh_spec("cpu@0.5:layers+far") == both     # the library resolves the names
 
 
 @pytest.fixture(scope="module")
