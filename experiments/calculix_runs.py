@@ -12,7 +12,7 @@ import numpy as np
 
 from pcmgn_jax import markdown
 from pcmgn_jax.data.calculix import frd_trajectory, run_ccx
-from pcmgn_jax.data.exporters.calculix import CalculixSettings, calculix_mesh, inp_text
+from pcmgn_jax.data.exporters.calculix import CCX_COUNTERPART, CalculixSettings, calculix_mesh, inp_text
 from pcmgn_jax.data.exporters.common import write_text_atomic
 from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.eval.calculix_check import CHECKED, compare, field_errors, impact_figures
@@ -73,20 +73,24 @@ def hertz_case(out: Path, args) -> dict[str, Any]:
 
 
 def panel_case(out: Path, args, design: list[float], label: str) -> dict[str, Any]:
-    """One panel design in both codes on ``args.preset``; the built-in solver also at penalty factor 1."""
+    """One panel design in both codes on ``args.preset``: the built-in solver with ``q4``, C3D8's counterpart (the
+    code check: the same element in both), also at penalty factor 1, and with ``q4i`` at penalty factor 1 (the
+    production truth: what the element change moves)."""
     scene = default_scene().with_design(*design)
     if args.frames:
         scene = dataclasses.replace(scene, n_frames=int(args.frames))
     settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=args.penalty_factor,
                                 slave_faces=args.slave_faces)
     tc, extra, wall_c = _ccx(out / "runs" / label, scene, args.preset, settings, args.timeout_s)
-    tb, fb, wall_b, _ = _builtin(scene, args.preset, args.penalty_factor)
+    tb, fb, wall_b, _ = _builtin(scene, args.preset, args.penalty_factor, CCX_COUNTERPART[settings.element])
     figs = {"calculix": impact_figures(tc, extra["force_N"]), "builtin": impact_figures(tb, fb)}
     frd_vm = extra["von_mises_full"]["frd"][:, extra["node_map"]]
     figs["calculix_frd_stress"] = impact_figures(tc, extra["force_N"], von_mises=frd_vm)
     if args.penalty_factor != 1.0:
-        tp, fp, _, _ = _builtin(scene, args.preset, 1.0)
+        tp, fp, _, _ = _builtin(scene, args.preset, 1.0, CCX_COUNTERPART[settings.element])
         figs["builtin_penalty_1"] = impact_figures(tp, fp)
+    ti, fi, _, _ = _builtin(scene, args.preset, 1.0, "q4i")
+    figs["builtin_q4i_penalty_1"] = impact_figures(ti, fi)
     start, end = figs["builtin"]["contact_start_s"], figs["builtin"]["contact_end_s"]
     if not np.isfinite(end):
         end = tb.times[-1]
@@ -130,9 +134,10 @@ def write_report(out: Path, cases: list[dict], args, command: str) -> list[str]:
         body = []
         for c in panel:
             d = f"{c['design_um'][0]:.1f}, {c['design_um'][1]:.1f}"
-            for code, name in (("builtin", "built-in"), ("calculix", "CalculiX"),
-                               ("calculix_frd_stress", "CalculiX, ccx nodal stress"),
-                               ("builtin_penalty_1", "built-in, penalty 1")):
+            for code, name in (("builtin", "built-in q4"), ("calculix", "CalculiX C3D8"),
+                               ("calculix_frd_stress", "CalculiX C3D8, ccx nodal stress"),
+                               ("builtin_penalty_1", "built-in q4, penalty 1"),
+                               ("builtin_q4i_penalty_1", "built-in q4i, penalty 1")):
                 if code not in c["figures"]:
                     continue
                 f = c["figures"][code]
