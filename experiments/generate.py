@@ -25,6 +25,7 @@ the last n_val of train), e.g. 48 family training scenes from two LHS seeds with
 """
 from __future__ import annotations
 
+import math
 import sys
 from dataclasses import dataclass
 from typing import Literal
@@ -77,9 +78,31 @@ def preset_sizes(preset: str) -> tuple[int, int, int]:
     return p["n_train"], p["n_val"], p["n_test"]
 
 
+def check_args(args: GenerateArgs, given: set[str]) -> None:
+    """ValueError naming a count or bound out of range, or a flag that does not apply to the preset or mode
+    (:func:`pcmgn_jax.cli.refuse_inapplicable`): before anything is created."""
+    for name in ("n_train", "n_val", "n_test"):
+        if getattr(args, name) is not None and getattr(args, name) < 0:
+            raise ValueError(f"--{name}={getattr(args, name)} must be >= 0")
+    if not 0 < args.low_um < args.high_um or not math.isfinite(args.high_um):
+        raise ValueError(f"--low_um={args.low_um:g} and --high_um={args.high_um:g}: need 0 < low < high (µm)")
+    family, explicit = args.preset in FAMILIES, args.designs is not None or args.scene_params is not None
+    lhs = "explicit designs (--designs / --scene_params) are solved as given" if explicit else None
+    pool = "--pool solves nothing: it only pools the datasets named" if args.pool is not None else None
+    rules = {"stack_split": None if PRESETS[args.preset].family == "stack" else
+             f"preset {args.preset!r} is no stack family (stack, stack_tiny)",
+             **{k: lhs or (f"preset {args.preset!r} samples its family's ranges" if family else None)
+                for k in ("low_um", "high_um")},
+             **{k: lhs for k in ("n_train", "n_val", "n_test", "seed")}}
+    if pool:
+        rules = {k: pool for k in given - {"out", "pool", "progress", "help"}}
+    cli.refuse_inapplicable(given, rules)
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
         args = cli.parse(GenerateArgs, argv, description=__doc__, prog="python -m experiments.generate")
+        check_args(args, cli.given_flags(sys.argv[1:] if argv is None else argv))
         if args.pool is not None:
             from pcmgn_jax.data.splits import pool_datasets
             sources = [s for s in args.pool.split(",") if s]

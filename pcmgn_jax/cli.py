@@ -43,7 +43,7 @@ from pcmgn_jax.config import (
 from pcmgn_jax.presets import PRESETS
 
 __all__ = ["TrainArgs", "check_resume", "config_diff", "given_flags", "normalize_argv", "parse", "parse_config",
-           "parse_train", "preset_of"]
+           "parse_train", "preset_of", "refuse_inapplicable", "train_rules"]
 
 T = TypeVar("T")
 _TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
@@ -181,6 +181,28 @@ def given_flags(argv: Sequence[str]) -> set[str]:
     return out
 
 
+def refuse_inapplicable(given: set[str], rules: dict[str, str | None]) -> None:
+    """ValueError naming each flag written (``given``, :func:`given_flags`) whose rule says why it does not apply
+    to the chosen preset or mode (``rules``: flag -> the reason, or None where it applies): a flag is refused,
+    never silently ignored."""
+    bad = [f"--{flag} does not apply: {why}" for flag, why in rules.items() if why and flag in given]
+    if bad:
+        raise ValueError("; ".join(bad))
+
+
+def train_rules(args: "TrainArgs") -> dict[str, str | None]:
+    """The training flags that apply only to some settings (:func:`refuse_inapplicable`). The noise levels and
+    ``lambda_start`` stay allowed beside ``noise_parts=none`` / ``lambda_pen=0``: the studies' recorded
+    commands write them for every cell (pcmgn_jax.studies.cells.as_flags)."""
+    cfg, form = args.config, args.config.formulation
+    return {"reach_levels": None if form.reach == "multiscale" else f"--reach={form.reach} (only multiscale: levels)",
+            **{k: None if form.reach == "attention" else f"--reach={form.reach} (only attention has slices and heads)"
+               for k in ("reach_slices", "reach_heads")},
+            "residual_ball": None if cfg.residual_of else "no --residual_of (the network moves the ball itself)",
+            **{k: None if args.coordinator_address else "no --coordinator_address (one host)"
+               for k in ("num_processes", "process_id")}}
+
+
 def preset_of(argv: Sequence[str], default: str = "cpu") -> str:
     """The value of ``--preset`` in ``argv`` (``--preset X`` or ``--preset=X``), else ``default``."""
     found = _value_of(argv, "preset", default)
@@ -262,10 +284,12 @@ def parse_train(argv: Sequence[str] | None = None, *, description: str | None = 
                   default=TrainArgs(config=_select(TrainConfig.from_preset(preset), name)))
     saved = probe.run_dir / "config.json"
     if not (probe.resume and saved.exists()):
+        refuse_inapplicable(given_flags(argv), train_rules(probe))
         return probe
     base = _select(TrainConfig.load(saved), name)
     args = parse(TrainArgs, argv, description=description, prog=prog, default=TrainArgs(config=base))
     check_resume(args.config, args.run_dir)
+    refuse_inapplicable(given_flags(argv), train_rules(args))
     return args
 
 
