@@ -23,7 +23,7 @@ import sys
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pcmgn_jax import cli
 from pcmgn_jax.surrogates.kinds import choices
@@ -31,6 +31,8 @@ from pcmgn_jax.surrogates.kinds import choices
 
 @dataclass(frozen=True)
 class ActiveArgs:
+    # cli.check_bounds: {flag: (lowest value, inclusive)}
+    BOUNDS: ClassVar[dict] = {"budget": (1, True), "n_init": (1, True), "batch": (1, True)}
     # training run (its data, mesh preset, test split; mgn: its model)
     workdir: str
     # box: the paper's two OCAs; robust: OCA1, OCA2, POL over drop cases

@@ -15,13 +15,15 @@ and the error overlaid). The library is pcmgn_jax.explore; this module parses fl
 """
 import sys
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pcmgn_jax import cli
 
 
 @dataclass(frozen=True)
 class ExploreArgs:
+    # cli.check_bounds: {flag: (lowest value, inclusive)}
+    BOUNDS: ClassVar[dict] = {"port": (0, True)}
     workdir: str                                   # run directory (config.json; checkpoints for the MGN)
     host: str = "127.0.0.1"                        # address to bind (127.0.0.1: this machine only)
     port: int = 8050                               # port of the page

@@ -25,10 +25,9 @@ the last n_val of train), e.g. 48 family training scenes from two LHS seeds with
 """
 from __future__ import annotations
 
-import math
 import sys
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pcmgn_jax import cli
 from pcmgn_jax.data.dataset import DatasetError, ensure_dataset
@@ -41,6 +40,9 @@ from pcmgn_jax.scene import Scene, default_scene
 
 @dataclass(frozen=True)
 class GenerateArgs:
+    # cli.check_bounds: {flag: (lowest value, inclusive)}
+    BOUNDS: ClassVar[dict] = {"n_train": (0, True), "n_val": (0, True), "n_test": (0, True), "low_um": (0, False),
+                              "high_um": (0, False), "batch": (0, True)}
     out: str                                   # dataset directory
     # mesh resolution / frame count / scene family (pcmgn_jax.presets.PRESETS)
     preset: PresetName = "cpu"
@@ -79,12 +81,9 @@ def preset_sizes(preset: str) -> tuple[int, int, int]:
 
 
 def check_args(args: GenerateArgs, given: set[str]) -> None:
-    """ValueError naming a count or bound out of range, or a flag that does not apply to the preset or mode
+    """ValueError naming a design box upside down, or a flag that does not apply to the preset or mode
     (:func:`pcmgn_jax.cli.refuse_inapplicable`): before anything is created."""
-    for name in ("n_train", "n_val", "n_test"):
-        if getattr(args, name) is not None and getattr(args, name) < 0:
-            raise ValueError(f"--{name}={getattr(args, name)} must be >= 0")
-    if not 0 < args.low_um < args.high_um or not math.isfinite(args.high_um):
+    if not args.low_um < args.high_um:     # each > 0 and finite: BOUNDS (cli.check_bounds)
         raise ValueError(f"--low_um={args.low_um:g} and --high_um={args.high_um:g}: need 0 < low < high (µm)")
     family, explicit = args.preset in FAMILIES, args.designs is not None or args.scene_params is not None
     lhs = "explicit designs (--designs / --scene_params) are solved as given" if explicit else None
@@ -141,4 +140,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli.run(main))

@@ -52,6 +52,10 @@ def mesh_for(name: str):
         base = mesh_spec("cpu")
         return with_spec("cpu", h_contact=base.h_contact / 2, h_layer=base.h_layer / 2,
                          layer_elems={k: 2 * v for k, v in base.layer_elems.items()})
+    try:
+        mesh_spec(name)
+    except ValueError as err:
+        raise ValueError(f"mesh {name!r}: {err} (or cpu_fine, PRESET@F, PRESET@F:ZONE)") from None
     return name
 
 
@@ -68,6 +72,8 @@ def main(argv=None) -> int:
     scene = default_scene()
     designs = parse_designs(args.designs, dim=2)
     meshes = [m.strip() for m in args.meshes.split(",")]
+    for m in meshes:
+        mesh_for(m)                 # every name checked before the first solver run
     rows = []
     for d in designs:
         for m in meshes:

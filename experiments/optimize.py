@@ -29,7 +29,7 @@ from __future__ import annotations
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pcmgn_jax import cli
 from pcmgn_jax.surrogates.kinds import choices
@@ -37,6 +37,9 @@ from pcmgn_jax.surrogates.kinds import choices
 
 @dataclass(frozen=True)
 class OptimizeArgs:
+    # cli.check_bounds: {flag: (lowest value, inclusive)}
+    BOUNDS: ClassVar[dict] = {"pop": (2, True), "gens": (1, True), "starts": (1, True), "iters": (1, True),
+                              "screen": (0, True), "grid": (-1, True)}
     workdir: str                                            # training run (config.json; checkpoints for mgn)
     # what predicts the objective (kriging/mop: a response surface of the objective itself; auto: mop, its CoP table in
     # the result)
@@ -65,11 +68,8 @@ class OptimizeArgs:
 
 
 def check_args(args: OptimizeArgs, given: set[str]) -> None:
-    """ValueError naming a budget out of range or a flag that does not apply to the method or surrogate
-    (:func:`pcmgn_jax.cli.refuse_inapplicable`), before anything is created."""
-    for name, low in (("pop", 2), ("gens", 1), ("starts", 1), ("iters", 1), ("screen", 0), ("grid", -1)):
-        if getattr(args, name) < low:
-            raise ValueError(f"--{name}={getattr(args, name)} must be >= {low}")
+    """ValueError naming a flag that does not apply to the method or surrogate
+    (:func:`pcmgn_jax.cli.refuse_inapplicable`), before anything is created (the budgets' ranges: ``BOUNDS``)."""
     ga = None if args.method == "ga" else f"--method {args.method} (only the GA has a population)"
     starts = None if args.method != "ga" else "--method ga (only gradient and slsqp have starts)"
     mgn = None if args.surrogate == "mgn" else f"--surrogate {args.surrogate} (only mgn has a checkpoint and members)"

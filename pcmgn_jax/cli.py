@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import math
 import shlex
 import sys
 import typing
@@ -109,8 +110,25 @@ def parse(cls: type[T], argv: Sequence[str] | None = None, *, description: str |
     """
     argv = sys.argv[1:] if argv is None else list(argv)
     kw: dict[str, Any] = {} if default is None else {"default": default}
-    return tyro.cli(cls, args=normalize_argv(cls, argv), description=description, prog=prog,
+    args = tyro.cli(cls, args=normalize_argv(cls, argv), description=description, prog=prog,
                     use_underscores=True, config=(tyro.conf.OmitArgPrefixes,), **kw)
+    check_bounds(args)
+    return args
+
+
+def check_bounds(args) -> None:
+    """ValueError naming the first flag out of range: a float flag that is not finite, or one below its entry
+    in the class's ``BOUNDS`` ({field: (low, inclusive)}; None values skipped): out-of-range numbers are
+    refused before anything runs, never a traceback from deep inside."""
+    bounds = getattr(type(args), "BOUNDS", {})
+    for f in dataclasses.fields(args):
+        value = getattr(args, f.name)
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"--{f.name}={value}: must be a finite number")
+        if f.name in bounds and value is not None:
+            low, inclusive = bounds[f.name]
+            if value < low or (value == low and not inclusive):
+                raise ValueError(f"--{f.name}={value}: must be {'>=' if inclusive else '>'} {low}")
 
 
 def command_line(module: str, argv: Sequence[str] | None = None) -> str:
@@ -151,11 +169,18 @@ def keyed_json_files(specs: Sequence[str], flag: str) -> dict[str, list[dict]]:
 
 
 def run(main_fn, argv: Sequence[str] | None = None) -> int:
-    """Call ``main_fn(argv)``, turning a ``ValueError`` into ``error: ...`` on stderr and status 2."""
+    """Call ``main_fn(argv)``, turning a ``ValueError`` into ``error: ...`` on stderr and status 2, and an
+    ``OSError`` of a path (a folder where a file goes, a file where a folder goes, no permission, ...) into
+    ``error: PATH: what`` (status 2), never a traceback."""
     try:
         return main_fn(argv)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        if err.filename is None:
+            raise
+        print(f"error: {err.filename}: {err.strerror or err} (check the paths given)", file=sys.stderr)
         return 2
 
 

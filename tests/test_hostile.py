@@ -78,7 +78,7 @@ def test_multiscale_levels_are_bounded_by_the_smallest_graph(data):
 # ---- generate: flags, counts, scenes before the dataset folder -----------------------------------------------
 @pytest.mark.parametrize("flags, match", [
     (["--preset", "tiny", "--stack_split", "e2"], "--stack_split does not apply: preset 'tiny'"),
-    (["--preset", "tiny", "--n_train", "-1"], "--n_train=-1 must be >= 0"),
+    (["--preset", "tiny", "--n_train", "-1"], "--n_train=-1: must be >= 0"),
     (["--preset", "tiny", "--low_um", "200", "--high_um", "100"], "need 0 < low < high"),
     (["--preset", "tiny", "--designs", "100,100", "--seed", "3"], "--seed does not apply: explicit designs"),
     (["--preset", "family_tiny", "--low_um", "10"], "--low_um does not apply: preset 'family_tiny'"),
