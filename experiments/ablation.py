@@ -21,7 +21,7 @@ from pcmgn_jax import cli
 
 @dataclass(frozen=True)
 class AblationArgs:
-    # cli.check_bounds: {flag: (lowest value, inclusive)}
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
     BOUNDS: ClassVar[dict] = {"num_steps": (1, True)}
     out: str = "results/ablation/new"        # output stem: OUT.json and OUT.md
     runs: str = "runs/ablation"             # where the cells' run directories go

@@ -26,7 +26,7 @@ PRESETS = ("tiny", "cpu", "paper")
 @dataclass(frozen=True)
 class CalculixArgs:
     """Run one design of a scene in CalculiX and import it."""
-    # cli.check_bounds: {flag: (lowest value, inclusive)}
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
     BOUNDS: ClassVar[dict] = {"penalty_factor": (0, False), "increments_per_frame": (1, True), "threads": (1, True),
                               "frames": (0, True)}
 

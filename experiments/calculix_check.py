@@ -27,7 +27,7 @@ LABELS = "pc_optimum,vanilla_optimum,corner_50_100"
 @dataclass(frozen=True)
 class CheckArgs:
     """Cross-check the built-in solver against CalculiX."""
-    # cli.check_bounds: {flag: (lowest value, inclusive)}
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
     BOUNDS: ClassVar[dict] = {"penalty_factor": (0, False), "increments_per_frame": (1, True), "frames": (0, True),
                               "hertz_penalty_factor": (0, False), "timeout_s": (0, False), "hertz_frames": (2, True),
                               "hertz_elems_per_radius": (1, True), "hertz_growth": (1, True),

@@ -28,7 +28,7 @@ from pcmgn_jax import cli, markdown
 @dataclass(frozen=True)
 class LockingArgs(DesignSectionArgs):
     """The panel's static stiffness in CalculiX, C3D8 against C3D8I, on several meshes."""
-    # cli.check_bounds: {flag: (lowest value, inclusive)}
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
     BOUNDS: ClassVar[dict] = {"section_x_mm": (0, False), "force_n": (0, False), "radius_um": (0, False),
                               "timeout_s": (0, False)}
 

@@ -24,7 +24,7 @@ from pcmgn_jax import cli
 
 @dataclass(frozen=True)
 class EnsembleArgs:
-    # cli.check_bounds: {flag: (lowest value, inclusive)}
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
     BOUNDS: ClassVar[dict] = {"train": (0, True)}
     members: str = ""          # comma-separated run directories (trained, same dataset)
     train: int = 0             # train this many members first (seeds 0..K-1) under --base

@@ -22,8 +22,8 @@ from pcmgn_jax import cli
 
 @dataclass(frozen=True)
 class ExploreArgs:
-    # cli.check_bounds: {flag: (lowest value, inclusive)}
-    BOUNDS: ClassVar[dict] = {"port": (0, True)}
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
+    BOUNDS: ClassVar[dict] = {"port": (0, True, 65535)}
     workdir: str                                   # run directory (config.json; checkpoints for the MGN)
     host: str = "127.0.0.1"                        # address to bind (127.0.0.1: this machine only)
     port: int = 8050                               # port of the page

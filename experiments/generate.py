@@ -40,7 +40,7 @@ from pcmgn_jax.scene import Scene, default_scene
 
 @dataclass(frozen=True)
 class GenerateArgs:
-    # cli.check_bounds: {flag: (lowest value, inclusive)}
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
     BOUNDS: ClassVar[dict] = {"n_train": (0, True), "n_val": (0, True), "n_test": (0, True), "low_um": (0, False),
                               "high_um": (0, False), "batch": (0, True)}
     out: str                                   # dataset directory

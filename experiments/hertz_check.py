@@ -16,7 +16,7 @@ from pcmgn_jax.sim.hertz import ELEMS_PER_RADIUS, TARGETS, hertz_check
 
 @dataclass(frozen=True)
 class HertzArgs:
-    # cli.check_bounds: {flag: (lowest value, inclusive)}
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
     BOUNDS: ClassVar[dict] = {"radius_mm": (0, False), "velocity": (0, False), "elems_per_radius": (1, True),
                               "penalty_factor": (0, False)}
     radius_mm: float = 5.0                          # ball radius [mm]

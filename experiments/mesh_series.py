@@ -37,7 +37,7 @@ class DesignSectionArgs:
 @dataclass(frozen=True)
 class SeriesArgs(DesignSectionArgs):
     """Mesh-refinement series of one design in both codes."""
-    # cli.check_bounds: {flag: (lowest value, inclusive)}
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
     BOUNDS: ClassVar[dict] = {"section_x_mm": (0, False), "penalty_factor": (0, False),
                               "ccx_penalty_factor": (0, False), "increments_per_frame": (1, True),
                               "min_increment_ratio": (0, False), "timeout_s": (0, False)}

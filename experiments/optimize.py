@@ -37,7 +37,7 @@ from pcmgn_jax.surrogates.kinds import choices
 
 @dataclass(frozen=True)
 class OptimizeArgs:
-    # cli.check_bounds: {flag: (lowest value, inclusive)}
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
     BOUNDS: ClassVar[dict] = {"pop": (2, True), "gens": (1, True), "starts": (1, True), "iters": (1, True),
                               "screen": (0, True), "grid": (-1, True)}
     workdir: str                                            # training run (config.json; checkpoints for mgn)

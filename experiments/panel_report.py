@@ -16,7 +16,7 @@ from pcmgn_jax.presets import PresetName
 
 @dataclass(frozen=True)
 class PanelReportArgs:
-    # cli.check_bounds: {flag: (lowest value, inclusive)}
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
     BOUNDS: ClassVar[dict] = {"frames": (2, True)}
     preset: PresetName = "cpu"                    # mesh preset (pcmgn_jax.presets.PRESETS)
     designs: str = "50,50;100,100;150,150"       # T_OCA1,T_OCA2 [µm]; designs separated by ';'

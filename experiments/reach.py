@@ -22,7 +22,7 @@ from pcmgn_jax.presets import PresetName
 
 @dataclass(frozen=True)
 class ReachArgs:
-    # cli.check_bounds: {flag: (lowest value, inclusive)}
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
     BOUNDS: ClassVar[dict] = {"levels": (0, True)}
     preset: PresetName = "cpu"   # training preset (its mesh preset and message-passing steps); ignored with --workdir
     workdir: str = ""        # a run directory: its config.json's mesh preset, steps and processor

@@ -27,7 +27,7 @@ from pcmgn_jax import cli
 
 @dataclass(frozen=True)
 class StudyArgs:
-    # cli.check_bounds: {flag: (lowest value, inclusive)}
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
     BOUNDS: ClassVar[dict] = {"num_steps": (0, True)}
     name: str                                   # lambda | degree | noise_sigma | noise_parts | target | extrapolation
     formulations: str = "paper,default"         # comma-separated: paper, default

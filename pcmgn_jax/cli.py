@@ -118,17 +118,19 @@ def parse(cls: type[T], argv: Sequence[str] | None = None, *, description: str |
 
 def check_bounds(args) -> None:
     """ValueError naming the first flag out of range: a float flag that is not finite, or one below its entry
-    in the class's ``BOUNDS`` ({field: (low, inclusive)}; None values skipped): out-of-range numbers are
-    refused before anything runs, never a traceback from deep inside."""
+    in the class's ``BOUNDS`` ({field: (low, inclusive[, high])}; None values skipped) or above its high:
+    out-of-range numbers are refused before anything runs, never a traceback from deep inside."""
     bounds = getattr(type(args), "BOUNDS", {})
     for f in dataclasses.fields(args):
         value = getattr(args, f.name)
         if isinstance(value, float) and not math.isfinite(value):
             raise ValueError(f"--{f.name}={value}: must be a finite number")
         if f.name in bounds and value is not None:
-            low, inclusive = bounds[f.name]
+            low, inclusive, *high = bounds[f.name]
             if value < low or (value == low and not inclusive):
                 raise ValueError(f"--{f.name}={value}: must be {'>=' if inclusive else '>'} {low}")
+            if high and value > high[0]:
+                raise ValueError(f"--{f.name}={value}: must be <= {high[0]}")
 
 
 def command_line(module: str, argv: Sequence[str] | None = None) -> str:
