@@ -21,8 +21,10 @@ that changes a saved value is refused (:func:`pcmgn_jax.config.check_resume`).
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import difflib
+import io
 import math
 import shlex
 import sys
@@ -105,15 +107,35 @@ def parse(cls: type[T], argv: Sequence[str] | None = None, *, description: str |
           default: T | None = None, prog: str | None = None) -> T:
     """Parse ``argv`` (default ``sys.argv[1:]``) into frozen dataclass ``cls`` (tyro, underscore flags).
 
-    ``--help`` prints every field with its comment and exits. Raises ``ValueError`` for an unknown flag
-    or a value the dataclass rejects; tyro exits with status 2 on a value of the wrong type.
+    ``--help`` prints every field with its comment and exits. Raises ``ValueError`` for an unknown flag,
+    a value of the wrong type or one the dataclass rejects (tyro's framed message as one line), and for a
+    number out of range (:func:`check_bounds`).
     """
     argv = sys.argv[1:] if argv is None else list(argv)
     kw: dict[str, Any] = {} if default is None else {"default": default}
-    args = tyro.cli(cls, args=normalize_argv(cls, argv), description=description, prog=prog,
-                    use_underscores=True, config=(tyro.conf.OmitArgPrefixes,), **kw)
+    said = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(said):
+            args = tyro.cli(cls, args=normalize_argv(cls, argv), description=description, prog=prog,
+                            use_underscores=True, config=(tyro.conf.OmitArgPrefixes,), **kw)
+    except SystemExit as err:
+        if err.code in (0, None):
+            raise
+        raise ValueError(_one_line(said.getvalue())) from None
     check_bounds(args)
     return args
+
+
+def _one_line(box: str) -> str:
+    """tyro's framed error message as one line (the box's text, without its frame and the help pointer)."""
+    text = []
+    for line in box.splitlines():
+        line = line.strip().strip("│").strip()
+        if line.startswith("For full helptext"):
+            break
+        if line and not set(line) <= set("─╭╮╰╯ ") and not line.startswith(("╭", "╰")):
+            text.append(line)
+    return " ".join(text) or box.strip() or "cannot parse the command line (run with --help)"
 
 
 def check_bounds(args) -> None:
@@ -323,15 +345,10 @@ def parse_train(argv: Sequence[str] | None = None, *, description: str | None = 
 def parse_config(argv: Sequence[str]) -> TrainConfig:
     """A :class:`TrainConfig` from ``--key=value`` flags (``--preset`` fills the defaults).
 
-    Library form: raises ``ValueError`` for an unknown flag or a bad value (tyro prints the details).
+    Library form: raises ``ValueError`` for an unknown flag or a bad value (tyro's message, one line).
     """
     argv = list(argv)
     preset = preset_of(argv)
     rest, name = _train_argv(argv)
-    try:
-        return parse(TrainConfig, rest, default=_select(TrainConfig.from_preset(preset), name),
-                     prog="pcmgn_jax.cli.parse_config")
-    except SystemExit as err:
-        if err.code in (0, None):
-            raise
-        raise ValueError(f"pcmgn_jax.cli.parse_config: cannot parse {list(argv)} (details above)") from None
+    return parse(TrainConfig, rest, default=_select(TrainConfig.from_preset(preset), name),
+                 prog="pcmgn_jax.cli.parse_config")
