@@ -157,3 +157,75 @@ def test_a_trajectory_edited_in_place_with_the_same_size_and_mtime_is_not_traine
     with pytest.raises(TrajectoryFileError, match="does not match"):
         load_split(tmp_path, "train")                # rebuilt, and the rebuild refuses the file by name
     assert first.meta["source_sha256"]
+
+
+# ---- numbers out of range, flags that do not apply, paths: one line, before anything runs ----------------------
+@pytest.mark.parametrize("command, argv, match", [
+    ("hertz_check", ["--elems_per_radius", "0"], "--elems_per_radius=0.0: must be >= 1"),
+    ("hertz_check", ["--velocity", "inf"], "--velocity=inf: must be a finite number"),
+    ("panel_report", ["--preset", "tiny", "--frames", "0"], "--frames=0: must be >= 2"),
+    ("explore", ["--workdir", "RUN", "--port", "99999"], "--port=99999: must be <= 65535"),
+    ("optimize", ["--workdir", "RUN", "--pop", "0"], "--pop=0: must be >= 2"),
+    ("optimize", ["--workdir", "RUN", "--method", "gradient", "--pop", "8"], "--pop does not apply: --method gradient"),
+    ("optimize", ["--workdir", "RUN", "--surrogate", "kriging", "--ensemble", "a,b"], "--ensemble does not apply"),
+    ("optimize", ["--workdir", "RUN", "--iters", "3"], "--iters does not apply: --method ga"),
+    ("objective_convergence", ["--meshes", "cpu,bogus", "--out", "OUT"], "mesh 'bogus': unknown mesh preset"),
+    ("mesh_series", ["--meshes", "tiny@x", "--out", "OUT"], "mesh 'tiny@x'"),
+    ("evaluate", ["--workdir", "RUN", "--split", "bogus"], "invalid choice 'bogus' for argument '--split'"),
+])
+def test_entry_points_refuse_bad_numbers_and_flags_in_one_line(tmp_path, capsys, command, argv, match):
+    import importlib
+    argv = [a.replace("RUN", str(tmp_path / "run")).replace("OUT", str(tmp_path / "out")) for a in argv]
+    _refused(importlib.import_module(f"experiments.{command}").main, argv, capsys, watch=tmp_path, match=match)
+
+
+def test_every_bounds_entry_is_a_flag_of_its_command():
+    import dataclasses
+    import importlib
+
+    from experiments.console import COMMANDS
+    for name in COMMANDS:
+        for v in vars(importlib.import_module(f"experiments.{name}")).values():
+            if isinstance(v, type) and dataclasses.is_dataclass(v) and "BOUNDS" in vars(v):
+                assert set(v.BOUNDS) <= {f.name for f in dataclasses.fields(v)}, (name, v.BOUNDS)
+
+
+def test_a_path_error_is_one_line_not_a_traceback(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+
+    def main(argv):
+        (blocker / "out").mkdir(parents=True)
+    assert cli.run(main, []) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("error: ") and str(blocker) in err, err
+
+
+def _config_only_run(root: Path, data: Path, **kw) -> Path:
+    from fixtures.helpers import tiny_config
+    run = root / "run"
+    run.mkdir()
+    tiny_config(dataset_dir=str(data), n_train=3, n_val=1, n_test=1, **kw).save_json(run / "config.json")
+    return run
+
+
+def test_active_checks_its_budget_before_any_folder_or_solver_run(data, tmp_path, capsys):
+    from experiments import active
+    run = _config_only_run(tmp_path, data)
+    _refused(active.main, ["--workdir", str(run), "--budget", "2", "--n_init", "4"], capsys, watch=tmp_path,
+             match="budget 2 is below round 0's 4 designs")
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(name="../../x"), "must be one folder name"),
+    (dict(residual_ball="network"), "is for a run with residual_of"),
+])
+def test_evaluate_refuses_a_name_outside_the_run_and_a_ball_it_cannot_move(data, tmp_path, monkeypatch, kw, match):
+    from pcmgn_jax.eval import pipeline
+    from pcmgn_jax.mgn import checkpoint
+    run = _config_only_run(tmp_path, data)
+    monkeypatch.setattr(checkpoint, "require_run", lambda *a, **k: run)   # the checks come before the model
+    before = _tree(tmp_path)
+    with pytest.raises(ValueError, match=match):
+        pipeline.run(run, **kw)
+    assert _tree(tmp_path) == before
