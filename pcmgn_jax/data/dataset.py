@@ -256,9 +256,9 @@ def _generate(root: Path, plan: dict[str, tuple[np.ndarray, dict[str, Any]]], *,
     else:
         if man.get("preset") != preset:
             raise DatasetError(f"{manifest_path}: dataset was generated with preset {man.get('preset')!r}, "
-                               f"not {preset!r}; use another --out")
+                               f"not {preset!r}; use another folder")
         if man.get("scene") != scene.to_dict():
-            raise DatasetError(f"{manifest_path}: dataset was generated for a different scene; use another --out")
+            raise DatasetError(f"{manifest_path}: dataset was generated for a different scene; use another folder")
         check_element(root, man)
     for name, (des, origin) in plan.items():
         old = man["splits"].get(name)
@@ -269,7 +269,7 @@ def _generate(root: Path, plan: dict[str, tuple[np.ndarray, dict[str, Any]]], *,
                                dtype=np.float64).reshape(len(old["trajectories"]), -1)
             if old_d.shape != des.shape or not np.allclose(old_d, des, rtol=1e-12, atol=0):
                 why = origin_mismatch(old.get("origin") or {}, len(old_d), origin, len(des))
-                raise DatasetError(f"{manifest_path}: split {name!r} {why}; use another --out or --split")
+                raise DatasetError(f"{manifest_path}: split {name!r} {why}; use another dataset folder (or split name)")
             for e, o in zip(entries, old["trajectories"]):
                 e["sha256"], e["wall_time_s"] = o.get("sha256"), o.get("wall_time_s")
         man["splits"][name] = {"origin": origin, "trajectories": entries}
