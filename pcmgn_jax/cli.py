@@ -180,15 +180,23 @@ def keyed_paths(specs: Sequence[str], flag: str) -> dict[str, list[Path]]:
     return out
 
 
-def keyed_json_files(specs: Sequence[str], flag: str) -> dict[str, list[dict]]:
-    """:func:`keyed_paths`, each file parsed as JSON (ValueError naming the file if it is not JSON)."""
+METRICS_KEYS = ("position_mae_um", "stress_mae_mpa")   # what every evaluation's metrics.json holds
+
+
+def keyed_json_files(specs: Sequence[str], flag: str, require: Sequence[str] = METRICS_KEYS) -> dict[str, list[dict]]:
+    """:func:`keyed_paths`, each file parsed as JSON: ValueError naming the file if it is not JSON or lacks a key
+    of ``require`` (default: an evaluation's metrics.json), never a table of nothing."""
     import json
 
     def load(p: Path):
         try:
-            return json.loads(p.read_text())
+            d = json.loads(p.read_text())
         except json.JSONDecodeError as err:
             raise ValueError(f"--{flag}: {p} is not JSON ({err})") from None
+        missing = [k for k in require if not isinstance(d, dict) or k not in d]
+        if missing:
+            raise ValueError(f"--{flag}: {p} is not a metrics.json of experiments.evaluate (no {missing})")
+        return d
     return {key: [load(p) for p in paths] for key, paths in keyed_paths(specs, flag).items()}
 
 

@@ -229,3 +229,12 @@ def test_evaluate_refuses_a_name_outside_the_run_and_a_ball_it_cannot_move(data,
     with pytest.raises(ValueError, match=match):
         pipeline.run(run, **kw)
     assert _tree(tmp_path) == before
+
+
+@pytest.mark.parametrize("command, flag", [("tasks_table", "--task=a"), ("learning_curve", "--point=8")])
+def test_a_json_that_is_no_evaluation_is_refused_not_tabled_as_unmeasured(tmp_path, capsys, command, flag):
+    import importlib
+    odd = tmp_path / "odd.json"
+    odd.write_text('{"a": 1}')
+    _refused(importlib.import_module(f"experiments.{command}").main, [f"{flag}={odd}", "--out", str(tmp_path / "o")],
+             capsys, watch=tmp_path, match=f"{odd} is not a metrics.json of experiments.evaluate")
