@@ -51,6 +51,7 @@ def _refused(main, argv, capsys, *, watch: Path, match: str) -> str:
 @pytest.mark.parametrize("flags, match", [
     (["--reach=attention", "--reach_heads=3"], "latent_size=32 must be divisible by reach_heads=3"),
     (["--reach=multiscale", "--reach_levels=40"], "reach_levels=40 is more than the graphs hold"),
+    (["--reach=attention", "--reach_slices=5000"], "reach_slices=5000 is more than the graphs hold"),
     (["--reach_levels=3"], "--reach_levels does not apply: --reach=local"),
     (["--reach=multiscale", "--reach_heads=2"], "--reach_heads does not apply: --reach=multiscale"),
     (["--residual_ball=network"], "--residual_ball does not apply"),

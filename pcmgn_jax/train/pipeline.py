@@ -81,19 +81,25 @@ def _data(cfg: TrainConfig) -> tuple:
 def check_model_fits(cfg: TrainConfig, trajs) -> None:
     """ValueError naming the graph when the model asks for more than the training graphs hold: coarse levels
     (``reach='multiscale'``) beyond the point where the smallest graph is one node per connected part (more
-    levels repeat the last, and only make the compiled program grow)."""
-    levels = cfg.formulation.hierarchy_levels
-    if not levels or not trajs:
+    levels repeat the last, and only make the compiled program grow), or more attention slices
+    (``reach='attention'``) than the smallest graph has nodes."""
+    form = cfg.formulation
+    if form.reach not in ("multiscale", "attention") or not trajs:
+        return
+    small = min(trajs, key=lambda t: t.n_nodes)
+    what = f"{small.meta.get('name', 'a graph')} ({small.n_nodes} nodes)"
+    if form.reach == "attention":
+        if form.reach_slices > small.n_nodes:
+            raise ValueError(f"reach_slices={form.reach_slices} is more than the graphs hold: {what}; use "
+                             f"reach_slices <= {small.n_nodes}")
         return
     from pcmgn_jax.mgn.hierarchy import shrinking_levels
     from pcmgn_jax.mgn.inputs import topology_from_trajectory
-    small = min(trajs, key=lambda t: t.n_nodes)
     topo = topology_from_trajectory(small)
     most = shrinking_levels(topo.mesh_senders, topo.mesh_receivers, topo.n_node)
-    if levels > most:
-        raise ValueError(f"reach_levels={levels} is more than the graphs hold: {small.meta.get('name', 'a graph')} "
-                         f"({small.n_nodes} nodes) is one node per connected part after {most} coarse levels; "
-                         f"use reach_levels <= {most}")
+    if form.reach_levels > most:
+        raise ValueError(f"reach_levels={form.reach_levels} is more than the graphs hold: {what} is one node per "
+                         f"connected part after {most} coarse levels; use reach_levels <= {most}")
 
 
 def _run_locked(cfg: TrainConfig, workdir: Path, data: tuple, *, resume: bool) -> dict:
