@@ -139,14 +139,18 @@ def _one_line(box: str) -> str:
 
 
 def check_bounds(args) -> None:
-    """ValueError naming the first flag out of range: a float flag that is not finite, or one below its entry
-    in the class's ``BOUNDS`` ({field: (low, inclusive[, high])}; None values skipped) or above its high:
-    out-of-range numbers are refused before anything runs, never a traceback from deep inside."""
+    """ValueError naming the first flag out of range: a float flag that is not finite, a required text flag
+    (a path) that is empty, or one below its entry in the class's ``BOUNDS`` ({field: (low, inclusive[,
+    high])}; None values skipped) or above its high: out-of-range numbers are refused before anything runs,
+    never a traceback from deep inside."""
     bounds = getattr(type(args), "BOUNDS", {})
     for f in dataclasses.fields(args):
         value = getattr(args, f.name)
         if isinstance(value, float) and not math.isfinite(value):
             raise ValueError(f"--{f.name}={value}: must be a finite number")
+        required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+        if required and isinstance(value, str) and not value.strip():
+            raise ValueError(f"--{f.name} is empty: give a path (an empty one would be the current folder)")
         if f.name in bounds and value is not None:
             low, inclusive, *high = bounds[f.name]
             if value < low or (value == low and not inclusive):
