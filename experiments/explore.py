@@ -36,6 +36,9 @@ class ExploreArgs:
 
 def main(argv=None) -> int:
     args = cli.parse(ExploreArgs, argv, description=__doc__, prog="python -m experiments.explore")
+    no_mgn = None if args.mgn else "--no_mgn (the page has no MGN)"
+    cli.refuse_inapplicable(cli.given_flags(sys.argv[1:] if argv is None else argv),
+                            {"which": no_mgn, "mgn_spread": no_mgn})
     from pcmgn_jax.mgn.checkpoint import MissingRun, require_run
     try:   # before anything starts: a bad path or a run without a checkpoint is one line (status 2)
         require_run(args.workdir, checkpoint=args.mgn)

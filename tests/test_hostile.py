@@ -167,6 +167,7 @@ def test_a_trajectory_edited_in_place_with_the_same_size_and_mtime_is_not_traine
     ("panel_report", ["--preset", "tiny", "--frames", "0"], "--frames=0: must be >= 2"),
     ("explore", ["--workdir", "RUN", "--port", "99999"], "--port=99999: must be <= 65535"),
     ("optimize", ["--workdir", "RUN", "--pop", "0"], "--pop=0: must be >= 2"),
+    ("explore", ["--workdir", "RUN", "--no_mgn", "--mgn_spread"], "--mgn_spread does not apply: --no_mgn"),
     ("optimize", ["--workdir", ""], "--workdir is empty: give a path"),
     ("generate", ["--out", " ", "--preset", "tiny"], "--out is empty: give a path"),
     ("optimize", ["--workdir", "RUN", "--method", "gradient", "--pop", "8"], "--pop does not apply: --method gradient"),
