@@ -14,12 +14,15 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
+from typing import ClassVar
 
 from pcmgn_jax import cli
 
 
 @dataclass(frozen=True)
 class AblationArgs:
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
+    BOUNDS: ClassVar[dict] = {"num_steps": (1, True)}
     out: str = "results/ablation/new"        # output stem: OUT.json and OUT.md
     runs: str = "runs/ablation"             # where the cells' run directories go
     num_steps: int = 1000                   # optimiser steps per cell (the cpu preset trains 4000)

@@ -23,7 +23,7 @@ import sys
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pcmgn_jax import cli
 from pcmgn_jax.surrogates.kinds import choices
@@ -31,6 +31,8 @@ from pcmgn_jax.surrogates.kinds import choices
 
 @dataclass(frozen=True)
 class ActiveArgs:
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
+    BOUNDS: ClassVar[dict] = {"budget": (1, True), "n_init": (1, True), "batch": (1, True)}
     # training run (its data, mesh preset, test split; mgn: its model)
     workdir: str
     # box: the paper's two OCAs; robust: OCA1, OCA2, POL over drop cases
@@ -63,6 +65,11 @@ def main(argv: list[str] | None = None) -> int:
     from pcmgn_jax.lock import hold
     from pcmgn_jax.mgn.checkpoint import require_run
     require_run(args.workdir, checkpoint=args.surrogate == "mgn" or (args.compare and "mgn" in args.strategies))
+    if not args.compare:              # the loop's settings checked before any folder or solver run
+        from pcmgn_jax.opt.active import LoopConfig
+        from pcmgn_jax.opt.active_tasks import ROBUST_CASES
+        LoopConfig(surrogate=args.surrogate, acquisition=args.acquisition, budget=args.budget, n_init=args.n_init,
+                   batch=args.batch, seed=args.seed).check(len(ROBUST_CASES) if args.task == "robust" else 1)
     command = cli.command_line("experiments.active", argv)
     run = Path(args.workdir)
     folder = Path(args.out or run / "active") if args.compare else \

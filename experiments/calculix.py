@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from typing import Literal, Optional
+from typing import ClassVar, Literal, Optional
 
 from pcmgn_jax import cli
 
@@ -26,6 +26,9 @@ PRESETS = ("tiny", "cpu", "paper")
 @dataclass(frozen=True)
 class CalculixArgs:
     """Run one design of a scene in CalculiX and import it."""
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
+    BOUNDS: ClassVar[dict] = {"penalty_factor": (0, False), "increments_per_frame": (1, True), "threads": (1, True),
+                              "frames": (0, True)}
 
     out: str
     """output folder: job.inp, job.frd, job.log, trajectory.{xdmf,h5,json}, summary.json"""

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pcmgn_jax import cli
 
@@ -27,6 +27,11 @@ LABELS = "pc_optimum,vanilla_optimum,corner_50_100"
 @dataclass(frozen=True)
 class CheckArgs:
     """Cross-check the built-in solver against CalculiX."""
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
+    BOUNDS: ClassVar[dict] = {"penalty_factor": (0, False), "increments_per_frame": (1, True), "frames": (0, True),
+                              "hertz_penalty_factor": (0, False), "timeout_s": (0, False), "hertz_frames": (2, True),
+                              "hertz_elems_per_radius": (1, True), "hertz_growth": (1, True),
+                              "hertz_min_increment_ratio": (0, False)}
 
     out: str = "results/calculix"
     """output folder: check.json, check.md, runs/<label>/ (ccx decks and results)"""

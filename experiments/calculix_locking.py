@@ -20,6 +20,7 @@ from __future__ import annotations
 import sys
 import time
 from dataclasses import dataclass
+from typing import ClassVar
 
 from experiments.mesh_series import DesignSectionArgs
 from pcmgn_jax import cli, markdown
@@ -28,6 +29,9 @@ from pcmgn_jax import cli, markdown
 @dataclass(frozen=True)
 class LockingArgs(DesignSectionArgs):
     """The panel's static stiffness in CalculiX, C3D8 against C3D8I, on several meshes."""
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
+    BOUNDS: ClassVar[dict] = {"section_x_mm": (0, False), "force_n": (0, False), "radius_um": (0, False),
+                              "timeout_s": (0, False)}
 
     meshes: str = "cpu@0.5,cpu,cpu@2,cpu@4"
     """meshes: presets, cpu_fine, or PRESET@F (pcmgn_jax.sim.mesh named_spec)"""

@@ -17,12 +17,15 @@ import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 from pcmgn_jax import cli
 
 
 @dataclass(frozen=True)
 class EnsembleArgs:
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
+    BOUNDS: ClassVar[dict] = {"train": (0, True)}
     members: str = ""          # comma-separated run directories (trained, same dataset)
     train: int = 0             # train this many members first (seeds 0..K-1) under --base
     base: str = "runs/ensemble"  # --train: the members' parent folder

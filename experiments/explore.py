@@ -15,13 +15,15 @@ and the error overlaid). The library is pcmgn_jax.explore; this module parses fl
 """
 import sys
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pcmgn_jax import cli
 
 
 @dataclass(frozen=True)
 class ExploreArgs:
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
+    BOUNDS: ClassVar[dict] = {"port": (0, True, 65535)}
     workdir: str                                   # run directory (config.json; checkpoints for the MGN)
     host: str = "127.0.0.1"                        # address to bind (127.0.0.1: this machine only)
     port: int = 8050                               # port of the page
@@ -34,6 +36,9 @@ class ExploreArgs:
 
 def main(argv=None) -> int:
     args = cli.parse(ExploreArgs, argv, description=__doc__, prog="python -m experiments.explore")
+    no_mgn = None if args.mgn else "--no_mgn (the page has no MGN)"
+    cli.refuse_inapplicable(cli.given_flags(sys.argv[1:] if argv is None else argv),
+                            {"which": no_mgn, "mgn_spread": no_mgn})
     from pcmgn_jax.mgn.checkpoint import MissingRun, require_run
     try:   # before anything starts: a bad path or a run without a checkpoint is one line (status 2)
         require_run(args.workdir, checkpoint=args.mgn)

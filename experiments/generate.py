@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pcmgn_jax import cli
 from pcmgn_jax.data.dataset import DatasetError, ensure_dataset
@@ -40,6 +40,9 @@ from pcmgn_jax.scene import Scene, default_scene
 
 @dataclass(frozen=True)
 class GenerateArgs:
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
+    BOUNDS: ClassVar[dict] = {"n_train": (0, True), "n_val": (0, True), "n_test": (0, True), "low_um": (0, False),
+                              "high_um": (0, False), "batch": (0, True)}
     out: str                                   # dataset directory
     # mesh resolution / frame count / scene family (pcmgn_jax.presets.PRESETS)
     preset: PresetName = "cpu"
@@ -77,9 +80,28 @@ def preset_sizes(preset: str) -> tuple[int, int, int]:
     return p["n_train"], p["n_val"], p["n_test"]
 
 
+def check_args(args: GenerateArgs, given: set[str]) -> None:
+    """ValueError naming a design box upside down, or a flag that does not apply to the preset or mode
+    (:func:`pcmgn_jax.cli.refuse_inapplicable`): before anything is created."""
+    if not args.low_um < args.high_um:     # each > 0 and finite: BOUNDS (cli.check_bounds)
+        raise ValueError(f"--low_um={args.low_um:g} and --high_um={args.high_um:g}: need 0 < low < high (µm)")
+    family, explicit = args.preset in FAMILIES, args.designs is not None or args.scene_params is not None
+    lhs = "explicit designs (--designs / --scene_params) are solved as given" if explicit else None
+    pool = "--pool solves nothing: it only pools the datasets named" if args.pool is not None else None
+    rules = {"stack_split": None if PRESETS[args.preset].family == "stack" else
+             f"preset {args.preset!r} is no stack family (stack, stack_tiny)",
+             **{k: lhs or (f"preset {args.preset!r} samples its family's ranges" if family else None)
+                for k in ("low_um", "high_um")},
+             **{k: lhs for k in ("n_train", "n_val", "n_test", "seed")}}
+    if pool:
+        rules = {k: pool for k in given - {"out", "pool", "progress", "help"}}
+    cli.refuse_inapplicable(given, rules)
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
         args = cli.parse(GenerateArgs, argv, description=__doc__, prog="python -m experiments.generate")
+        check_args(args, cli.given_flags(sys.argv[1:] if argv is None else argv))
         if args.pool is not None:
             from pcmgn_jax.data.splits import pool_datasets
             sources = [s for s in args.pool.split(",") if s]
@@ -118,4 +140,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli.run(main))

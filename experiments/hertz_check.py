@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 import sys
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pcmgn_jax import cli
 from pcmgn_jax.data.trajectory_io import atomic_write_json
@@ -17,6 +17,9 @@ from pcmgn_jax.sim.hertz import ELEMS_PER_RADIUS, TARGETS, hertz_check
 
 @dataclass(frozen=True)
 class HertzArgs:
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
+    BOUNDS: ClassVar[dict] = {"radius_mm": (0, False), "velocity": (0, False), "elems_per_radius": (1, True),
+                              "penalty_factor": (0, False)}
     radius_mm: float = 5.0                          # ball radius [mm]
     velocity: float = 0.62631                       # impact speed [m/s]
     target: Literal[tuple(TARGETS)] = "glass"       # block material

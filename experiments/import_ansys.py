@@ -106,4 +106,4 @@ def _report(out: str, report) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli.run(main))

@@ -19,6 +19,7 @@ import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 from pcmgn_jax import cli, markdown
 
@@ -36,6 +37,10 @@ class DesignSectionArgs:
 @dataclass(frozen=True)
 class SeriesArgs(DesignSectionArgs):
     """Mesh-refinement series of one design in both codes."""
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
+    BOUNDS: ClassVar[dict] = {"section_x_mm": (0, False), "penalty_factor": (0, False),
+                              "ccx_penalty_factor": (0, False), "increments_per_frame": (1, True),
+                              "min_increment_ratio": (0, False), "timeout_s": (0, False)}
 
     meshes: str = "cpu@0.5,cpu@0.5:layers+far,cpu,cpu_fine,paper,cpu@2,paper@2,cpu@4"
     """built-in solver meshes: presets, cpu_fine, or PRESET@F (refined by F)"""
@@ -201,7 +206,13 @@ def main(argv=None) -> int:
             print(f"error: {err}", file=sys.stderr)
             return 2
     elements = [e.strip() for e in args.ccx_elements.split(",") if e.strip()]
+    if not set(elements) <= {"C3D8", "C3D8I"}:
+        print(f"error: --ccx_elements {args.ccx_elements!r}: each must be C3D8 or C3D8I", file=sys.stderr)
+        return 2
     todo += [(m, "builtin_ccx_penalty", "") for m in ccx] + [(m, "calculix", e) for m in ccx for e in elements]
+    from pcmgn_jax.sim.mesh import named_spec
+    for name, _, _ in todo:
+        named_spec(name)            # every mesh name checked before the first row is solved (ValueError: status 2)
     rows = []
     for name, code, element in todo:
         rows.append(row(args, name, code, element or "C3D8"))

@@ -36,6 +36,8 @@ def main(argv=None) -> int:
     scene = default_scene()
     designs = parse_designs(args.designs, dim=2)
     meshes = [m.strip() for m in args.meshes.split(",")]
+    for m in meshes:
+        named_spec(m)               # every name checked before the first solver run
     rows = []
     for d in designs:
         for m in meshes:

@@ -19,16 +19,17 @@ disc_mean; peak). Bounds 50-150 µm per OCA, 150 <= T1 + T2 <= 250 µm. The base
 rbf) are fitted on the run's training split; mgn is the run's model. The optimum is re-simulated by the
 built-in solver on the training data's mesh preset (cached under RUN/optimize/solver/). The pipeline is
 pcmgn_jax.opt.run (pcmgn_jax/opt/pipeline.py); this module parses flags and prints.
-Writes RUN/optimize/<surrogate>_<method>[_<objective>].json and .png. The GA is resumable: its values
-go to RUN/optimize/<tag>.resume.json as they come (one surrogate batch at a time), and the same command
-after a kill replays them and carries on; the file is removed when the result is written.
+Writes RUN/optimize/<surrogate>_<method>[_<objective>].json and .png (a stack run: also the layer list, when
+not the paper's six, and a hash of --params: one file per search; a file replaced is said). The GA is
+resumable: its values go to RUN/optimize/<tag>.resume.json as they come (one surrogate batch at a time), and
+the same command after a kill replays them and carries on; the file is removed when the result is written.
 """
 from __future__ import annotations
 
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pcmgn_jax import cli
 from pcmgn_jax.surrogates.kinds import choices
@@ -36,6 +37,9 @@ from pcmgn_jax.surrogates.kinds import choices
 
 @dataclass(frozen=True)
 class OptimizeArgs:
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
+    BOUNDS: ClassVar[dict] = {"pop": (2, True), "gens": (1, True), "starts": (1, True), "iters": (1, True),
+                              "screen": (0, True), "grid": (-1, True)}
     workdir: str                                            # training run (config.json; checkpoints for mgn)
     # what predicts the objective (kriging/mop: a response surface of the objective itself; auto: mop, its CoP table in
     # the result)
@@ -63,8 +67,19 @@ class OptimizeArgs:
     progress: bool = True                                   # progress bars (--no_progress: off)
 
 
+def check_args(args: OptimizeArgs, given: set[str]) -> None:
+    """ValueError naming a flag that does not apply to the method or surrogate
+    (:func:`pcmgn_jax.cli.refuse_inapplicable`), before anything is created (the budgets' ranges: ``BOUNDS``)."""
+    ga = None if args.method == "ga" else f"--method {args.method} (only the GA has a population)"
+    starts = None if args.method != "ga" else "--method ga (only gradient and slsqp have starts)"
+    mgn = None if args.surrogate == "mgn" else f"--surrogate {args.surrogate} (only mgn has a checkpoint and members)"
+    cli.refuse_inapplicable(given, {"pop": ga, "gens": ga, "starts": starts, "iters": starts, "which": mgn,
+                                    "ensemble": mgn})
+
+
 def main(argv: list[str] | None = None) -> int:
     args = cli.parse(OptimizeArgs, argv, description=__doc__, prog="python -m experiments.optimize")
+    check_args(args, cli.given_flags(sys.argv[1:] if argv is None else argv))
     import matplotlib
     matplotlib.use("Agg")  # files only; set here, in the entry point, not in the library
     import numpy as np
@@ -73,6 +88,8 @@ def main(argv: list[str] | None = None) -> int:
     from pcmgn_jax.opt.pipeline import result_tag
     command = cli.command_line("experiments.optimize", argv)
     out = run(**asdict(args), command=command)
+    tag = result_tag(args.surrogate, args.method, args.objective, args.stack, args.params)
+    written = Path(args.workdir) / "optimize" / f"{tag}.json"
     if "optimum" in out:    # a panel-stack run: the optimum is a row of named scene parameters
         print(f"{args.surrogate} {args.method} on the stack {'/'.join(out['stack'])}: predicted "
               f"{out['predicted_mpa']:.4f} ± {out['predicted_std_mpa']:.4f} MPa ({out['spread']['source']}; "
@@ -80,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
               "evaluations)" + (f"; solver {out['solver_mpa']:.4f} MPa (error {out['rel_error_pct']:.2f} %)"
                                 if args.check else ""))
         print("optimum: " + ", ".join(f"{n} = {out['optimum'][n]:.4g}" for n in out["searched"]))
-        print(f"wrote {Path(args.workdir) / 'optimize' / result_tag(args.surrogate, args.method, args.objective)}.json")
+        print(f"wrote {written}")
         return 0
     line = (f"{args.surrogate} {args.method}: optimum {np.round(np.asarray(out['optimum_um']), 1).tolist()} µm, "
             f"predicted {out['predicted_mpa']:.4f} ± {out['predicted_std_mpa']:.4f} MPa ({out['spread']['source']}) "
@@ -90,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
         line += (f"; solver {out['solver_mpa']:.4f} MPa (error {out['rel_error_pct']:.2f} %); best dataset "
                  f"design {best['mpa'] if best is not None else float('nan'):.4f} MPa")
     print(line)
-    print(f"wrote {Path(args.workdir) / 'optimize' / result_tag(args.surrogate, args.method, args.objective)}.json")
+    print(f"wrote {written}")
     return 0
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
+from typing import ClassVar
 
 from pcmgn_jax import cli
 from pcmgn_jax.presets import PresetName
@@ -15,6 +16,8 @@ from pcmgn_jax.presets import PresetName
 
 @dataclass(frozen=True)
 class PanelReportArgs:
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
+    BOUNDS: ClassVar[dict] = {"frames": (2, True)}
     preset: PresetName = "cpu"                    # mesh preset (pcmgn_jax.presets.PRESETS)
     designs: str = "50,50;100,100;150,150"       # T_OCA1,T_OCA2 [µm]; designs separated by ';'
     frames: int = 150                            # frames of 4 µs to simulate

@@ -14,6 +14,7 @@ import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 from pcmgn_jax import cli
 from pcmgn_jax.presets import PresetName
@@ -21,6 +22,8 @@ from pcmgn_jax.presets import PresetName
 
 @dataclass(frozen=True)
 class ReachArgs:
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
+    BOUNDS: ClassVar[dict] = {"levels": (0, True)}
     preset: PresetName = "cpu"   # training preset (its mesh preset and message-passing steps); ignored with --workdir
     workdir: str = ""        # a run directory: its config.json's mesh preset, steps and processor
     levels: int = 0          # coarse levels of the multi-scale variant (0: the formulation's reach_levels)

@@ -20,12 +20,15 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
+from typing import ClassVar
 
 from pcmgn_jax import cli
 
 
 @dataclass(frozen=True)
 class StudyArgs:
+    # cli.check_bounds: {flag: (lowest value, inclusive[, highest])}
+    BOUNDS: ClassVar[dict] = {"num_steps": (0, True)}
     name: str                                   # lambda | degree | noise_sigma | noise_parts | target | extrapolation
     formulations: str = "paper,default"         # comma-separated: paper, default
     seeds: str = "0,1"                          # training seeds (same data for all)

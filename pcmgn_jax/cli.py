@@ -21,8 +21,11 @@ that changes a saved value is refused (:func:`pcmgn_jax.config.check_resume`).
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import difflib
+import io
+import math
 import shlex
 import sys
 import typing
@@ -43,7 +46,7 @@ from pcmgn_jax.config import (
 from pcmgn_jax.presets import PRESETS
 
 __all__ = ["TrainArgs", "check_resume", "config_diff", "given_flags", "normalize_argv", "parse", "parse_config",
-           "parse_train", "preset_of"]
+           "parse_train", "preset_of", "refuse_inapplicable", "train_rules"]
 
 T = TypeVar("T")
 _TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
@@ -104,13 +107,56 @@ def parse(cls: type[T], argv: Sequence[str] | None = None, *, description: str |
           default: T | None = None, prog: str | None = None) -> T:
     """Parse ``argv`` (default ``sys.argv[1:]``) into frozen dataclass ``cls`` (tyro, underscore flags).
 
-    ``--help`` prints every field with its comment and exits. Raises ``ValueError`` for an unknown flag
-    or a value the dataclass rejects; tyro exits with status 2 on a value of the wrong type.
+    ``--help`` prints every field with its comment and exits. Raises ``ValueError`` for an unknown flag,
+    a value of the wrong type or one the dataclass rejects (tyro's framed message as one line), and for a
+    number out of range (:func:`check_bounds`).
     """
     argv = sys.argv[1:] if argv is None else list(argv)
     kw: dict[str, Any] = {} if default is None else {"default": default}
-    return tyro.cli(cls, args=normalize_argv(cls, argv), description=description, prog=prog,
-                    use_underscores=True, config=(tyro.conf.OmitArgPrefixes,), **kw)
+    said = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(said):
+            args = tyro.cli(cls, args=normalize_argv(cls, argv), description=description, prog=prog,
+                            use_underscores=True, config=(tyro.conf.OmitArgPrefixes,), **kw)
+    except SystemExit as err:
+        if err.code in (0, None):
+            raise
+        raise ValueError(_one_line(said.getvalue())) from None
+    check_bounds(args)
+    return args
+
+
+def _one_line(box: str) -> str:
+    """tyro's framed error message as one line (the box's text, without its frame and the help pointer)."""
+    text = []
+    for line in box.splitlines():
+        line = line.strip().strip("│").strip()
+        if line.startswith("For full helptext"):
+            break
+        if line and not set(line) <= set("─╭╮╰╯ ") and not line.startswith(("╭", "╰")):
+            text.append(line)
+    return " ".join(text) or box.strip() or "cannot parse the command line (run with --help)"
+
+
+def check_bounds(args) -> None:
+    """ValueError naming the first flag out of range: a float flag that is not finite, a required text flag
+    (a path) that is empty, or one below its entry in the class's ``BOUNDS`` ({field: (low, inclusive[,
+    high])}; None values skipped) or above its high: out-of-range numbers are refused before anything runs,
+    never a traceback from deep inside."""
+    bounds = getattr(type(args), "BOUNDS", {})
+    for f in dataclasses.fields(args):
+        value = getattr(args, f.name)
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"--{f.name}={value}: must be a finite number")
+        required = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+        if required and isinstance(value, str) and not value.strip():
+            raise ValueError(f"--{f.name} is empty: give a path (an empty one would be the current folder)")
+        if f.name in bounds and value is not None:
+            low, inclusive, *high = bounds[f.name]
+            if value < low or (value == low and not inclusive):
+                raise ValueError(f"--{f.name}={value}: must be {'>=' if inclusive else '>'} {low}")
+            if high and value > high[0]:
+                raise ValueError(f"--{f.name}={value}: must be <= {high[0]}")
 
 
 def command_line(module: str, argv: Sequence[str] | None = None) -> str:
@@ -138,24 +184,39 @@ def keyed_paths(specs: Sequence[str], flag: str) -> dict[str, list[Path]]:
     return out
 
 
-def keyed_json_files(specs: Sequence[str], flag: str) -> dict[str, list[dict]]:
-    """:func:`keyed_paths`, each file parsed as JSON (ValueError naming the file if it is not JSON)."""
+METRICS_KEYS = ("position_mae_um", "stress_mae_mpa")   # what every evaluation's metrics.json holds
+
+
+def keyed_json_files(specs: Sequence[str], flag: str, require: Sequence[str] = METRICS_KEYS) -> dict[str, list[dict]]:
+    """:func:`keyed_paths`, each file parsed as JSON: ValueError naming the file if it is not JSON or lacks a key
+    of ``require`` (default: an evaluation's metrics.json), never a table of nothing."""
     import json
 
     def load(p: Path):
         try:
-            return json.loads(p.read_text())
+            d = json.loads(p.read_text())
         except json.JSONDecodeError as err:
             raise ValueError(f"--{flag}: {p} is not JSON ({err})") from None
+        missing = [k for k in require if not isinstance(d, dict) or k not in d]
+        if missing:
+            raise ValueError(f"--{flag}: {p} is not a metrics.json of experiments.evaluate (no {missing})")
+        return d
     return {key: [load(p) for p in paths] for key, paths in keyed_paths(specs, flag).items()}
 
 
 def run(main_fn, argv: Sequence[str] | None = None) -> int:
-    """Call ``main_fn(argv)``, turning a ``ValueError`` into ``error: ...`` on stderr and status 2."""
+    """Call ``main_fn(argv)``, turning a ``ValueError`` into ``error: ...`` on stderr and status 2, and an
+    ``OSError`` of a path (a folder where a file goes, a file where a folder goes, no permission, ...) into
+    ``error: PATH: what`` (status 2), never a traceback."""
     try:
         return main_fn(argv)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        if err.filename is None:
+            raise
+        print(f"error: {err.filename}: {err.strerror or err} (check the paths given)", file=sys.stderr)
         return 2
 
 
@@ -179,6 +240,28 @@ def given_flags(argv: Sequence[str]) -> set[str]:
             key = arg[2:].partition("=")[0].replace("-", "_")
             out.add(key[3:] if key.startswith("no_") else key)
     return out
+
+
+def refuse_inapplicable(given: set[str], rules: dict[str, str | None]) -> None:
+    """ValueError naming each flag written (``given``, :func:`given_flags`) whose rule says why it does not apply
+    to the chosen preset or mode (``rules``: flag -> the reason, or None where it applies): a flag is refused,
+    never silently ignored."""
+    bad = [f"--{flag} does not apply: {why}" for flag, why in rules.items() if why and flag in given]
+    if bad:
+        raise ValueError("; ".join(bad))
+
+
+def train_rules(args: "TrainArgs") -> dict[str, str | None]:
+    """The training flags that apply only to some settings (:func:`refuse_inapplicable`). The noise levels and
+    ``lambda_start`` stay allowed beside ``noise_parts=none`` / ``lambda_pen=0``: the studies' recorded
+    commands write them for every cell (pcmgn_jax.studies.cells.as_flags)."""
+    cfg, form = args.config, args.config.formulation
+    return {"reach_levels": None if form.reach == "multiscale" else f"--reach={form.reach} (only multiscale: levels)",
+            **{k: None if form.reach == "attention" else f"--reach={form.reach} (only attention has slices and heads)"
+               for k in ("reach_slices", "reach_heads")},
+            "residual_ball": None if cfg.residual_of else "no --residual_of (the network moves the ball itself)",
+            **{k: None if args.coordinator_address else "no --coordinator_address (one host)"
+               for k in ("num_processes", "process_id")}}
 
 
 def preset_of(argv: Sequence[str], default: str = "cpu") -> str:
@@ -262,25 +345,22 @@ def parse_train(argv: Sequence[str] | None = None, *, description: str | None = 
                   default=TrainArgs(config=_select(TrainConfig.from_preset(preset), name)))
     saved = probe.run_dir / "config.json"
     if not (probe.resume and saved.exists()):
+        refuse_inapplicable(given_flags(argv), train_rules(probe))
         return probe
     base = _select(TrainConfig.load(saved), name)
     args = parse(TrainArgs, argv, description=description, prog=prog, default=TrainArgs(config=base))
     check_resume(args.config, args.run_dir)
+    refuse_inapplicable(given_flags(argv), train_rules(args))
     return args
 
 
 def parse_config(argv: Sequence[str]) -> TrainConfig:
     """A :class:`TrainConfig` from ``--key=value`` flags (``--preset`` fills the defaults).
 
-    Library form: raises ``ValueError`` for an unknown flag or a bad value (tyro prints the details).
+    Library form: raises ``ValueError`` for an unknown flag or a bad value (tyro's message, one line).
     """
     argv = list(argv)
     preset = preset_of(argv)
     rest, name = _train_argv(argv)
-    try:
-        return parse(TrainConfig, rest, default=_select(TrainConfig.from_preset(preset), name),
-                     prog="pcmgn_jax.cli.parse_config")
-    except SystemExit as err:
-        if err.code in (0, None):
-            raise
-        raise ValueError(f"pcmgn_jax.cli.parse_config: cannot parse {list(argv)} (details above)") from None
+    return parse(TrainConfig, rest, default=_select(TrainConfig.from_preset(preset), name),
+                 prog="pcmgn_jax.cli.parse_config")

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, get_args
@@ -130,8 +131,13 @@ class TrainConfig:
             bad("ema_decay", "must be in [0, 1) (0 = no parameter average)")
         if not 0 <= self.lambda_start < 1:
             bad("lambda_start", "must be in [0, 1) (a fraction of the training steps)")
-        if any(v < 0 for v in (self.contact_radius, self.noise_std, self.noise_rel, self.lambda_pen, self.lambda_obj)):
-            bad("contact_radius/noise_std/noise_rel/lambda_pen/lambda_obj", "must be >= 0")
+        for name in ("contact_radius", "contact_capacity_factor", "noise_std", "noise_rel", "lambda_pen", "lambda_obj",
+                     "pen_x_max", "pen_length_scale", "lr_decay_rate"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                bad(name, "must be a finite number >= 0")
+        if self.formulation.reach == "attention" and self.latent_size % self.formulation.reach_heads:
+            bad("latent_size", f"must be divisible by reach_heads={self.formulation.reach_heads} (reach='attention' "
+                "splits the latent over its heads)")
         if self.residual_of not in RESIDUAL_BASES:
             bad("residual_of", f"must be one of {RESIDUAL_BASES} ('' = the network predicts the fields themselves)")
         if self.residual_of and (self.formulation.panel_model != "quasi_static" or self.lambda_pen > 0):

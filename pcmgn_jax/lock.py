@@ -92,6 +92,7 @@ def hold(folder: str | os.PathLike, what: str, *, name: str = LOCK_NAME, shared:
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise ValueError(f"{folder}: exists and is not a folder ({what} writes into a folder there)")
+    created = _missing_top(folder)
     folder.mkdir(parents=True, exist_ok=True)
     key = folder.resolve() / name
     if key in _held:
@@ -134,6 +135,10 @@ def hold(folder: str | os.PathLike, what: str, *, name: str = LOCK_NAME, shared:
         _held[key] = [f, 1]
         try:
             yield folder
+        except BaseException:
+            if created is not None:
+                _remove_if_bare(folder, name, created)
+            raise
         finally:
             del _held[key]
             f.seek(0)
@@ -141,6 +146,32 @@ def hold(folder: str | os.PathLike, what: str, *, name: str = LOCK_NAME, shared:
             f.flush()
     finally:
         f.close()            # closing the file releases the flock
+
+
+def _missing_top(folder: Path) -> Path | None:
+    """The outermost of ``folder`` and its parents that does not exist yet (what ``mkdir -p`` creates), or None."""
+    top = None
+    for p in (folder, *folder.parents):
+        if p.exists():
+            break
+        top = p
+    return top
+
+
+def _remove_if_bare(folder: Path, name: str, created: Path) -> None:
+    """A command refused inside :func:`hold` leaves nothing behind: when ``folder`` (made by this hold, up to
+    ``created``) holds only its lock file, the file and the folders made for it are removed (while the lock is
+    still held, so no other writer can be holding the file)."""
+    try:
+        if [p.name for p in folder.iterdir()] != [name]:
+            return
+        (folder / name).unlink()
+        for p in (folder, *folder.parents):
+            p.rmdir()
+            if p == created:
+                break
+    except OSError:
+        pass
 
 
 def _refusal(folder: Path, what: str, name: str) -> str:

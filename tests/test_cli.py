@@ -59,8 +59,10 @@ def test_unknown_flag_and_preset_errors():
         cli.parse_config(["--lamda_pen=10"])
     with pytest.raises(ValueError, match="boolean"):
         cli.parse_config(["--progress=maybe"])
-    with pytest.raises(SystemExit):                        # a value of the wrong type: tyro's message
+    with pytest.raises(ValueError, match="Error parsing --latent_size: invalid literal"):   # tyro's message, one line
         cli.parse_train(["--latent_size=big"])
+    with pytest.raises(ValueError, match=r"^invalid choice 'bogus' for argument '--origin'"):
+        cli.parse_train(["--origin=bogus"])
 
 
 def test_help_lists_every_field_with_its_comment(capsys, monkeypatch):

@@ -8,8 +8,9 @@ element offsets into each ``.npy`` and its meta dict. Loading maps the files wit
 regardless of size; pages are read on first touch.
 
 The cache is keyed on the content it was built from: per trajectory its name, its sidecar's sha256 and
-the size and modification time (ns) of each of its files (``.json``, ``.h5``, ``.xdmf``). When any of them
-changes (a file truncated, rewritten or replaced behind an unchanged sidecar), the cache is rebuilt, and the
+the size and sha256 of the bytes of each of its files (``.json``, ``.h5``, ``.xdmf``; hashed at every load,
+milliseconds per megabyte). When any of them changes (a file truncated, edited in place with its size and
+modification time kept, rewritten or replaced behind an unchanged sidecar), the cache is rebuilt, and the
 build reads every trajectory with hash verification and finiteness checks (``read_trajectory(verify=True)``),
 so a damaged file is refused with its name (TrajectoryFileError), never trained on from an old cache. With a
 manifest, every entry is checked against its trajectory's sidecar first (content hash, design, scene
@@ -21,6 +22,7 @@ split have different dtypes for a field, the field is stored in their common (pr
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -47,7 +49,7 @@ __all__ = ["CACHE_DIR", "cache_dir", "ensure_cache", "load_split"]
 CACHE_DIR = ".cache"
 INDEX = "index.json"
 CACHE_FORMAT = "pcmgn_jax.cache"
-CACHE_VERSION = 2                      # 2: sources keyed on file sizes and modification times too
+CACHE_VERSION = 3                      # 3: sources keyed on each file's size and sha256 (2: size, mtime)
 
 
 def cache_dir(dataset_dir: str | os.PathLike, split: str) -> Path:
@@ -55,15 +57,16 @@ def cache_dir(dataset_dir: str | os.PathLike, split: str) -> Path:
     return Path(dataset_dir) / CACHE_DIR / split
 
 
-def _stat(stem: Path) -> list[list[int]]:
-    """[size, mtime_ns] of a trajectory's .json, .h5 and .xdmf ([-1, -1] for a missing one)."""
-    out = []
+def _stat(stem: Path) -> list[list]:
+    """[size, sha256 of the bytes] of a trajectory's .json, .h5 and .xdmf ([-1, ""] for a missing one): a file
+    edited in place, whatever its size and modification time, changes the key."""
+    out: list[list] = []
     for p in trajectory_paths(stem)[::-1]:
         try:
-            st = p.stat()
-            out.append([st.st_size, st.st_mtime_ns])
+            with open(p, "rb") as f:
+                out.append([os.fstat(f.fileno()).st_size, hashlib.file_digest(f, "sha256").hexdigest()])
         except FileNotFoundError:
-            out.append([-1, -1])
+            out.append([-1, ""])
     return out
 
 

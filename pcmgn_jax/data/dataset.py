@@ -45,6 +45,7 @@ from pcmgn_jax.data.designs import (
     FAMILIES,
     SceneFamily,
     lhs_designs,
+    origin_mismatch,
     parse_designs,
     parse_scene_params,
 )
@@ -218,6 +219,11 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
         if not np.all(np.isfinite(designs)) or np.any(designs < 0 if isinstance(family, StackFamily) else designs <= 0):
             raise DatasetError(f"designs must be finite values > 0 (SI; >= 0 in a stack's padded row) for {what}")
         plan[split] = (designs, {"kind": "explicit"})
+        for i, row in enumerate(designs if family is not None else ()):   # every scene made once, before the lock
+            try:
+                family.scene(scene, dict(zip(family.names, row)))
+            except ValueError as err:
+                raise DatasetError(f"scene {i + 1} of {len(designs)}: {err}") from None
     for name in plan:
         if not _SPLIT_RE.match(name):
             raise DatasetError(f"split name {name!r} must match {_SPLIT_RE.pattern}")
@@ -250,9 +256,9 @@ def _generate(root: Path, plan: dict[str, tuple[np.ndarray, dict[str, Any]]], *,
     else:
         if man.get("preset") != preset:
             raise DatasetError(f"{manifest_path}: dataset was generated with preset {man.get('preset')!r}, "
-                               f"not {preset!r}; use another --out")
+                               f"not {preset!r}; use another folder")
         if man.get("scene") != scene.to_dict():
-            raise DatasetError(f"{manifest_path}: dataset was generated for a different scene; use another --out")
+            raise DatasetError(f"{manifest_path}: dataset was generated for a different scene; use another folder")
         check_element(root, man)
     for name, (des, origin) in plan.items():
         old = man["splits"].get(name)
@@ -262,10 +268,8 @@ def _generate(root: Path, plan: dict[str, tuple[np.ndarray, dict[str, Any]]], *,
             old_d = np.asarray([e[key] if family is None else list(e[key].values()) for e in old["trajectories"]],
                                dtype=np.float64).reshape(len(old["trajectories"]), -1)
             if old_d.shape != des.shape or not np.allclose(old_d, des, rtol=1e-12, atol=0):
-                raise DatasetError(
-                    f"{manifest_path}: split {name!r} holds {len(old_d)} other designs "
-                    f"(origin {old.get('origin')}); requested {len(des)} designs ({origin}). "
-                    "Use another --out or --split.")
+                why = origin_mismatch(old.get("origin") or {}, len(old_d), origin, len(des))
+                raise DatasetError(f"{manifest_path}: split {name!r} {why}; use another dataset folder (or split name)")
             for e, o in zip(entries, old["trajectories"]):
                 e["sha256"], e["wall_time_s"] = o.get("sha256"), o.get("wall_time_s")
         man["splits"][name] = {"origin": origin, "trajectories": entries}

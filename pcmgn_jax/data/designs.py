@@ -127,3 +127,14 @@ def parse_designs(text: str, *, dim: int | None = 2) -> np.ndarray:
             raise ValueError(f"--designs: design {i + 1} has {len(vals)} values, design 1 has {len(rows[0])}")
         rows.append(vals)
     return np.asarray(rows, dtype=np.float64) * 1e-6
+
+
+def origin_mismatch(old: dict, n_old: int, new: dict, n_new: int) -> str:
+    """Why a split's recorded designs (``old`` origin, ``n_old`` rows) are not the ``n_new`` asked for (``new``
+    origin), cause first: '... was generated with plan e1, asked for e2' (plan, kind, seed, count, else bounds)."""
+    for key, what in (("plan", "plan"), ("kind", "designs of kind"), ("seed", "seed")):
+        if old.get(key) != new.get(key):
+            return f"was generated with {what} {old.get(key)}, asked for {new.get(key)}"
+    if n_old != n_new:
+        return f"holds {n_old} designs, asked for {n_new} (the same {old.get('kind')} seed {old.get('seed')})"
+    return f"holds {n_old} other designs (another design box or other explicit designs)"

@@ -42,6 +42,11 @@ def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str =
         raise ValueError(f"evaluate: split={split!r} must be test or val")
     if split == "val" and data:
         raise ValueError("evaluate: split='val' scores the run's validation trajectories; it takes no data directory")
+    if name and (Path(name).name != name or name in (".", "..")):
+        raise ValueError(f"evaluate: name {name!r} must be one folder name (the evaluation goes to RUN/eval/NAME)")
+    if residual_ball and not cfg.residual_of:
+        raise ValueError(f"evaluate: residual_ball={residual_ball!r} is for a run with residual_of; {workdir} "
+                         "predicts the fields themselves (its network moves the ball)")
     train, val, test = load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train,
                                    n_val=cfg.n_val if split == "val" else 0,
                                    n_test=0 if data or split == "val" else cfg.n_test)

@@ -112,6 +112,17 @@ def build_levels(senders, receivers, n_node: int, levels: int) -> tuple[Level, .
     return tuple(out)
 
 
+def shrinking_levels(senders, receivers, n_node: int) -> int:
+    """How many bi-stride levels of the graph (directed edges (senders, receivers) on ``n_node`` nodes) still
+    shrink it: after them every connected part is one node, and any further level repeats the last."""
+    adj, count = adjacency(senders, receivers, n_node), 0
+    while True:
+        kept, _, coarse = coarsen(adj)
+        if len(kept) == adj.shape[0]:
+            return count
+        adj, count = coarse, count + 1
+
+
 def level_sizes(hierarchy: Sequence[Level]) -> tuple[tuple[int, int], ...]:
     """((nodes, directed edges) of every level)."""
     return tuple((lv.n_node, int(lv.senders.shape[0])) for lv in hierarchy)

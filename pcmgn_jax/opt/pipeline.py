@@ -20,10 +20,32 @@ from pcmgn_jax.surrogates.kinds import AUTO, KINDS, choices
 SURROGATES = choices("optimise")
 
 
-def result_tag(surrogate: str, method: str, objective: str) -> str:
-    """The result's file stem under RUN/optimize: ``<surrogate>_<method>[_<objective>]`` (no suffix for
-    the default ``area_mean``)."""
-    return f"{surrogate}_{method}" + ("" if objective == "area_mean" else f"_{objective}")
+def result_tag(surrogate: str, method: str, objective: str, stack: str = "", params: str = "") -> str:
+    """The result's file stem under RUN/optimize, named by its search: ``<surrogate>_<method>[_<objective>]``
+    (no suffix for the default ``area_mean``), on a panel-stack run ``[_<layer-list>]`` (a layer list other than
+    the paper's six, its names joined by '-') and ``[_p<hash>]`` (the ``params`` searched, when named)."""
+    import hashlib
+
+    from pcmgn_jax.data.stack import variant_layers
+    layers = [n.strip() for n in stack.split(",") if n.strip()]
+    names = ",".join(n.strip() for n in params.split(",") if n.strip())
+    return (f"{surrogate}_{method}" + ("" if objective == "area_mean" else f"_{objective}")
+            + ("" if not layers or tuple(layers) == variant_layers(True, None) else "_" + "-".join(layers))
+            + (f"_p{hashlib.sha256(names.encode()).hexdigest()[:8]}" if names else ""))
+
+
+def replacing(path: Path, record: dict) -> str | None:
+    """The line that says a result at ``path`` is replaced (its command, and the arguments ``record`` changes),
+    or None when there is none: a second search never replaces the first's result silently."""
+    import json
+    try:
+        old = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    args = old.get("args") or {}
+    diff = sorted(k for k in set(args) | set(record) if k != "progress" and args.get(k) != record.get(k))
+    return (f"note: replacing {path}, the result of `{old.get('command') or '?'}`"
+            + (f" (this search differs in {', '.join(diff)})" if diff else " (the same search again)"))
 
 
 def run(workdir: str | Path, *, surrogate: str = "mgn", **kw) -> dict:
@@ -49,6 +71,8 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", **kw) -> dict:
     if surrogate not in SURROGATES:
         raise ValueError(f"surrogate must be one of {SURROGATES}, got {surrogate!r}")
     require_run(workdir, checkpoint=surrogate == "mgn")
+    for member in (m for m in str(kw.get("ensemble") or "").split(",") if m):
+        require_run(member, checkpoint=True)      # an ensemble member is checked before the search, not after
     with hold(Path(workdir) / "optimize", "optimize"):
         return _optimize(workdir, surrogate=surrogate, **kw)
 
@@ -86,10 +110,12 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
     ref = train[0]
     scene = Scene.from_dict(ref.meta["scene"])
     preset = solver_preset(ref, cfg.resolved_dataset_dir)
-    tag = result_tag(surrogate, method, objective)
+    tag = result_tag(surrogate, method, objective, stack, params)
     if is_stack(family_of(ref)):
         dest = plots.ensure_dir(run_dir / "optimize")
         record.update(stack=stack, params=params)
+        if note := replacing(dest / f"{tag}.json", record):
+            print(note)
         out = optimize_stack(run_dir, cfg, train, surrogate=surrogate, method=method, objective=objective, pop=pop,
                              gens=gens, seed=seed, which=which, check=check, progress=progress,
                              layers=parse_names(stack) or PAPER_STACK, search_names=parse_names(params) or None,
@@ -113,6 +139,8 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
         obj = FieldObjective(fit(kind, train), dmap, **kw)
 
     dest = plots.ensure_dir(run_dir / "optimize")
+    if note := replacing(dest / f"{tag}.json", record):
+        print(note)
     resume = dest / f"{tag}.resume.json"
     loaded = 0
     if method == "ga":

@@ -20,7 +20,15 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from pcmgn_jax.data.designs import FAMILIES
-from pcmgn_jax.data.stack import SLOT_NAMES, StackFamily, canonical, nominal, value_ranges, variant_layers
+from pcmgn_jax.data.stack import (
+    SLOT_NAMES,
+    VARIANTS,
+    StackFamily,
+    canonical,
+    nominal,
+    value_ranges,
+    variant_layers,
+)
 from pcmgn_jax.scene import Scene, with_parameters
 from pcmgn_jax.sim.initial import initial_velocity
 from pcmgn_jax.sim.mesh import build_mesh, roi
@@ -128,10 +136,10 @@ def stack_box(layers: Sequence[str] = PAPER_STACK, search: Sequence[str] | None 
     naming an unknown parameter, a layer not in the stack, a presence flag (the layer list is chosen by
     ``layers``, not searched) or a layer list outside the family."""
     layers = tuple(layers)
-    order = [n for n in SLOT_NAMES if n in layers]
-    if len(set(layers)) != len(layers) or list(layers) != order or "OLED" not in layers:
-        raise ValueError(f"stack: the layers {list(layers)} are no stack of the family: slots in the order "
-                         f"{list(SLOT_NAMES)}, each once, the OLED among them")
+    family = [variant_layers(pol, extra) for pol, extra in VARIANTS]
+    if layers not in family:
+        raise ValueError(f"stack: the layers {list(layers)} are no stack of the family ({_why_not(layers)}); "
+                         "its stacks: " + "; ".join(",".join(v) for v in family))
     base = canonical(nominal(layers))
     ranges = value_ranges()
     allowed = [n for n in ranges if n.split(".")[0] in layers or n.startswith("ball.")]
@@ -152,6 +160,21 @@ def stack_box(layers: Sequence[str] = PAPER_STACK, search: Sequence[str] | None 
         raise ValueError(f"stack search: a parameter is named twice in {list(names)}")
     low, high = (np.array([ranges[n][i] for n in names]) for i in (0, 1))
     return ParameterBox(names, low, high, base)
+
+
+def _why_not(layers: Sequence[str]) -> str:
+    """The first rule of the stack family that ``layers`` breaks (:data:`pcmgn_jax.data.stack.VARIANTS`)."""
+    unknown = [n for n in layers if n not in SLOT_NAMES]
+    if unknown:
+        return f"unknown layer(s) {unknown}"
+    if len(set(layers)) != len(layers) or list(layers) != [n for n in SLOT_NAMES if n in layers]:
+        return f"each layer once, in the order {list(SLOT_NAMES)}"
+    if not 5 <= len(layers) <= 7:
+        return f"{len(layers)} layers; the family's stacks have 5 to 7"
+    missing = [n for n in variant_layers(False, None) if n not in layers]
+    if missing:
+        return f"without {', '.join(missing)}: every stack has the contact layer CG, OCA1, OCA2, the OLED and PLATE"
+    return "at most one extra film (TSP or BF)"
 
 
 def parse_names(text: str) -> tuple[str, ...]:

@@ -110,6 +110,9 @@ def optimize_stack(run_dir: Path, cfg, train: Sequence, *, surrogate: str, metho
                          "use --method ga")
     family = family_of(train[0])
     box = stack_box(layers, search_names)
+    notes = _unseen(layers, train)
+    for note in notes:
+        print(f"note: {note}")
     scene0 = Scene.from_dict(train[0].meta["scene"])
     kind = "mop" if surrogate == AUTO else surrogate
     try:
@@ -136,7 +139,7 @@ def optimize_stack(run_dir: Path, cfg, train: Sequence, *, surrogate: str, metho
            "units": {"objective": "MPa", "optimum": "SI: thickness m, log10_youngs log10 Pa, ball.radius m, "
                                                     "ball.velocity m/s"},
            "nominal_mpa": float(obj(base[None])[0]), "command": command, "args": record or {},
-           **({"resumed": {"evals_loaded": loaded}} if loaded else {})}
+           **({"resumed": {"evals_loaded": loaded}} if loaded else {}), **({"warnings": notes} if notes else {})}
     out.update(_spread(kind, model, obj, x, train, objective))
     q = obj.queries(x[None])[0]
     if check:
@@ -156,6 +159,15 @@ def optimize_stack(run_dir: Path, cfg, train: Sequence, *, surrogate: str, metho
     out["history"] = [{"f": h["f"], "x": dict(zip(box.names, (v / 1e6 for v in h["x_um"]))), "feasible": h["feasible"]}
                       for h in res.get("history") or []]
     return out
+
+
+def _unseen(layers: Sequence[str], train: Sequence) -> list[str]:
+    """A note when no training stack has the layer list ``layers`` (every prediction then extrapolates to it)."""
+    trained = {tuple(n for n in t.meta.get("part_names") or () if n != "ball") for t in train}
+    if tuple(layers) in trained:
+        return []
+    return [f"no training stack of this run has the layers {','.join(layers)} (trained: "
+            f"{sorted({len(t) for t in trained})} layers): every prediction extrapolates to this layer list"]
 
 
 def _spread(kind: str, model, obj: StackObjective, x, train, reading: str) -> dict:

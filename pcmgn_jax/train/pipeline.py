@@ -20,19 +20,23 @@ def run(cfg: TrainConfig, workdir: str | Path, *, resume: bool = False, overwrit
     (``step``, ``seconds``, ``best_val_position_mae_um``, ...). ``resume``: continue from the last checkpoint.
 
     A workdir that holds a run is never replaced silently (:func:`claim`): without ``resume`` it is refused
-    unless ``overwrite``, which moves the earlier run aside. The workdir is locked for the whole run
-    (:func:`pcmgn_jax.lock.hold`: one writer per workdir); nothing is written before every check passed."""
+    unless ``overwrite``, which moves the earlier run aside. The dataset is made (when missing), loaded and
+    checked against the model (:func:`check_model_fits`) before the workdir is created; the workdir is then locked
+    for the whole run (:func:`pcmgn_jax.lock.hold`: one writer per workdir); nothing is written before every
+    check passed."""
     import jax
 
     from pcmgn_jax.data.layout import dataset_source
     workdir = Path(workdir)
     if jax.process_index() != 0:     # several hosts: process 0 checks, locks and writes the run's files
-        return _run_locked(cfg, workdir, resume=resume)
+        return _run_locked(cfg, workdir, _data(cfg), resume=resume)
     claim(workdir, resume=resume, overwrite=overwrite, dry=True)   # refuse before the dataset is made
     dataset_source(cfg.resolved_dataset_dir)                        # a folder that is no dataset: refused here
+    data = _data(cfg)                 # the dataset checked (and made when missing) before the run folder exists
+    check_model_fits(cfg, data[2] + data[3])
     with hold(workdir, "train"):
         claim(workdir, resume=resume, overwrite=overwrite)
-        return _run_locked(cfg, workdir, resume=resume)
+        return _run_locked(cfg, workdir, data, resume=resume)
 
 
 RUN_FILES = ("config.json", "metrics.jsonl", "checkpoints")   # what makes a folder hold a run worth keeping
@@ -65,13 +69,43 @@ def claim(workdir: Path, *, resume: bool, overwrite: bool, dry: bool = False) ->
     print(f"--overwrite: moved the earlier run in {workdir} to {old}")
 
 
-def _run_locked(cfg: TrainConfig, workdir: Path, *, resume: bool) -> dict:
-    from pcmgn_jax.data.layout import IMPORTED, split_stems
+def _data(cfg: TrainConfig) -> tuple:
+    """(dataset root, its source, train, val) of ``cfg``: generated where missing, loaded, checked."""
     from pcmgn_jax.data.splits import load_splits, prepare_dataset
-    from pcmgn_jax.train import loop as training
     root, source = prepare_dataset(cfg.resolved_dataset_dir, preset=cfg.data_preset,
                                    n_train=cfg.n_train + cfg.n_val, n_test=cfg.n_test, seed=cfg.data_seed)
     train, val, _ = load_splits(root, n_train=cfg.n_train, n_val=cfg.n_val, n_test=0)
+    return root, source, train, val
+
+
+def check_model_fits(cfg: TrainConfig, trajs) -> None:
+    """ValueError naming the graph when the model asks for more than the training graphs hold: coarse levels
+    (``reach='multiscale'``) beyond the point where the smallest graph is one node per connected part (more
+    levels repeat the last, and only make the compiled program grow), or more attention slices
+    (``reach='attention'``) than the smallest graph has nodes."""
+    form = cfg.formulation
+    if form.reach not in ("multiscale", "attention") or not trajs:
+        return
+    small = min(trajs, key=lambda t: t.n_nodes)
+    what = f"{small.meta.get('name', 'a graph')} ({small.n_nodes} nodes)"
+    if form.reach == "attention":
+        if form.reach_slices > small.n_nodes:
+            raise ValueError(f"reach_slices={form.reach_slices} is more than the graphs hold: {what}; use "
+                             f"reach_slices <= {small.n_nodes}")
+        return
+    from pcmgn_jax.mgn.hierarchy import shrinking_levels
+    from pcmgn_jax.mgn.inputs import topology_from_trajectory
+    topo = topology_from_trajectory(small)
+    most = shrinking_levels(topo.mesh_senders, topo.mesh_receivers, topo.n_node)
+    if form.reach_levels > most:
+        raise ValueError(f"reach_levels={form.reach_levels} is more than the graphs hold: {what} is one node per "
+                         f"connected part after {most} coarse levels; use reach_levels <= {most}")
+
+
+def _run_locked(cfg: TrainConfig, workdir: Path, data: tuple, *, resume: bool) -> dict:
+    from pcmgn_jax.data.layout import IMPORTED, split_stems
+    from pcmgn_jax.train import loop as training
+    root, source, train, val = data
     if source == IMPORTED:
         have = len(split_stems(root, "train"))
         unused = have - len(train) - len(val)

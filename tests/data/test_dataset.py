@@ -82,7 +82,7 @@ def test_extra_split_and_conflicts(tmp_path, fake):
     assert set(man["splits"]) == {"train", "test", "extrap"}
     with pytest.raises(ds.DatasetError, match="preset 'tiny', not 'cpu'"):
         ds.ensure_dataset(out, preset="cpu", n_train=2, n_test=1, seed=0, progress=False)
-    with pytest.raises(ds.DatasetError, match="split 'train' holds 2 other designs"):
+    with pytest.raises(ds.DatasetError, match="split 'train' was generated with seed 0, asked for 1; use another"):
         ds.ensure_dataset(out, preset="tiny", n_train=2, n_test=1, seed=1, progress=False)
     with pytest.raises(ds.DatasetError, match="shape"):
         ds.ensure_dataset(out, preset="tiny", designs=np.ones((2, 3)) * 1e-4, progress=False)
@@ -157,5 +157,5 @@ def test_a_smaller_run_reads_the_first_rows_of_a_larger_dataset(tmp_path, fake):
     assert len(fake.calls) == calls and (out / "manifest.json").stat().st_mtime_ns == before
     train, val, test = load_splits(out, n_train=1, n_val=1, n_test=1)
     assert [t.meta["name"] for t in train + val + test] == ["train_0000", "train_0001", "test_0000"]
-    with pytest.raises(ds.DatasetError, match="split 'train' holds 4 other designs"):
+    with pytest.raises(ds.DatasetError, match="split 'train' was generated with seed 0, asked for 1"):
         prepare_dataset(out, preset="tiny", n_train=2, n_test=1, seed=1)

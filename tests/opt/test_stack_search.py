@@ -144,7 +144,10 @@ def test_optimize_searches_a_stack_run(stack_run):
     layers = "CG,OCA1,OCA2,OLED,PLATE"                       # a 5-layer stack: training has its layer list
     out = run(stack_run, surrogate="kriging", method="ga", pop=6, gens=2, check=False, progress=False,
               stack=layers, params="OCA1.thickness,ball.velocity")
-    saved = json.loads((stack_run / "optimize" / "kriging_ga.json").read_text())
+    from pcmgn_jax.opt.pipeline import result_tag
+    tag = result_tag("kriging", "ga", "area_mean", layers, "OCA1.thickness,ball.velocity")   # named by its search
+    assert tag.startswith("kriging_ga_CG-OCA1-OCA2-OLED-PLATE_p")
+    saved = json.loads((stack_run / "optimize" / f"{tag}.json").read_text())
     assert saved["optimum"] == pytest.approx(out["optimum"]) and saved["stack"] == layers.split(",")
     assert list(saved["searched"]) == ["OCA1.thickness", "ball.velocity"]
     base = nominal(layers.split(","))
@@ -152,7 +155,7 @@ def test_optimize_searches_a_stack_run(stack_run):
             and saved["optimum"][n.replace("thickness", "present")]}
     assert held == pytest.approx({n: base[n] for n in held})
     assert saved["predicted_std_mpa"] > 0 and saved["spread"]["source"] == "kriging posterior std"
-    assert not (stack_run / "optimize" / "kriging_ga.resume.json").exists()
+    assert not (stack_run / "optimize" / f"{tag}.resume.json").exists()
 
 
 def test_optimize_refuses_what_cannot_answer_a_stack_by_name(stack_run):
@@ -201,3 +204,36 @@ def test_slider_headings_name_a_unit_only_where_there_is_one():
     assert parameter("CG.present", 1.0, 1.0).heading == "CG present (1/0)"
     assert parameter("CG.thickness", 6e-5, 1.4e-4).heading == "CG thickness [µm]"
     assert parameter("ball.radius", 4e-3, 6e-3).heading == "ball radius [mm]"
+
+
+@pytest.mark.parametrize("layers, why", [
+    ("CG,OLED", "2 layers; the family's stacks have 5 to 7"),
+    ("CG,OCA1,POL,TSP,OCA2,OLED,BF,PLATE", "8 layers"),
+    ("OCA1,POL,OCA2,OLED,PLATE", "without CG"),
+    ("CG,OCA1,POL,OCA2,PLATE", "without OLED"),
+    ("CG,OCA1,TSP,OCA2,OLED,BF,PLATE", "at most one extra film"),
+])
+def test_a_stack_search_outside_the_family_is_refused_before_the_search(stack_run, layers, why):
+    """Issue 52: a layer list the family never holds (it used to exit 0 with a prediction 99 % off) is refused
+    by name before the search; nothing is written."""
+    from pcmgn_jax.opt import run
+    before = sorted(p.name for p in (stack_run / "optimize").glob("*")) if (stack_run / "optimize").exists() else []
+    with pytest.raises(ValueError, match=f"are no stack of the family \\({why}"):
+        run(stack_run, surrogate="kriging", method="ga", pop=4, gens=1, check=False, progress=False, stack=layers)
+    after = sorted(p.name for p in (stack_run / "optimize").glob("*")) if (stack_run / "optimize").exists() else []
+    assert after == before
+
+
+def test_stack_searches_are_named_by_their_search_and_a_replacement_is_said(stack_run, capsys):
+    from pcmgn_jax.opt import run
+    from pcmgn_jax.opt.pipeline import result_tag
+    kw = dict(surrogate="kriging", method="ga", pop=4, gens=1, check=False, progress=False)
+    six = run(stack_run, **kw)                     # the paper's six: a layer list no training stack has
+    assert "no training stack of this run has the layers CG,OCA1,POL,OCA2,OLED,PLATE" in six["warnings"][0]
+    run(stack_run, **kw, stack="CG,OCA1,OCA2,OLED,PLATE")
+    names = {p.name for p in (stack_run / "optimize").glob("kriging_ga*.json")}
+    assert {"kriging_ga.json", f"{result_tag('kriging', 'ga', 'area_mean', 'CG,OCA1,OCA2,OLED,PLATE')}.json"} <= names
+    capsys.readouterr()
+    run(stack_run, **{**kw, "seed": 1})
+    out = capsys.readouterr().out
+    assert "note: replacing" in out and "kriging_ga.json" in out and "differs in seed" in out, out

@@ -80,7 +80,7 @@ def test_overwrite_moves_the_earlier_run_aside_and_trains(data, tmp_path, capsys
     files = _fake_run(run)
     seen = []
 
-    def fake_training(cfg, workdir, *, resume):   # the training itself is covered elsewhere: what it finds
+    def fake_training(cfg, workdir, data, *, resume):   # the training itself is covered elsewhere: what it finds
         seen.append(sorted(p.name for p in workdir.iterdir()))
         return dict(step=0, seconds=0.0, best_val_position_mae_um=float("nan"))
     monkeypatch.setattr(pipeline, "_run_locked", fake_training)
