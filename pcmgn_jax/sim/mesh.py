@@ -382,5 +382,6 @@ def named_spec(name: str) -> str | MeshSpec:
         return with_spec("cpu", h_contact=base.h_contact / 2, h_layer=base.h_layer / 2,
                          layer_elems={k: 2 * v for k, v in base.layer_elems.items()})
     if name not in MESH_PRESETS:
-        raise ValueError(f"unknown mesh {name!r}: one of {sorted(MESH_PRESETS)}, cpu_fine, PRESET@F or PRESET@F:ZONE")
+        raise ValueError(f"mesh {name!r}: unknown mesh preset; one of {sorted(MESH_PRESETS)}, cpu_fine, PRESET@F or "
+                         "PRESET@F:ZONE")
     return name
