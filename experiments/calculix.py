@@ -20,7 +20,7 @@ from typing import Literal, Optional
 
 from pcmgn_jax import cli
 
-PRESETS = ("tiny", "cpu", "paper")
+CALCULIX_PRESETS = ("tiny", "cpu", "paper")
 
 
 @dataclass(frozen=True)
@@ -33,7 +33,7 @@ class CalculixArgs:
     """design thicknesses [µm], comma list (default: the scene's own)"""
     scene: Optional[str] = None
     """scene file (.toml / .json); default: the paper's panel"""
-    preset: Literal[PRESETS] = "tiny"
+    preset: Literal[CALCULIX_PRESETS] = "tiny"
     """mesh preset (the project's own mesh)"""
     frames: Optional[int] = None
     """frames of output_dt to simulate (default: the scene's n_frames)"""
