@@ -18,7 +18,7 @@ from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.eval.calculix_check import CHECKED, compare, field_errors, impact_figures
 from pcmgn_jax.scene import Scene, default_scene
 from pcmgn_jax.sim import solver
-from pcmgn_jax.sim.hertz import TARGETS, hertz_impact, hertz_mesh_spec, hertz_scene
+from pcmgn_jax.sim.hertz import TARGET_MATERIALS, hertz_impact, hertz_mesh_spec, hertz_scene
 
 
 def _ccx(folder: Path, scene: Scene, preset, settings: CalculixSettings, timeout: float | None = None):
@@ -49,7 +49,7 @@ def _builtin(scene: Scene, preset, penalty_factor: float):
 def hertz_case(out: Path, args) -> dict[str, Any]:
     """Steel ball on a glass block (sim/hertz.py): CalculiX and the built-in solver against Hunter's theory."""
     scene = hertz_scene(radius=5e-3, velocity=0.62631, target="glass")
-    e, nu, _ = TARGETS["glass"]
+    e, nu, _ = TARGET_MATERIALS["glass"]
     theory = hertz_impact(radius=5e-3, velocity=0.62631, ball=scene.ball, youngs=e, poisson=nu)
     spec = dataclasses.replace(hertz_mesh_spec(theory, elems_per_radius=args.hertz_elems_per_radius),
                                growth=args.hertz_growth)

@@ -11,14 +11,14 @@ from typing import Literal
 
 from pcmgn_jax import cli
 from pcmgn_jax.data.trajectory_io import atomic_write_json
-from pcmgn_jax.sim.hertz import ELEMS_PER_RADIUS, TARGETS, hertz_check
+from pcmgn_jax.sim.hertz import ELEMS_PER_RADIUS, TARGET_MATERIALS, hertz_check
 
 
 @dataclass(frozen=True)
 class HertzArgs:
     radius_mm: float = 5.0                          # ball radius [mm]
     velocity: float = 0.62631                       # impact speed [m/s]
-    target: Literal[tuple(TARGETS)] = "glass"       # block material
+    target: Literal[tuple(TARGET_MATERIALS)] = "glass"       # block material
     elems_per_radius: float = ELEMS_PER_RADIUS      # elements across the Hertz contact radius
     penalty_factor: float = 2.0                     # contact penalty k_p = factor x E'/h (solver.SolverSettings)
     json: str | None = None                         # write the result here (JSON)

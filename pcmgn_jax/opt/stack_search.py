@@ -24,11 +24,10 @@ from pcmgn_jax import metrics
 from pcmgn_jax.opt import search
 from pcmgn_jax.opt.objectives import FieldObjective
 from pcmgn_jax.opt.scenes import PAPER_STACK, ParameterBox, family_of, query, scene_at, solve_scene, stack_box
+from pcmgn_jax.opt.spread import SPREAD_OF
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.surrogates.kinds import AUTO, KINDS
 from pcmgn_jax.surrogates.registry import fit
-
-SPREAD_OF = "kriging"   # the kind whose posterior std stands in for a surrogate without a spread (as opt.spread)
 
 
 class StackObjective(FieldObjective):
