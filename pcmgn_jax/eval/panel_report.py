@@ -1,4 +1,4 @@
-"""Impact phases of the default panel scene for a few OCA designs (issue 2's panel report), from the
+"""Impact phases of the default panel scene for a few OCA designs (the panel report), from the
 built-in solver (:func:`pcmgn_jax.sim.solver.simulate`, :func:`pcmgn_jax.sim.solver.contact_phases`).
 
 :func:`panel_report` writes OUT.json (per design: contact start, peak force and its time, separation,

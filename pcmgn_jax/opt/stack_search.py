@@ -1,4 +1,4 @@
-"""``experiments.optimize`` on a panel-stack run (issue 40): search a stack's scene parameters on a surrogate
+"""``experiments.optimize`` on a panel-stack run: search a stack's scene parameters on a surrogate
 and re-check the optimum with the solver.
 
     out = optimize_stack(run_dir, cfg, train, surrogate="kriging", pop=20, gens=10,

@@ -1,5 +1,5 @@
 """What a training start derives from its data, kept beside the compiled programs, so a warm start skips
-it (issue 42): the normalisation statistics and the model's initial parameters.
+it: the normalisation statistics and the model's initial parameters.
 
 The statistics (:func:`pcmgn_jax.train.setup.compute_stats`: one jitted call and host sums per training
 pair) cost ~3 s of a ~10 s warm start to the first training step on the ``cpu`` preset, and tracing the
