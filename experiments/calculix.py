@@ -61,9 +61,10 @@ def main(argv=None) -> int:
     import json
     from pathlib import Path
 
+    from pcmgn_jax.atomic import atomic_write_json, to_jsonable
     from pcmgn_jax.data.calculix import CalculixNotFoundError, CalculixRunError, run_scene
     from pcmgn_jax.data.exporters.calculix import CalculixSettings
-    from pcmgn_jax.data.trajectory_io import atomic_write_json, to_jsonable, write_trajectory
+    from pcmgn_jax.data.trajectory_io import write_trajectory
     from pcmgn_jax.scene import Scene, default_scene
 
     scene = Scene.load(args.scene) if args.scene else default_scene()

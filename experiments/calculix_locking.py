@@ -51,9 +51,9 @@ def row(args, name: str, element: str) -> dict:
 
     from experiments.objective_convergence import mesh_for
     from pcmgn_jax import metrics
+    from pcmgn_jax.atomic import atomic_write_text
     from pcmgn_jax.data.calculix import run_ccx, static_fields
     from pcmgn_jax.data.exporters.calculix import CalculixSettings, calculix_mesh, static_inp_text
-    from pcmgn_jax.data.exporters.common import write_text_atomic
     from pcmgn_jax.eval.calculix_check import section_weights
     from pcmgn_jax.scene import default_scene
     from pcmgn_jax.sim.mesh import mesh_spec
@@ -65,7 +65,7 @@ def row(args, name: str, element: str) -> dict:
     pressure = args.force_n / (math.pi * radius**2)
     folder = Path(args.out) / "runs" / f"{name.replace(':', '-')}_{element}"
     folder.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(folder / "job.inp", static_inp_text(scene, mesh, CalculixSettings(element=element),
+    atomic_write_text(folder / "job.inp", static_inp_text(scene, mesh, CalculixSettings(element=element),
                                                           pressure=pressure, radius=radius))
     run = run_ccx(folder / "job.inp", timeout=args.timeout_s)
     u, vm = static_fields(run["frd"], scene, spec)
@@ -95,8 +95,7 @@ def report(args, rows: list[dict], command: str) -> list[str]:
     """OUT.json and OUT.md; returns the markdown lines."""
     from pathlib import Path
 
-    from pcmgn_jax.data.exporters.common import write_text_atomic
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.atomic import atomic_write_json, atomic_write_text
 
     ref = {r["element"]: r for r in rows if r["mesh"] == rows[-1]["mesh"]}   # the last mesh: the finest
     lines = [f"Command: `{command}`", "",
@@ -123,7 +122,7 @@ def report(args, rows: list[dict], command: str) -> list[str]:
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(f"{args.out}.json", {"command": command, "args": vars(args) if hasattr(args, "__dict__")
                                            else {}, "rows": rows})
-    write_text_atomic(f"{args.out}.md", "\n".join(lines) + "\n")
+    atomic_write_text(f"{args.out}.md", "\n".join(lines) + "\n", parents=True)
     return lines
 
 

@@ -11,10 +11,9 @@ from typing import Any
 import numpy as np
 
 from pcmgn_jax import markdown
+from pcmgn_jax.atomic import atomic_write_json, atomic_write_text
 from pcmgn_jax.data.calculix import frd_trajectory, run_ccx
 from pcmgn_jax.data.exporters.calculix import CalculixSettings, calculix_mesh, inp_text
-from pcmgn_jax.data.exporters.common import write_text_atomic
-from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.eval.calculix_check import CHECKED, compare, field_errors, impact_figures
 from pcmgn_jax.scene import Scene, default_scene
 from pcmgn_jax.sim import solver
@@ -28,7 +27,7 @@ def _ccx(folder: Path, scene: Scene, preset, settings: CalculixSettings, timeout
     wall = None
     if not (inp.is_file() and frd.is_file() and inp.read_text() == deck):
         folder.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(inp, deck)
+        atomic_write_text(inp, deck)
         wall = run_ccx(inp, timeout=timeout)["wall_time_s"]
         (folder / "wall_time_s.txt").write_text(f"{wall}\n")
     elif (folder / "wall_time_s.txt").is_file():
@@ -158,7 +157,7 @@ def write_report(out: Path, cases: list[dict], args, command: str) -> list[str]:
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / "check.json", {"command": command, "args": dict(vars(args)) if hasattr(args, "__dict__")
                                            else dataclasses.asdict(args), "cases": cases})
-    write_text_atomic(out / "check.md", "\n".join(lines) + "\n")
+    atomic_write_text(out / "check.md", "\n".join(lines) + "\n", parents=True)
     return lines
 
 

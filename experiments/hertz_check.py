@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from pcmgn_jax import cli
-from pcmgn_jax.data.trajectory_io import atomic_write_json
+from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.sim.hertz import ELEMS_PER_RADIUS, TARGET_MATERIALS, hertz_check
 
 

@@ -67,8 +67,8 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
     from experiments.calculix_runs import _builtin, _ccx
     from experiments.objective_convergence import mesh_for
     from pcmgn_jax import metrics
+    from pcmgn_jax.atomic import atomic_write_json
     from pcmgn_jax.data.exporters.calculix import CalculixSettings
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
     from pcmgn_jax.eval.calculix_check import impact_figures, section_weights
     from pcmgn_jax.scene import default_scene
     from pcmgn_jax.sim.mesh import mesh_spec
@@ -111,8 +111,7 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
 
 def report(args, rows: list[dict], command: str) -> list[str]:
     """OUT.json and OUT.md; returns the markdown lines."""
-    from pcmgn_jax.data.exporters.common import write_text_atomic
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.atomic import atomic_write_json, atomic_write_text
 
     x = args.section_x_mm
     head = ["mesh", "code", "penalty", "nodes (full / ROI)", "OLED elements", "h_contact [µm]", "section end [mm]",
@@ -133,7 +132,7 @@ def report(args, rows: list[dict], command: str) -> list[str]:
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(f"{args.out}.json", {"command": command, "design_um": args.design, "section_x_mm": x,
                                            "rows": rows})
-    write_text_atomic(f"{args.out}.md", "\n".join(lines) + "\n")
+    atomic_write_text(f"{args.out}.md", "\n".join(lines) + "\n", parents=True)
     return lines
 
 

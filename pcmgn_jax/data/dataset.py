@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.data import shards
 from pcmgn_jax.data.designs import (
     DESIGN_HIGH,
@@ -65,13 +66,7 @@ from pcmgn_jax.data.layout import (
     split_stems,
 )
 from pcmgn_jax.data.stack import StackFamily
-from pcmgn_jax.data.trajectory_io import (
-    TrajectoryFileError,
-    atomic_write_json,
-    content_hash,
-    read_trajectory,
-    write_trajectory,
-)
+from pcmgn_jax.data.trajectory_io import TrajectoryFileError, content_hash, read_trajectory, write_trajectory
 from pcmgn_jax.lock import hold
 from pcmgn_jax.presets import PRESET_NAMES
 from pcmgn_jax.scene import Scene, default_scene

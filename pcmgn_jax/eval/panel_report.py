@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from pcmgn_jax import markdown
+from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.data.designs import parse_designs
-from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.scene import default_scene
 from pcmgn_jax.sim import solver
 

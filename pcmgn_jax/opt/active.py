@@ -39,7 +39,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from pcmgn_jax.data.trajectory_io import atomic_write_json
+from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.opt import acquisition as acq
 from pcmgn_jax.opt.problem import DesignBox
 from pcmgn_jax.surrogates.kinds import choices

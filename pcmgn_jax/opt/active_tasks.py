@@ -28,8 +28,8 @@ from typing import Sequence
 import numpy as np
 
 from pcmgn_jax import markdown
+from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.data.designs import FAMILIES
-from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.opt.active import LoopConfig, Problem, SolverOracle, best_at, run_loop
 from pcmgn_jax.opt.check import solver_preset
 from pcmgn_jax.opt.objectives import MGNObjective

@@ -61,7 +61,7 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
     import numpy as np
 
     from pcmgn_jax import metrics
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.atomic import atomic_write_json
     from pcmgn_jax.eval import plots
     from pcmgn_jax.opt import search
     from pcmgn_jax.opt.check import solver_objectives, solver_preset
