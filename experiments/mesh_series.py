@@ -64,12 +64,12 @@ class SeriesArgs(DesignSectionArgs):
 def row(args, name: str, code: str, element: str = "C3D8") -> dict:
     """One mesh's figures in one code ('builtin', 'builtin_ccx_penalty' or 'calculix' with ``element``), cached
     as JSON."""
-    from experiments.calculix_runs import _builtin, _ccx
     from experiments.objective_convergence import mesh_for
     from pcmgn_jax import metrics
     from pcmgn_jax.atomic import atomic_write_json
     from pcmgn_jax.data.exporters.calculix import CalculixSettings
     from pcmgn_jax.eval.calculix_check import impact_figures, section_weights
+    from pcmgn_jax.eval.calculix_runs import run_builtin, run_calculix
     from pcmgn_jax.scene import default_scene
     from pcmgn_jax.sim.mesh import mesh_spec
 
@@ -86,11 +86,11 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
         settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=penalty,
                                     element=element, min_increment_ratio=args.min_increment_ratio,
                                     slave_faces=args.slave_faces)
-        traj, extra, wall = _ccx(Path(args.out) / "runs" / f"{name}_{element}", scene, spec, settings,
-                                 args.timeout_s)
+        traj, extra, wall = run_calculix(Path(args.out) / "runs" / f"{name}_{element}", scene, spec, settings,
+                                         args.timeout_s)
         force = extra["force_N"]
     else:
-        traj, force, wall, _ = _builtin(scene, spec, penalty)
+        traj, force, wall, _ = run_builtin(scene, spec, penalty)
     figs = impact_figures(traj, force)
     oled = list(traj.meta["part_names"]).index("OLED")
     w_area = metrics.objective_weights(traj.points, traj.cells, traj.cell_part, traj.node_part, part=oled)

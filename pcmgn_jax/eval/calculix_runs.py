@@ -1,5 +1,12 @@
-"""The cases of ``python -m experiments.calculix_check``: Hertz and the panel designs in both codes, and the
-report (check.json, check.md). CalculiX runs are reused when their deck is unchanged (OUT/runs/<label>/)."""
+"""The built-in solver against CalculiX, run: one scene in each code, the cases of ``python -m
+experiments.calculix_check`` (Hertz and the panel designs in both codes) and their report (check.json, check.md).
+
+    traj, extra, wall = run_calculix(folder, scene, preset, settings)   # ccx, reused while its deck is unchanged
+    traj, force, wall, result = run_builtin(scene, preset, penalty_factor=1.0)
+
+The figures and the comparison they are scored by: :mod:`pcmgn_jax.eval.calculix_check`. ``args`` of the cases
+and the report: the check's settings (``experiments.calculix_check.CheckArgs``: preset, frames, penalty
+factors, increments per frame, slave faces, time-out, the Hertz case's mesh)."""
 from __future__ import annotations
 
 import dataclasses
@@ -20,8 +27,9 @@ from pcmgn_jax.sim import solver
 from pcmgn_jax.sim.hertz import TARGET_MATERIALS, hertz_impact, hertz_mesh_spec, hertz_scene
 
 
-def _ccx(folder: Path, scene: Scene, preset, settings: CalculixSettings, timeout: float | None = None):
-    """CalculiX run of ``scene`` (reused when folder/job.inp holds the same deck and job.frd exists)."""
+def run_calculix(folder: Path, scene: Scene, preset, settings: CalculixSettings, timeout: float | None = None):
+    """CalculiX run of ``scene`` on ``preset``'s mesh in ``folder``: (trajectory, :func:`frd_trajectory`'s extra,
+    wall time [s] or None); reused when folder/job.inp holds the same deck and job.frd exists. ``timeout`` [s]."""
     deck = inp_text(scene, calculix_mesh(scene, preset), settings, title=f"pcmgn_jax scene, design {scene.design}")
     inp, frd = folder / "job.inp", folder / "job.frd"
     wall = None
@@ -36,7 +44,9 @@ def _ccx(folder: Path, scene: Scene, preset, settings: CalculixSettings, timeout
     return traj, extra, wall
 
 
-def _builtin(scene: Scene, preset, penalty_factor: float):
+def run_builtin(scene: Scene, preset, penalty_factor: float):
+    """The built-in solver's run of ``scene`` on ``preset``'s mesh at ``penalty_factor``: (trajectory, the mean
+    contact force per frame interval (T-1,) [N], wall time [s], the solver's RunResult)."""
     t0 = time.perf_counter()
     settings = solver.SolverSettings(penalty_factor=penalty_factor)
     res = solver.simulate([scene], preset, settings=settings)
@@ -58,8 +68,8 @@ def hertz_case(out: Path, args) -> dict[str, Any]:
                                 penalty_factor=args.hertz_penalty_factor,
                                 min_increment_ratio=args.hertz_min_increment_ratio,
                                 slave_faces=args.slave_faces)
-    tc, fc, wall_c = _ccx(out / "runs" / "hertz", scene, spec, settings, args.timeout_s)
-    tb, fb, wall_b, _ = _builtin(scene, spec, args.hertz_penalty_factor)
+    tc, fc, wall_c = run_calculix(out / "runs" / "hertz", scene, spec, settings, args.timeout_s)
+    tb, fb, wall_b, _ = run_builtin(scene, spec, args.hertz_penalty_factor)
     figs = {"calculix": impact_figures(tc, fc["force_N"]), "builtin": impact_figures(tb, fb)}
     ref = {"contact_duration_s": theory["contact_time_s"], "peak_force_N": theory["peak_force_N"]}
     vs_theory = {code: {k: figs[code][k] / v - 1.0 for k, v in ref.items()} for code in figs}
@@ -78,13 +88,13 @@ def panel_case(out: Path, args, design: list[float], label: str) -> dict[str, An
         scene = dataclasses.replace(scene, n_frames=int(args.frames))
     settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=args.penalty_factor,
                                 slave_faces=args.slave_faces)
-    tc, extra, wall_c = _ccx(out / "runs" / label, scene, args.preset, settings, args.timeout_s)
-    tb, fb, wall_b, _ = _builtin(scene, args.preset, args.penalty_factor)
+    tc, extra, wall_c = run_calculix(out / "runs" / label, scene, args.preset, settings, args.timeout_s)
+    tb, fb, wall_b, _ = run_builtin(scene, args.preset, args.penalty_factor)
     figs = {"calculix": impact_figures(tc, extra["force_N"]), "builtin": impact_figures(tb, fb)}
     frd_vm = extra["von_mises_full"]["frd"][:, extra["node_map"]]
     figs["calculix_frd_stress"] = impact_figures(tc, extra["force_N"], von_mises=frd_vm)
     if args.penalty_factor != 1.0:
-        tp, fp, _, _ = _builtin(scene, args.preset, 1.0)
+        tp, fp, _, _ = run_builtin(scene, args.preset, 1.0)
         figs["builtin_penalty_1"] = impact_figures(tp, fp)
     start, end = figs["builtin"]["contact_start_s"], figs["builtin"]["contact_end_s"]
     if not np.isfinite(end):
