@@ -11,7 +11,7 @@ import re
 import numpy as np
 import pytest
 
-from fixtures.helpers import ROOT, CompileCounter
+from fixtures.helpers import ROOT, CompileCounter, tiny_solver_dataset
 
 PAGE = ROOT / "docs" / "api.md"
 
@@ -20,15 +20,11 @@ PAGE = ROOT / "docs" / "api.md"
 def solver_run(tmp_path_factory):
     """A run folder trained on solver data: config.json over a tiny-preset dataset, a best checkpoint."""
     from pcmgn_jax.config import TrainConfig
-    from pcmgn_jax.data.dataset import ensure_dataset
     from pcmgn_jax.data.splits import load_splits
-    from pcmgn_jax.scene import default_scene
     from pcmgn_jax.train import loop as training
 
     root = tmp_path_factory.mktemp("api")
-    data, run = root / "data", root / "run"
-    ensure_dataset(data, preset="tiny", n_train=3, n_test=0, scene=dataclasses.replace(default_scene(), n_frames=8),
-                   progress=False)
+    data, run = tiny_solver_dataset(root, n_train=3, n_frames=8), root / "run"
     cfg = TrainConfig.from_preset("tiny", dataset_dir=str(data), n_train=2, n_val=1, n_test=0, num_steps=20,
                                   steps_per_dispatch=10, log_every=10, ckpt_every=20, val_every=20,
                                   latent_size=16, message_passing_steps=2, progress=False)
