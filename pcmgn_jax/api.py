@@ -25,7 +25,7 @@ import numpy as np
 from pcmgn_jax import metrics
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.data.layout import trajectory_element
-from pcmgn_jax.mgn.checkpoint import Loaded, load
+from pcmgn_jax.mgn.checkpoint import Loaded, load, require_run
 from pcmgn_jax.mgn.inputs import GraphInputs, graph_inputs, with_scene
 from pcmgn_jax.mgn.rollout import rollout, rollout_checked
 from pcmgn_jax.scene import Scene
@@ -49,6 +49,7 @@ def load_run(workdir: str | Path, *, which: str = "best", reference: Trajectory 
     for a folder that holds no trained run, ``ValueError`` for a run that predicts a baseline's residual
     (``residual_of``: evaluate those with ``python -m experiments.evaluate``).
     """
+    require_run(workdir)
     if reference is None:
         splits = run_splits(workdir)
         reference = next((t for split in splits[1:] for t in split), None)

@@ -79,10 +79,10 @@ def test_load_run_refuses_a_folder_without_a_run(tmp_path):
     from pcmgn_jax.api import load_run
     from pcmgn_jax.mgn.checkpoint import MissingRun
 
-    with pytest.raises(FileNotFoundError, match="config.json"):
+    with pytest.raises(MissingRun, match="no config.json"):
         load_run(tmp_path)
     with pytest.raises(MissingRun, match="no such run folder"):
-        load_run(tmp_path / "nowhere", reference=object())
+        load_run(tmp_path / "nowhere")
 
 
 def test_a_synthetic_run_rolls_out_a_trajectory_and_refuses_scenes(tiny_run, tiny_trajs):
