@@ -49,13 +49,13 @@ from pcmgn_jax.data.exporters.common import ExportError, export_errors
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.sim.mesh import Mesh, MeshSpec, build_mesh
 
-__all__ = ["CCX_ELEMENTS", "CalculixSettings", "ELEMENT_TYPE", "calculix_mesh", "contact_penalty", "inp_text",
-           "parse_inp", "set_name", "static_inp_text", "write_inp"]
+__all__ = ["CalculixSettings", "ELEMENT_TYPE", "ELEMENTS", "calculix_mesh", "contact_penalty", "inp_text", "parse_inp",
+           "set_name", "static_inp_text", "write_inp"]
 
 #: the scene's analysis -> CalculiX element type (4-node, full integration)
 ELEMENT_TYPE = "C3D8"
 #: the element types a deck may use (CalculixSettings.element)
-CCX_ELEMENTS = ("C3D8", "C3D8I")
+ELEMENTS = ("C3D8", "C3D8I")
 _PER_LINE = 8
 
 
@@ -94,8 +94,8 @@ class CalculixSettings:
     slave_faces: bool = True
 
     def __post_init__(self) -> None:
-        if self.element not in CCX_ELEMENTS:
-            raise ValueError(f"calculix: element must be one of {CCX_ELEMENTS}, got {self.element!r}")
+        if self.element not in ELEMENTS:
+            raise ValueError(f"calculix: element must be one of {ELEMENTS}, got {self.element!r}")
         if int(self.increments_per_frame) < 1:
             raise ValueError(f"calculix: increments_per_frame must be >= 1, got {self.increments_per_frame!r}")
         if not -1.0 / 3.0 - 1e-12 <= self.alpha <= 0.0:
