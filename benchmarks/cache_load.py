@@ -14,8 +14,8 @@ import numpy as np
 
 from benchmarks import common
 from pcmgn_jax import cli
+from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.data.cache import ensure_cache, load_split
-from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.mgn.formulation import FORMULATIONS
 from pcmgn_jax.train.sampling import gather, pair_table, sample_ids
 

@@ -81,8 +81,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(args: ActiveArgs, command: str) -> int:
-    from pcmgn_jax.atomic import atomic_write_text
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.atomic import atomic_write_json, atomic_write_text
     from pcmgn_jax.opt import active_tasks as tasks
     from pcmgn_jax.opt.active import LoopConfig, run_loop
 

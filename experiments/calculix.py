@@ -20,7 +20,7 @@ from typing import ClassVar, Literal, Optional
 
 from pcmgn_jax import cli
 
-PRESETS = ("tiny", "cpu", "paper")
+CALCULIX_PRESETS = ("tiny", "cpu", "paper")
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,7 @@ class CalculixArgs:
     """design thicknesses [µm], comma list (default: the scene's own)"""
     scene: Optional[str] = None
     """scene file (.toml / .json); default: the paper's panel"""
-    preset: Literal[PRESETS] = "tiny"
+    preset: Literal[CALCULIX_PRESETS] = "tiny"
     """mesh preset (the project's own mesh)"""
     frames: Optional[int] = None
     """frames of output_dt to simulate (default: the scene's n_frames)"""
@@ -64,9 +64,10 @@ def main(argv=None) -> int:
     import json
     from pathlib import Path
 
+    from pcmgn_jax.atomic import atomic_write_json, to_jsonable
     from pcmgn_jax.data.calculix import CalculixNotFoundError, CalculixRunError, run_scene
     from pcmgn_jax.data.exporters.calculix import CalculixSettings
-    from pcmgn_jax.data.trajectory_io import atomic_write_json, to_jsonable, write_trajectory
+    from pcmgn_jax.data.trajectory_io import write_trajectory
     from pcmgn_jax.scene import Scene, default_scene
 
     scene = Scene.load(args.scene) if args.scene else default_scene()

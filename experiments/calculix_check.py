@@ -75,8 +75,8 @@ def main(argv=None) -> int:
     import matplotlib
     matplotlib.use("Agg")   # files only; set here, in the entry point
 
-    from experiments.calculix_runs import hertz_case, panel_case, plot_forces, write_report
     from pcmgn_jax.data.calculix import CalculixNotFoundError, CalculixRunError, find_ccx
+    from pcmgn_jax.eval.calculix_runs import hertz_case, panel_case, plot_forces, write_report
 
     try:
         find_ccx()

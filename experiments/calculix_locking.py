@@ -55,9 +55,9 @@ def row(args, name: str, element: str) -> dict:
     import math
     from pathlib import Path
 
+    from pcmgn_jax.atomic import atomic_write_text
     from pcmgn_jax.data.calculix import run_ccx, static_fields
     from pcmgn_jax.data.exporters.calculix import CalculixSettings, calculix_mesh, static_inp_text
-    from pcmgn_jax.data.exporters.common import write_text_atomic
     from pcmgn_jax.scene import default_scene
     from pcmgn_jax.sim.mesh import mesh_spec
     from pcmgn_jax.sim.static import static_pressure
@@ -75,7 +75,7 @@ def row(args, name: str, element: str) -> dict:
         mesh = calculix_mesh(scene, spec)
         folder = Path(args.out) / "runs" / f"{name.replace(':', '-')}_{element}"
         folder.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(folder / "job.inp", static_inp_text(scene, mesh, CalculixSettings(element=element),
+        atomic_write_text(folder / "job.inp", static_inp_text(scene, mesh, CalculixSettings(element=element),
                                                               pressure=pressure, radius=radius))
         run = run_ccx(folder / "job.inp", timeout=args.timeout_s)
         u, vm = static_fields(run["frd"], scene, spec, ccx_element=element)
@@ -116,8 +116,7 @@ def report(args, rows: list[dict], command: str) -> list[str]:
     """OUT.json and OUT.md; returns the markdown lines."""
     from pathlib import Path
 
-    from pcmgn_jax.data.exporters.common import write_text_atomic
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.atomic import atomic_write_json, atomic_write_text
 
     ref = {r["element"]: r for r in rows if r["mesh"] == rows[-1]["mesh"]}   # the last mesh: the finest
     twin = {(r["mesh"], r["element"]): r for r in rows}
@@ -151,7 +150,7 @@ def report(args, rows: list[dict], command: str) -> list[str]:
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(f"{args.out}.json", {"command": command, "args": vars(args) if hasattr(args, "__dict__")
                                            else {}, "rows": rows})
-    write_text_atomic(f"{args.out}.md", "\n".join(lines) + "\n")
+    atomic_write_text(f"{args.out}.md", "\n".join(lines) + "\n", parents=True)
     return lines
 
 

@@ -61,10 +61,9 @@ def _train_members(args) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     args = cli.parse(EnsembleArgs, argv, description=__doc__, prog="python -m experiments.ensemble")
-    from pcmgn_jax.atomic import atomic_write_text
+    from pcmgn_jax.atomic import atomic_write_json, atomic_write_text
     from pcmgn_jax.config import TrainConfig
     from pcmgn_jax.data.splits import load_directory
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
     from pcmgn_jax.eval.ensemble import ensemble_report, report_markdown
     from pcmgn_jax.surrogates.mgn import run_splits
 

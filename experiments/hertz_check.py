@@ -10,9 +10,9 @@ from dataclasses import dataclass
 from typing import ClassVar, Literal
 
 from pcmgn_jax import cli
-from pcmgn_jax.data.trajectory_io import atomic_write_json
+from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.sim.fem import DEFAULT_ELEMENT, Q4_ELEMENTS
-from pcmgn_jax.sim.hertz import ELEMS_PER_RADIUS, TARGETS, hertz_check
+from pcmgn_jax.sim.hertz import ELEMS_PER_RADIUS, TARGET_MATERIALS, hertz_check
 
 
 @dataclass(frozen=True)
@@ -22,7 +22,7 @@ class HertzArgs:
                               "penalty_factor": (0, False)}
     radius_mm: float = 5.0                          # ball radius [mm]
     velocity: float = 0.62631                       # impact speed [m/s]
-    target: Literal[tuple(TARGETS)] = "glass"       # block material
+    target: Literal[tuple(TARGET_MATERIALS)] = "glass"       # block material
     elems_per_radius: float = ELEMS_PER_RADIUS      # elements across the Hertz contact radius
     penalty_factor: float = 2.0                     # contact penalty k_p = factor x E'/h (solver.SolverSettings)
     element: Literal[Q4_ELEMENTS] = DEFAULT_ELEMENT  # the Q4 formulation (pcmgn_jax.sim.fem)

@@ -72,11 +72,11 @@ full-integration element that locks)"""
 def row(args, name: str, code: str, element: str = "C3D8") -> dict:
     """One mesh's figures in one code ('builtin' with the Q4 ``element``, 'builtin_ccx_penalty' (q4, the C3D8
     counterpart) or 'calculix' with the ccx ``element``), cached as JSON."""
-    from experiments.calculix_runs import _builtin, _ccx
     from pcmgn_jax import metrics
+    from pcmgn_jax.atomic import atomic_write_json
     from pcmgn_jax.data.exporters.calculix import CalculixSettings
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
     from pcmgn_jax.eval.calculix_check import impact_figures, section_weights
+    from pcmgn_jax.eval.calculix_runs import run_builtin, run_calculix
     from pcmgn_jax.scene import default_scene
     from pcmgn_jax.sim.mesh import mesh_spec
 
@@ -94,11 +94,11 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
         settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=penalty,
                                     element=element, min_increment_ratio=args.min_increment_ratio,
                                     slave_faces=args.slave_faces)
-        traj, extra, wall = _ccx(Path(args.out) / "runs" / f"{name}_{element}", scene, spec, settings,
-                                 args.timeout_s)
+        traj, extra, wall = run_calculix(Path(args.out) / "runs" / f"{name}_{element}", scene, spec, settings,
+                                         args.timeout_s)
         force = extra["force_N"]
     else:
-        traj, force, wall, _ = _builtin(scene, spec, penalty, element if code == "builtin" else "q4")
+        traj, force, wall, _ = run_builtin(scene, spec, penalty, element if code == "builtin" else "q4")
     figs = impact_figures(traj, force)
     oled = list(traj.meta["part_names"]).index("OLED")
     w_area = metrics.objective_weights(traj.points, traj.cells, traj.cell_part, traj.node_part, part=oled)
@@ -120,8 +120,7 @@ def row(args, name: str, code: str, element: str = "C3D8") -> dict:
 
 def report(args, rows: list[dict], command: str) -> list[str]:
     """OUT.json and OUT.md; returns the markdown lines."""
-    from pcmgn_jax.data.exporters.common import write_text_atomic
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.atomic import atomic_write_json, atomic_write_text
 
     x = args.section_x_mm
     head = ["mesh", "code", "penalty", "nodes (full / ROI)", "OLED elements", "h_contact [µm]", "section end [mm]",
@@ -142,7 +141,7 @@ def report(args, rows: list[dict], command: str) -> list[str]:
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(f"{args.out}.json", {"command": command, "design_um": args.design, "section_x_mm": x,
                                            "rows": rows})
-    write_text_atomic(f"{args.out}.md", "\n".join(lines) + "\n")
+    atomic_write_text(f"{args.out}.md", "\n".join(lines) + "\n", parents=True)
     return lines
 
 

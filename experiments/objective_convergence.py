@@ -26,8 +26,8 @@ def main(argv=None) -> int:
     args = cli.parse(ConvergenceArgs, argv, description=__doc__, prog="python -m experiments.objective_convergence")
     from pathlib import Path
 
+    from pcmgn_jax.atomic import atomic_write_json
     from pcmgn_jax.data.designs import parse_designs
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
     from pcmgn_jax.metrics import OBJECTIVES
     from pcmgn_jax.opt.check import solver_objectives
     from pcmgn_jax.scene import default_scene

@@ -2,29 +2,37 @@
 
 One place for the rule (write under a temp name in the same folder, fsync, rename):
 
-* :func:`atomic_write_text`: one file. Every results, config and checkpoint-side file the project
-  writes goes through it (JSON through ``pcmgn_jax.data.trajectory_io.atomic_write_json``, which adds
-  the project's JSON encoding).
+* :func:`atomic_write_text`: one file. Every results, config, export and checkpoint-side file the project
+  writes goes through it; JSON through :func:`atomic_write_json`, which adds the project's JSON encoding
+  (:func:`to_jsonable`: NumPy values, tuples and paths to plain JSON, no NaN).
 * :func:`atomic_dir`: several files staged in a temp folder, then swapped into place as one folder
   (training cache, ANSYS run folders) or moved one by one into a shared folder, commit marker last
   (trajectory files, ParaView comparisons).
 
-Top-level and dependency-free, so the run config can use it without importing a subpackage.
+Top-level and free of the package's subpackages (NumPy only), so the run config can use it.
 """
 from __future__ import annotations
 
 import errno
+import json
+import math
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 
-def atomic_write_text(path: str | os.PathLike, text: str) -> None:
-    """Write ``text`` to ``path`` atomically (temp file in the same folder, fsync, rename)."""
+def atomic_write_text(path: str | os.PathLike, text: str, *, parents: bool = False) -> None:
+    """Write ``text`` to ``path`` atomically (temp file in the same folder, fsync, rename); ``parents``:
+    create the missing folders above it first."""
     path = Path(path)
+    if parents:
+        path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "w", newline="\n") as f:   # LF on every OS (solver input decks, tables)
@@ -37,6 +45,46 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def to_jsonable(obj: Any, where: str = "meta", *, nonfinite: str = "null") -> Any:
+    """Convert numpy scalars/arrays, tuples and Paths to plain JSON types; reject other objects.
+
+    Non-finite floats (e.g. a contact phase that did not occur, NaN) become ``null`` with
+    ``nonfinite='null'`` (strict JSON has no NaN) or raise ValueError with ``nonfinite='error'``.
+    """
+    if isinstance(obj, Mapping):
+        out = {}
+        for k, v in obj.items():
+            if not isinstance(k, str):
+                raise ValueError(f"{where}: keys must be strings, got {k!r}")  # noqa: TRY004 (callers catch ValueError)
+            out[k] = to_jsonable(v, f"{where}.{k}", nonfinite=nonfinite)
+        return out
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v, f"{where}[{i}]", nonfinite=nonfinite) for i, v in enumerate(obj)]
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist(), where, nonfinite=nonfinite)
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        if not math.isfinite(float(obj)):
+            if nonfinite == "null":
+                return None
+            raise ValueError(f"{where}: non-finite number {obj!r} cannot be stored in JSON")
+        return float(obj)
+    if obj is None or isinstance(obj, str):
+        return obj
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    raise ValueError(f"{where}: value of type {type(obj).__name__} is not JSON-serialisable")
+
+
+def atomic_write_json(path: str | os.PathLike, data: Any, *, parents: bool = False) -> None:
+    """Write ``data`` as JSON (:func:`to_jsonable`) to ``path`` atomically (temp file in the same folder, fsync,
+    rename); ``parents``: create the missing folders above it first."""
+    atomic_write_text(path, json.dumps(to_jsonable(data, str(path)), indent=1, allow_nan=False), parents=parents)
 
 
 def _fsync(path: Path, *, strict: bool = True) -> None:

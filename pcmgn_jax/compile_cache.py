@@ -1,4 +1,4 @@
-"""JAX's persistent compilation cache, on by default for every entry point (issue 42).
+"""JAX's persistent compilation cache, on by default for every entry point.
 
 A compiled XLA program is written to a per-user folder and read back by the next process that compiles
 the same program (same jax/jaxlib, backend, shapes, flags), so a second run of a command skips most of

@@ -1,4 +1,4 @@
-"""A console line while a large computation compiles, so a long silence is never a hang (issue 42).
+"""A console line while a large computation compiles, so a long silence is never a hang.
 
     with compile_notes.first_call("the training step", key):
         out = jax.block_until_ready(train_chunk(...))

@@ -1,6 +1,6 @@
 """Keep freed heap memory in the process, so XLA's per-call scratch buffer is not page-faulted anew.
 
-Why (issue 14, benchmarks/README.md §1): XLA:CPU allocates one temporary buffer per executable call
+Why (benchmarks/README.md §1): XLA:CPU allocates one temporary buffer per executable call
 (``compiled.memory_analysis().temp_size_in_bytes``: 102 MB for a train step at 790 nodes / 8 x 64,
 1.54 GB at 3,000 nodes / 15 x 128, mostly the activations kept for the backward pass) and frees it
 at the end of the call. glibc serves a block that large with a fresh ``mmap`` (anything above its

@@ -79,7 +79,7 @@ PRESETS: dict[str, Preset] = {
         mesh=dict(fine_radius=0.4e-3, fine_depth=0.08e-3, growth=1.2,
                   layer_elems={"CG": 10, "OCA1": 5, "POL": 4, "OCA2": 5, "OLED": 3, "PLATE": 8},
                   roi_x=3.0e-3, roi_ball_height=0.5e-3)),
-    # scene family (issue 12): ball radius, drop speed, OCA1/OCA2/POL thicknesses vary, every scene on its own
+    # scene family: ball radius, drop speed, OCA1/OCA2/POL thicknesses vary, every scene on its own
     # mesh; the cpu preset's model and loss (no penetration term: the default formulation's contact projection
     # stands in for it), 2 graphs per step, the ball radius as a node input (the speed is in the velocity
     # state), heights from the plate's top: a plate change moves nothing above it (design §5)
@@ -94,7 +94,7 @@ PRESETS: dict[str, Preset] = {
                    formulation="default", lambda_pen=10.0, noise_rel=1.0, noise_parts="panel",
                    scene_features=("ball_radius", "layer_thickness"), origin="support_top"),
         mesh=_FAMILY_TINY_MESH, family="scene", n_frames=20),
-    # panel stacks of 5-7 layers (issue 40): inputs that do not depend on a layer's index (docs/design.md §5):
+    # panel stacks of 5-7 layers: inputs that do not depend on a layer's index (docs/design.md §5):
     # six role node types (ball, contact layer, film, OLED, support, fixed) whatever the layer count, each
     # node's own material, layer thickness and depth below the contact layer's top, the stack's total
     # thickness, heights from the contact layer's top; the family preset's mesh, model and loss

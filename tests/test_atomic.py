@@ -1,9 +1,11 @@
 """pcmgn_jax.atomic: a failed write keeps the old file (or folder) whole and leaves no temp file behind."""
+import json
 import os
 
+import numpy as np
 import pytest
 
-from pcmgn_jax.atomic import atomic_dir, atomic_write_text
+from pcmgn_jax.atomic import atomic_dir, atomic_write_json, atomic_write_text
 from pcmgn_jax.config import TrainConfig
 
 
@@ -20,6 +22,16 @@ def test_a_failed_write_keeps_the_old_file_and_no_temp(tmp_path, monkeypatch):
         atomic_write_text(f, "new\n")
     assert f.read_text() == "old\n"
     assert [p.name for p in tmp_path.iterdir()] == ["table.md"]
+
+
+def test_json_in_the_projects_encoding_and_missing_folders_on_request(tmp_path):
+    f = tmp_path / "a" / "b" / "out.json"
+    with pytest.raises(FileNotFoundError):
+        atomic_write_json(f, {})
+    atomic_write_json(f, {"x": np.float32(1.5), "v": np.arange(2), "t": (1, 2), "nan": float("nan")}, parents=True)
+    assert json.loads(f.read_text()) == {"x": 1.5, "v": [0, 1], "t": [1, 2], "nan": None}
+    with pytest.raises(ValueError, match="not JSON-serialisable"):
+        atomic_write_json(f, {"bad": object()})
 
 
 def test_the_run_config_writes_atomically(tmp_path, monkeypatch):

@@ -8,7 +8,6 @@ import pytest
 
 from pcmgn_jax import cli
 from pcmgn_jax.config import FORMULATION_FIELDS, RESIDUAL_BALLS, RESIDUAL_BASES, TrainConfig
-from pcmgn_jax.data import dataset
 from pcmgn_jax.data.designs import FAMILIES, SceneFamily
 from pcmgn_jax.data.stack import STACK_FAMILIES, StackFamily
 from pcmgn_jax.mgn import formulation as fm
@@ -36,7 +35,7 @@ def test_every_view_of_a_preset_comes_from_its_one_entry(name):
 
 
 def test_the_preset_names_are_one_literal_type():
-    assert tuple(PRESETS) == PRESET_NAMES == typing.get_args(PresetName) == dataset.PRESETS
+    assert tuple(PRESETS) == PRESET_NAMES == typing.get_args(PresetName)
     assert typing.get_type_hints(TrainConfig)["preset"] == PresetName
     with pytest.raises(ValueError, match="unknown preset 'huge'"):
         cli.parse_config(["--preset", "huge"])

@@ -30,13 +30,12 @@ from typing import Any
 
 import numpy as np
 
-from pcmgn_jax.atomic import atomic_dir
+from pcmgn_jax.atomic import atomic_dir, atomic_write_json
 from pcmgn_jax.data.layout import check_entry, load_manifest, manifest_element, split_stems
 from pcmgn_jax.data.trajectory_io import (
     ARRAY_FIELDS,
     RESERVED_KEYS,
     TrajectoryFileError,
-    atomic_write_json,
     read_sidecar,
     read_trajectory,
     trajectory_paths,

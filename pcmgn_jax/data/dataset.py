@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.data import shards
 from pcmgn_jax.data.designs import (
     DESIGN_HIGH,
@@ -66,22 +67,15 @@ from pcmgn_jax.data.layout import (
     split_stems,
 )
 from pcmgn_jax.data.stack import StackFamily
-from pcmgn_jax.data.trajectory_io import (
-    TrajectoryFileError,
-    atomic_write_json,
-    content_hash,
-    read_trajectory,
-    write_trajectory,
-)
+from pcmgn_jax.data.trajectory_io import TrajectoryFileError, content_hash, read_trajectory, write_trajectory
 from pcmgn_jax.lock import hold
 from pcmgn_jax.presets import PRESET_NAMES
 from pcmgn_jax.scene import Scene, default_scene
 from pcmgn_jax.trajectory import Trajectory
 
-__all__ = ["FAMILIES", "GENERATE", "IMPORTED", "MANIFEST", "PRESETS", "DatasetError", "SceneFamily", "dataset_source",
+__all__ = ["FAMILIES", "GENERATE", "IMPORTED", "MANIFEST", "DatasetError", "SceneFamily", "dataset_source",
            "ensure_dataset", "lhs_designs", "load_manifest", "parse_designs", "parse_scene_params", "split_stems"]
 
-PRESETS = PRESET_NAMES                 # mesh resolution / frame count / family (pcmgn_jax.presets.PRESETS)
 _SPLIT_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
 
 
@@ -171,8 +165,8 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     if root.is_dir() and load_manifest(root) is None and not has_shard_parts(root) and has_trajectory_files(root):
         raise DatasetError(f"{root}: holds trajectory files in train/ or test/ but no {MANIFEST} (an imported "
                            "dataset?); the solver does not write into it: use another --out")
-    if preset not in PRESETS:
-        raise DatasetError(f"preset must be one of {PRESETS}, got {preset!r}")
+    if preset not in PRESET_NAMES:
+        raise DatasetError(f"preset must be one of {PRESET_NAMES}, got {preset!r}")
     if not isinstance(batch, int) or batch < 0:
         raise DatasetError(f"batch must be an integer >= 0 (0: the device's default), got {batch!r}")
     batch = batch or default_batch()

@@ -41,7 +41,7 @@ class SceneFamily:
         return with_parameters(base, params)
 
 
-# The scene family (issue 12). Ranges around the paper's scene (docs/design.md §2), each chosen to stay in the
+# The scene family. Ranges around the paper's scene (docs/design.md §2), each chosen to stay in the
 # regime the solver is validated for (linear elastic, small strain, Hertz-checked ball sizes and speeds)
 # while changing the physics in ways a per-node regression over (T1, T2) cannot follow:
 #   ball radius 4-6 mm     the paper's 5 mm +-20 %: ball mass 2.1-7.1 g (x3.4), contact patch and ball

@@ -33,8 +33,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.data.layout import MANIFEST, SHARD_PARTS, DatasetError, read_format_json
-from pcmgn_jax.data.trajectory_io import atomic_write_json
 
 __all__ = ["PART_FORMAT", "adopt", "check_parts", "missing_report", "owner", "parse_shard", "plan_digest",
            "read_parts", "remove_parts", "write_part"]

@@ -1,4 +1,4 @@
-"""The ``stack`` scene family (issue 40, task (e)): panel stacks of 5 to 7 layers that no fixed parameter
+"""The ``stack`` scene family: panel stacks of 5 to 7 layers that no fixed parameter
 vector of the paper's scene describes.
 
     fam = STACK_FAMILIES["stack"]

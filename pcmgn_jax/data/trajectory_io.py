@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -41,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from pcmgn_jax.atomic import atomic_dir, atomic_write_text
+from pcmgn_jax.atomic import atomic_dir, to_jsonable
 from pcmgn_jax.trajectory import Trajectory
 
 __all__ = [
@@ -49,11 +48,9 @@ __all__ = [
     "FORMAT",
     "FORMAT_VERSION",
     "TrajectoryFileError",
-    "atomic_write_json",
     "content_hash",
     "read_sidecar",
     "read_trajectory",
-    "to_jsonable",
     "trajectory_paths",
     "write_trajectory",
     "write_xdmf_series",
@@ -108,45 +105,6 @@ def content_hash(traj: Trajectory) -> str:
         h.update(f"{name}|{arr.dtype.str}|{arr.shape}|".encode())
         h.update(memoryview(arr).cast("B"))
     return h.hexdigest()
-
-
-def to_jsonable(obj: Any, where: str = "meta", *, nonfinite: str = "null") -> Any:
-    """Convert numpy scalars/arrays, tuples and Paths to plain JSON types; reject other objects.
-
-    Non-finite floats (e.g. a contact phase that did not occur, NaN) become ``null`` with
-    ``nonfinite='null'`` (strict JSON has no NaN) or raise ValueError with ``nonfinite='error'``.
-    """
-    if isinstance(obj, Mapping):
-        out = {}
-        for k, v in obj.items():
-            if not isinstance(k, str):
-                raise ValueError(f"{where}: keys must be strings, got {k!r}")  # noqa: TRY004 (callers catch ValueError)
-            out[k] = to_jsonable(v, f"{where}.{k}", nonfinite=nonfinite)
-        return out
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v, f"{where}[{i}]", nonfinite=nonfinite) for i, v in enumerate(obj)]
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist(), where, nonfinite=nonfinite)
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        if not math.isfinite(float(obj)):
-            if nonfinite == "null":
-                return None
-            raise ValueError(f"{where}: non-finite number {obj!r} cannot be stored in JSON")
-        return float(obj)
-    if obj is None or isinstance(obj, str):
-        return obj
-    if isinstance(obj, os.PathLike):
-        return os.fspath(obj)
-    raise ValueError(f"{where}: value of type {type(obj).__name__} is not JSON-serialisable")
-
-
-def atomic_write_json(path: str | os.PathLike, data: Any) -> None:
-    """Write ``data`` as JSON to ``path`` atomically (temp file in the same folder, fsync, rename)."""
-    atomic_write_text(path, json.dumps(to_jsonable(data, str(path)), indent=1, allow_nan=False))
 
 
 # ---- writing ------------------------------------------------------------------------------------

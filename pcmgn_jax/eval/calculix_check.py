@@ -22,7 +22,7 @@ from pcmgn_jax.trajectory import Trajectory
 
 __all__ = ["CHECKED", "compare", "contact_window", "field_errors", "impact_figures", "section_weights"]
 
-#: the figures :func:`compare` checks against the issue's 5 % goal
+#: the figures :func:`compare` checks against the 5 % agreement goal
 CHECKED = ("peak_force_N", "contact_duration_s", "objective_area_mean_mpa", "objective_node_mean_mpa")
 
 

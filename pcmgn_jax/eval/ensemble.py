@@ -1,4 +1,4 @@
-"""Trust figures: does a surrogate's spread rank its real error? (issue 26)
+"""Trust figures: does a surrogate's spread rank its real error?
 
     rep = ensemble_report(["runs/a", "runs/b", ...], {"test": test, "extrap": extrap}, train)
     rep["sets"]["test"]["objective"]["spearman"]     # ρ(per-design spread, per-design |objective error|)

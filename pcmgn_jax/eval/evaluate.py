@@ -32,9 +32,9 @@ from typing import Sequence
 import numpy as np
 
 from pcmgn_jax import markdown, metrics
+from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.data.stack import stack_warnings
-from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.eval import plots
 from pcmgn_jax.eval.baselines import BASELINES, READING_KEYS, baseline_metrics, objective_scores
 from pcmgn_jax.eval.ensemble import ResidualSpread, residual_spread_record, rollout_objectives

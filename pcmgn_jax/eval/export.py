@@ -23,12 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from pcmgn_jax.atomic import atomic_dir
-from pcmgn_jax.data.trajectory_io import (
-    to_jsonable,
-    trajectory_paths,
-    write_xdmf_series,
-)
+from pcmgn_jax.atomic import atomic_dir, to_jsonable
+from pcmgn_jax.data.trajectory_io import trajectory_paths, write_xdmf_series
 from pcmgn_jax.metrics import field_metrics
 from pcmgn_jax.trajectory import Trajectory
 

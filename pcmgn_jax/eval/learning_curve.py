@@ -1,4 +1,4 @@
-"""Learning curves (issue 24): the MGN's and the baselines' test errors against the number of solver runs.
+"""Learning curves: the MGN's and the baselines' test errors against the number of solver runs.
 
     rows = curve_rows({8: [m], 24: [m_seed0, m_seed1], 48: [m]})   # evaluate()'s metrics.json per size
     text = curve_table(rows); curve_plot(rows, "curve.png"); crossings(rows)

@@ -1,4 +1,4 @@
-"""Impact phases of the default panel scene for a few OCA designs (issue 2's panel report), from the
+"""Impact phases of the default panel scene for a few OCA designs (the panel report), from the
 built-in solver (:func:`pcmgn_jax.sim.solver.simulate`, :func:`pcmgn_jax.sim.solver.contact_phases`).
 
 :func:`panel_report` writes OUT.json (per design: contact start, peak force and its time, separation,
@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from pcmgn_jax import markdown
+from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.data.designs import parse_designs
-from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.scene import default_scene
 from pcmgn_jax.sim import solver
 

@@ -1,4 +1,4 @@
-"""The four-task comparison of issue 24: the MGN beside every baseline, per task, with the winner per metric.
+"""The four-task comparison: the MGN beside every baseline, per task, with the winner per metric.
 
     rows = task_rows({"a": [m_seed0, m_seed1], "b": [m]})   # evaluate()'s metrics.json dicts per task
     text = task_table(rows, commands)                      # Markdown

@@ -16,7 +16,7 @@ A design is answered on its own mesh: the training data's scene with the paramet
 (:func:`pcmgn_jax.opt.scenes.scene_at`: :func:`pcmgn_jax.scene.with_parameters`, or a panel stack's
 scene, whose layer list follows its ``.present`` sliders), meshed at the data's preset and cropped to its
 region of interest, as a "query" trajectory holding only the initial state (:func:`pcmgn_jax.opt.scenes.query`).
-A stack run (issue 40) gets a slider per padded parameter (:mod:`pcmgn_jax.data.stack`) in the family's
+A stack run gets a slider per padded parameter (:mod:`pcmgn_jax.data.stack`) in the family's
 order, opens at the paper's six layers at their nominal values, and flags a design outside the family's
 ranges by :func:`pcmgn_jax.data.stack.range_warnings`; a baseline that cannot answer a stack (no training
 stack of its layers) says so in its row instead of a value. Every field prediction is scored on that mesh by

@@ -1,4 +1,4 @@
-"""Acquisition functions for minimising an objective under a surrogate's uncertainty (issue 26).
+"""Acquisition functions for minimising an objective under a surrogate's uncertainty.
 
     ei = expected_improvement(mean, std, best)      # (Q,) >= 0, in the objective's units
     lcb = lower_confidence_bound(mean, std, kappa)  # (Q,), smaller is better

@@ -39,7 +39,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from pcmgn_jax.data.trajectory_io import atomic_write_json
+from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.opt import acquisition as acq
 from pcmgn_jax.opt.problem import DesignBox
 from pcmgn_jax.surrogates.kinds import choices
@@ -47,7 +47,7 @@ from pcmgn_jax.surrogates.response_surfaces import MOP, ExtrapolationWarning, Kr
 
 # the loop's surrogates: the kinds with ``active`` (pcmgn_jax/surrogates/kinds.py), fitted here over parameter
 # rows (the solver's answers), and ``auto`` (MOP's mean, kriging's spread)
-SURROGATES = choices("active")
+ACTIVE_SURROGATES = choices("active")
 FORMAT = "pcmgn_jax.active"
 GRID_N = 41          # candidate grid per axis for two design variables (2.5 µm steps over 50-150 µm)
 N_CANDIDATES = 4000  # seeded LHS candidates for more variables
@@ -69,8 +69,8 @@ class LoopConfig:
     kappa: float = acq.KAPPA
 
     def check(self, n_cases: int) -> None:
-        if self.surrogate not in SURROGATES:
-            raise ValueError(f"surrogate must be one of {SURROGATES}, got {self.surrogate!r}")
+        if self.surrogate not in ACTIVE_SURROGATES:
+            raise ValueError(f"surrogate must be one of {ACTIVE_SURROGATES}, got {self.surrogate!r}")
         if self.acquisition not in acq.ACQUISITIONS:
             raise ValueError(f"acquisition must be one of {acq.ACQUISITIONS}, got {self.acquisition!r}")
         if self.n_init < 1 or self.batch < 1:
@@ -193,7 +193,7 @@ def fit_surrogate(kind: str, rows, values, names: Sequence[str], base: Callable 
             return m["f"], s["f"]
         return predict, info
     if kind != "auto":
-        raise ValueError(f"surrogate must be one of {SURROGATES}, got {kind!r}")
+        raise ValueError(f"surrogate must be one of {ACTIVE_SURROGATES}, got {kind!r}")
     mop = _quiet(MOP, X, {"f": y}, names=names)
     info["mop"] = mop.report()["f"]
 

@@ -1,4 +1,4 @@
-"""The solver-in-the-loop tasks of issue 26 on a run's data, and the comparison at equal solver budgets.
+"""The solver-in-the-loop tasks on a run's data, and the comparison at equal solver budgets.
 
     problem, ctx = box_problem("runs/cpu")                 # the paper's box on the run's mesh preset
     problem, ctx = robust_problem("runs/family", CASES)    # OCA1, OCA2, POL over three drop cases
@@ -28,8 +28,8 @@ from typing import Sequence
 import numpy as np
 
 from pcmgn_jax import markdown
+from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.data.designs import FAMILIES
-from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.opt.active import LoopConfig, Problem, SolverOracle, best_at, run_loop
 from pcmgn_jax.opt.check import solver_preset
 from pcmgn_jax.opt.objectives import MGNObjective
@@ -41,9 +41,9 @@ from pcmgn_jax.surrogates.mgn import run_splits
 from pcmgn_jax.surrogates.registry import fit
 from pcmgn_jax.surrogates.response_surfaces import objective_table
 
-# the best solver-checked design known in the paper's box on the cpu mesh (issue 26), re-solved by box_problem
+# the best solver-checked design known in the paper's box on the cpu mesh, re-solved by box_problem
 REFERENCE_UM = (150.0, 100.0)
-HIT_PCT = 0.3   # "reached the best design": within this gap [%] of the reference (issue 26)
+HIT_PCT = 0.3   # "reached the best design": within this gap [%] of the reference
 STRATEGIES = {
     "lhs+mop": dict(surrogate="auto", acquisition="mean"),
     "gp-ei": dict(surrogate="kriging", acquisition="ei", n_init=4),

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from pcmgn_jax import metrics
-from pcmgn_jax.data.trajectory_io import atomic_write_json
+from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.scene import Scene
 
 

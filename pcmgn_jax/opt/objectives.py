@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from pcmgn_jax import metrics
-from pcmgn_jax.data.trajectory_io import atomic_write_json
+from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.sim.design_map import DesignMap
 
 

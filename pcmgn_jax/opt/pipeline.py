@@ -59,7 +59,7 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", **kw) -> dict:
     starts seed; ``grid``: n x n objective map (-1: 21, mgn 7; 0 or 1: none); ``which``: mgn checkpoint;
     ``check``: re-run the solver at the optimum; ``ensemble``: comma-separated runs whose MGNs join the
     run's for the spread of an mgn optimum (:mod:`pcmgn_jax.opt.spread`; without: a residual GP's);
-    ``command``: recorded in the result. A panel-stack run (issue 40) is searched over its scene parameters
+    ``command``: recorded in the result. A panel-stack run is searched over its scene parameters
     instead (:mod:`pcmgn_jax.opt.stack_search`, GA only): ``stack`` (comma-separated layer list, '' the
     paper's six) and ``params`` (comma-separated names to search, '' every layer's thickness and modulus);
     both are refused on other runs. Designs in the result
@@ -85,7 +85,7 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
     import numpy as np
 
     from pcmgn_jax import metrics
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.atomic import atomic_write_json
     from pcmgn_jax.eval import plots
     from pcmgn_jax.opt import search
     from pcmgn_jax.opt.check import solver_objectives, solver_preset
@@ -130,7 +130,7 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
     box = DesignBox(dim=len(scene.design_layers))
     dmap = DesignMap.build(scene, preset)
     kw = {"part": part, "reading": objective}
-    kind = "mop" if surrogate == AUTO else surrogate   # auto: MOP's choice by leave-one-out CoP (issue 26)
+    kind = "mop" if surrogate == AUTO else surrogate   # auto: MOP's choice by leave-one-out CoP
     if KINDS[kind].family == "mgn":
         obj = MGNObjective(fit(kind, train, workdir=run_dir, ref=ref, which=which), dmap, **kw)
     elif KINDS[kind].objective_surface:

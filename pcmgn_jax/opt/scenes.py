@@ -1,5 +1,5 @@
 """Designs that are rows of scene parameters, each answered on its own mesh: the scene of a row, its query
-trajectory, the solver at it, and the search box of a panel-stack run (issue 40; shared by the explorer
+trajectory, the solver at it, and the search box of a panel-stack run (shared by the explorer
 and ``experiments.optimize``).
 
     fam = family_of(ref)                              # the run's scene family (None: a design-layer run)

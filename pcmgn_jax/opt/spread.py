@@ -1,4 +1,4 @@
-"""The predicted ± spread of a surrogate optimum (issue 26): no optimum is reported without one.
+"""The predicted ± spread of a surrogate optimum: no optimum is reported without one.
 
     s = optimum_spread("mgn", obj, x, train, part=part, reading="area_mean", members=("runs/b",))
     s["std_mpa"], s["source"]

@@ -1,4 +1,4 @@
-"""``experiments.optimize`` on a panel-stack run (issue 40): search a stack's scene parameters on a surrogate
+"""``experiments.optimize`` on a panel-stack run: search a stack's scene parameters on a surrogate
 and re-check the optimum with the solver.
 
     out = optimize_stack(run_dir, cfg, train, surrogate="kriging", pop=20, gens=10,
@@ -24,11 +24,10 @@ from pcmgn_jax import metrics
 from pcmgn_jax.opt import search
 from pcmgn_jax.opt.objectives import FieldObjective
 from pcmgn_jax.opt.scenes import PAPER_STACK, ParameterBox, family_of, query, scene_at, solve_scene, stack_box
+from pcmgn_jax.opt.spread import SPREAD_OF
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.surrogates.kinds import AUTO, KINDS
 from pcmgn_jax.surrogates.registry import fit
-
-SPREAD_OF = "kriging"   # the kind whose posterior std stands in for a surrogate without a spread (as opt.spread)
 
 
 class StackObjective(FieldObjective):

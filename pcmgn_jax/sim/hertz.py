@@ -15,7 +15,7 @@ from pcmgn_jax.scene import Ball, Layer, Scene
 from pcmgn_jax.sim import solver
 from pcmgn_jax.sim.mesh import MeshSpec
 
-TARGETS = {
+TARGET_MATERIALS = {
     # name: (E [Pa], nu, density [kg/m^3])
     "glass": (77.0e9, 0.21, 2500.0),
     "aluminium": (68.9e9, 0.33, 2700.0),
@@ -37,9 +37,9 @@ def hertz_impact(*, radius: float, velocity: float, ball: Ball, youngs: float, p
 
 def hertz_scene(*, radius: float, velocity: float, target: str, gap: float = 1e-6) -> Scene:
     """Axisymmetric steel ball on a block 5 R deep and 5 R wide, fixed at the bottom."""
-    if target not in TARGETS:
-        raise ValueError(f"hertz: target must be one of {sorted(TARGETS)}, got {target!r}")
-    e, nu, rho = TARGETS[target]
+    if target not in TARGET_MATERIALS:
+        raise ValueError(f"hertz: target must be one of {sorted(TARGET_MATERIALS)}, got {target!r}")
+    e, nu, rho = TARGET_MATERIALS[target]
     ball = dataclasses.replace(Ball(), radius=radius, velocity=velocity, gap=gap)
     return Scene(layers=(Layer("BLOCK", e, nu, 5.0 * radius, rho),), ball=ball,
                  analysis="axisymmetric", half_width=5.0 * radius, design_layers=(),
@@ -70,7 +70,7 @@ def hertz_check(*, radius: float = 5e-3, velocity: float = 0.62631, target: str 
     The impulse is checked against momentum balance m (v_in + v_out) with the ball's measured
     rebound speed (v_out from the mass-weighted ball velocity after separation)."""
     scene = hertz_scene(radius=radius, velocity=velocity, target=target)
-    e, nu, _ = TARGETS[target]
+    e, nu, _ = TARGET_MATERIALS[target]
     theory = hertz_impact(radius=radius, velocity=velocity, ball=scene.ball, youngs=e, poisson=nu)
     spec = hertz_mesh_spec(theory, elems_per_radius=elems_per_radius)
     window = scene.ball.gap / velocity + 1.4 * theory["contact_time_s"]

@@ -83,8 +83,7 @@ def run(names=(), *, seeds=(0, 1), num_steps: int = 1000, runs: str | Path = "ru
             results[name][str(seed)] = {k: m[k] for k in (*KEYS, "train_seconds")}
             baselines = m.get("baselines", baselines)
             print(f"{name} seed {seed}: " + ", ".join(f"{k}={m[k]:.4g}" for k in KEYS), flush=True)
-    from pcmgn_jax.atomic import atomic_write_text
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.atomic import atomic_write_json, atomic_write_text
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     common = cells.as_flags(COMMON)

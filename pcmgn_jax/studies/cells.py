@@ -76,7 +76,7 @@ def run_cell(workdir: str | Path, settings: dict, *, extra_data: dict[str, str] 
 
 def _run_cell(workdir: Path, settings: dict, extra_data: dict[str, str] | None) -> dict:
     from pcmgn_jax import eval as evaluation, train
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.atomic import atomic_write_json
     from pcmgn_jax.eval.evaluate import summary_table
     from pcmgn_jax.train.pipeline import fit_to_dataset
     metrics = workdir / "eval" / "metrics.json"

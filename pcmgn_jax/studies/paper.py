@@ -229,8 +229,7 @@ def write(name, out, table_ref, steps, study_cells, forms, seeds, results, *, co
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from pcmgn_jax.atomic import atomic_write_text
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.atomic import atomic_write_json, atomic_write_text
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     where = "the paper's four extrapolation designs (data/cpu/extrap)" if name == "extrapolation" else \

@@ -19,7 +19,7 @@ from typing import Protocol, Sequence, runtime_checkable
 
 @dataclass(frozen=True)
 class Kind:
-    """One predictor kind: how it is fitted (``family``: a module of this package, :data:`registry.FAMILIES`)
+    """One predictor kind: how it is fitted (``family``: a module of this package, :data:`registry.FITTERS`)
     and where it is used.
 
     ``fields``: where it predicts fields: 'any' (each query on its own mesh), 'shared' (one shared mesh
@@ -30,7 +30,7 @@ class Kind:
 
     name: str
     label: str                  # what the explorer's page calls it
-    family: str                 # 'mgn' | 'regression' | 'surface' | 'rom' (registry.FAMILIES)
+    family: str                 # 'mgn' | 'regression' | 'surface' | 'rom' (registry.FITTERS)
     fields: str = "any"
     objective_surface: bool = False
     std: bool = False

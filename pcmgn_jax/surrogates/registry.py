@@ -5,7 +5,7 @@
 
 Evaluation (:mod:`pcmgn_jax.eval.baselines`), the optimiser (:mod:`pcmgn_jax.opt.pipeline`), the active loop,
 the residual mode (:mod:`residual`) and the explorer fit their predictors here. A kind's ``family``
-names the module that fits it (:data:`FAMILIES`). Every family fitted on trajectories takes ``queries``
+names the module that fits it (:data:`FITTERS`). Every family fitted on trajectories takes ``queries``
 (the trajectories to be predicted), ``readings`` (the objective readings, default all) and ``part`` (the
 OLED part id, default found by name), and uses them where they matter; other options a family does not
 take are refused (TypeError):
@@ -18,7 +18,7 @@ take are refused (TypeError):
 
 To add a predictor: a :class:`~pcmgn_jax.surrogates.kinds.Kind` row in :data:`KINDS` (its name, label, family
 and where it is used) and, for a new family, a module with ``fit(kind, train, **options)`` returning an
-object with the :class:`~pcmgn_jax.surrogates.kinds.Surrogate` methods, named in :data:`FAMILIES`.
+object with the :class:`~pcmgn_jax.surrogates.kinds.Surrogate` methods, named in :data:`FITTERS`.
 """
 from __future__ import annotations
 
@@ -27,9 +27,9 @@ from typing import Sequence
 from pcmgn_jax.surrogates import mgn, regression, rom, surfaces
 from pcmgn_jax.surrogates.kinds import KINDS, Kind, Surrogate, kind, names
 
-__all__ = ["FAMILIES", "KINDS", "Kind", "Surrogate", "fit", "kind", "names"]
+__all__ = ["FITTERS", "KINDS", "Kind", "Surrogate", "fit", "kind", "names"]
 
-FAMILIES = {"regression": regression.fit, "surface": surfaces.fit, "rom": rom.fit, "mgn": mgn.fit}
+FITTERS = {"regression": regression.fit, "surface": surfaces.fit, "rom": rom.fit, "mgn": mgn.fit}  # by Kind.family
 
 
 def fit(name: str, train: Sequence = (), **options) -> Surrogate:
@@ -39,4 +39,4 @@ def fit(name: str, train: Sequence = (), **options) -> Surrogate:
     family = kind(name).family
     if family == "mgn":
         options.setdefault("fit_base", fit)   # a residual_of run's baseline, fitted by this registry
-    return FAMILIES[family](name, train, **options)
+    return FITTERS[family](name, train, **options)

@@ -18,7 +18,7 @@ fixed preset, where a design moves nodes but never renumbers them) they are :cla
 
 When the meshes differ (a scene family: ball radius, drop speed and layer thicknesses vary, and with
 them the node count), :class:`NearestScene` gives the kinds that need no shared node numbering (``fields``
-'any' in :data:`~pcmgn_jax.surrogates.kinds.KINDS`): ``none`` and ``nearest`` (the nearest training scene
+'any' in :data:`~pcmgn_jax.surrogates.kinds.REGRESSION_KINDS`): ``none`` and ``nearest`` (the nearest training scene
 in normalised scene-parameter space, its fields carried over to the test mesh); ``poly2`` and ``rbf`` do
 not apply there (:func:`fit` says so).
 """
@@ -35,7 +35,7 @@ from pcmgn_jax.surrogates.inputs import design_of, part_names_of, scene_vector, 
 from pcmgn_jax.surrogates.kinds import names
 from pcmgn_jax.surrogates.transfer import transfer_fields
 
-KINDS = names(family="regression")
+REGRESSION_KINDS = names(family="regression")
 
 
 def fit(kind: str, train_trajs: Sequence, *, queries: Sequence = (), readings=None, part=None):
@@ -118,8 +118,8 @@ class FieldRegression:
     """A baseline fitted on training trajectories of one topology (see the module docstring)."""
 
     def __init__(self, kind: str, train_trajs: Sequence):
-        if kind not in KINDS:
-            raise ValueError(f"baseline must be one of {KINDS}, got {kind!r}")
+        if kind not in REGRESSION_KINDS:
+            raise ValueError(f"baseline must be one of {REGRESSION_KINDS}, got {kind!r}")
         if not train_trajs:
             raise ValueError("a baseline needs at least one training trajectory")
         ref = train_trajs[0]

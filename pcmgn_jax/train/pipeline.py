@@ -156,7 +156,7 @@ def write_data_record(workdir, root, source: str, train, val) -> None:
     """RUN/data.json (atomic; process 0 only): which trajectories this run trains and validates on."""
     import jax
 
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.atomic import atomic_write_json
     if jax.process_index() != 0:
         return
     def item(t):

@@ -7,7 +7,6 @@ window, no checkpoint), made once per module (~15 s, most of it the solver's com
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import shutil
 import threading
@@ -17,6 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fixtures.helpers import tiny_solver_dataset
+
 CHROMIUM = "/usr/bin/chromium"
 CHROMEDRIVER = "/usr/bin/chromedriver"
 
@@ -25,14 +26,10 @@ CHROMEDRIVER = "/usr/bin/chromedriver"
 def regression_run(tmp_path_factory):
     """(run directory, its Explorer): a tiny run without a checkpoint or metrics, six training designs."""
     from pcmgn_jax.config import TrainConfig
-    from pcmgn_jax.data.dataset import ensure_dataset
     from pcmgn_jax.explore import Explorer
-    from pcmgn_jax.scene import default_scene
 
     root = tmp_path_factory.mktemp("explore")
-    data, run = root / "data", root / "run"
-    ensure_dataset(data, preset="tiny", n_train=6, n_test=0, scene=dataclasses.replace(default_scene(), n_frames=12),
-                   progress=False)
+    data, run = tiny_solver_dataset(root, n_train=6, n_frames=12), root / "run"
     run.mkdir()
     TrainConfig.from_preset("tiny", dataset_dir=str(data), n_train=6, n_val=0, n_test=0).save_json(run / "config.json")
     # every baseline but the POD ROM (its fit and field transfer cost seconds here; the slow test has it)

@@ -10,7 +10,7 @@ import pytest
 from pcmgn_jax.scene import default_scene
 from pcmgn_jax.sim import fem, mesh as M
 
-PRESETS = ("tiny", "cpu", "paper")
+MESH_PRESETS_TESTED = ("tiny", "cpu", "paper")
 DESIGNS = [(40e-6, 40e-6), (40e-6, 160e-6), (100e-6, 100e-6), (160e-6, 40e-6), (160e-6, 160e-6)]
 
 
@@ -51,7 +51,7 @@ def _edges(cells):
 
 
 # ---- element validity and topology -------------------------------------------------------------
-@pytest.mark.parametrize("preset", PRESETS)
+@pytest.mark.parametrize("preset", MESH_PRESETS_TESTED)
 @pytest.mark.parametrize("design", DESIGNS)
 def test_jacobians_positive_for_presets_and_designs(preset, design):
     scene = default_scene(t_oca1=design[0], t_oca2=design[1])
@@ -62,7 +62,7 @@ def test_jacobians_positive_for_presets_and_designs(preset, design):
     assert _corner_jacobians(mesh.points, mesh.cells).min() > 0
 
 
-@pytest.mark.parametrize("preset", PRESETS)
+@pytest.mark.parametrize("preset", MESH_PRESETS_TESTED)
 def test_topology_identical_across_designs(preset):
     ref = _mesh(preset)
     for design in DESIGNS:
@@ -75,7 +75,7 @@ def test_topology_identical_across_designs(preset):
         np.testing.assert_allclose(m.points[:, 0], ref.points[:, 0], rtol=0, atol=1e-15)
 
 
-@pytest.mark.parametrize("preset", PRESETS)
+@pytest.mark.parametrize("preset", MESH_PRESETS_TESTED)
 def test_mesh_is_conforming_without_duplicate_nodes(preset):
     mesh = _mesh(preset)
     _, counts = _edges(mesh.cells)
@@ -92,7 +92,7 @@ def test_mesh_is_conforming_without_duplicate_nodes(preset):
         assert not cKDTree(pts).query_pairs(1e-3 * M.mesh_spec(preset).h_contact)
 
 
-@pytest.mark.parametrize("preset", PRESETS)
+@pytest.mark.parametrize("preset", MESH_PRESETS_TESTED)
 def test_geometry_areas(preset):
     scene = default_scene()
     mesh = _mesh(preset)
@@ -115,7 +115,7 @@ def test_element_angles():
     there has a ~179 deg corner (Jacobian ratio ~0.03). It is far from the contact and does
     not set the stable step, so results are not wrong, but the docstring's promise of
     90-135 deg corners does not hold. Panel elements are rectangles (90 deg)."""
-    for preset in PRESETS:
+    for preset in MESH_PRESETS_TESTED:
         mesh = _mesh(preset)
         ang = _interior_angles(mesh.points, mesh.cells)
         panel = mesh.cell_part != 0
@@ -138,7 +138,7 @@ def _edge_lengths(points, cells):
     return np.linalg.norm(points[cells] - points[np.roll(cells, -1, axis=1)], axis=-1)
 
 
-@pytest.mark.parametrize("preset", PRESETS)
+@pytest.mark.parametrize("preset", MESH_PRESETS_TESTED)
 def test_element_size_at_contact(preset):
     spec = M.mesh_spec(preset)
     h = spec.h_contact
@@ -179,7 +179,7 @@ def test_paper_preset_resolves_10_um():
 
 
 # ---- node sets ---------------------------------------------------------------------------------
-@pytest.mark.parametrize("preset", PRESETS)
+@pytest.mark.parametrize("preset", MESH_PRESETS_TESTED)
 @pytest.mark.parametrize("analysis", ["axisymmetric", "plane_strain"])
 def test_node_sets(preset, analysis):
     scene = default_scene(analysis=analysis)
@@ -205,7 +205,7 @@ def test_node_sets(preset, analysis):
     assert np.all(mesh.node_part[bottom] == n_parts - 1)
 
 
-@pytest.mark.parametrize("preset", PRESETS)
+@pytest.mark.parametrize("preset", MESH_PRESETS_TESTED)
 def test_ball_surface_and_panel_top(preset):
     scene = default_scene()
     mesh = _mesh(preset)
@@ -262,7 +262,7 @@ def test_unknown_preset_and_missing_design_counts():
 
 
 # ---- region of interest ------------------------------------------------------------------------
-@pytest.mark.parametrize("preset", PRESETS)
+@pytest.mark.parametrize("preset", MESH_PRESETS_TESTED)
 def test_crop_roi_consistent(preset):
     spec = M.mesh_spec(preset)
     full = _mesh(preset)

@@ -7,7 +7,7 @@ import pytest
 
 from fixtures.helpers import ROOT, drop_last_column, make_synthetic_trajectory
 from pcmgn_jax.surrogates.kinds import KINDS, Surrogate, choices, kind, names
-from pcmgn_jax.surrogates.registry import FAMILIES, fit
+from pcmgn_jax.surrogates.registry import FITTERS, fit
 
 FITTED = names(baseline=True)   # every kind fitted on trajectories (mgn loads a run: test below)
 
@@ -63,10 +63,10 @@ def test_every_list_of_predictors_is_the_registrys():
     from pcmgn_jax.config import RESIDUAL_BASES
     from pcmgn_jax.eval.baselines import BASELINES
     from pcmgn_jax.explore.types import LABELS, PREDICTORS
-    from pcmgn_jax.opt.active import SURROGATES as ACTIVE
+    from pcmgn_jax.opt.active import ACTIVE_SURROGATES as ACTIVE
     from pcmgn_jax.opt.pipeline import SURROGATES as OPTIMISE
 
-    assert {k.family for k in KINDS.values()} == set(FAMILIES)
+    assert {k.family for k in KINDS.values()} == set(FITTERS)
     assert RESIDUAL_BASES == ("",) + names(residual_base=True) and "rom" in RESIDUAL_BASES
     assert BASELINES == tuple(n for n in KINDS if n != "mgn") and PREDICTORS[0] == "mgn"
     assert set(LABELS) == set(PREDICTORS) == set(names(explore=True))

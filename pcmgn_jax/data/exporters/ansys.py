@@ -40,12 +40,9 @@ from typing import Any
 
 import numpy as np
 
+from pcmgn_jax.atomic import atomic_write_text, to_jsonable
 from pcmgn_jax.data.exporters.cdb import ANALYSIS_KEYOPT3, COMPONENT_RE, write_cdb
-from pcmgn_jax.data.exporters.common import (
-    ExportError,
-    atomic_folder,
-    write_text_atomic,
-)
+from pcmgn_jax.data.exporters.common import ExportError, atomic_folder, export_errors
 from pcmgn_jax.data.exporters.tables import (
     format_table,
     result_file,
@@ -59,7 +56,7 @@ from pcmgn_jax.data.importers.runs import (
     RUN_FILE,
     SCENE_FILES,
 )
-from pcmgn_jax.data.trajectory_io import read_sidecar, read_trajectory, to_jsonable
+from pcmgn_jax.data.trajectory_io import read_sidecar, read_trajectory
 from pcmgn_jax.trajectory import Trajectory
 
 __all__ = ["ANALYSIS_KEYOPT3", "EXPORT_FORMAT", "FIXED_COMPONENT", "MESH_FILE", "RESULTS_DIR", "RUN_FILE",
@@ -257,6 +254,8 @@ def export_dataset(data_dir: str | os.PathLike, out_dir: str | os.PathLike, *, l
                "parts": parts, "part_names": names_seen, "materials": part_map(names_seen or []),
                "splits": {k: [s.name for s in v] for k, v in found.items()},
                "import_command": f"python -m experiments.import_ansys --exports {out} --out DIR"}
-    write_text_atomic(out / "export.json", json.dumps(to_jsonable(summary), indent=1) + "\n")
-    write_text_atomic(out / "README.md", _readme(found, out, parts, length_unit))
+    for name, text in (("export.json", json.dumps(to_jsonable(summary), indent=1) + "\n"),
+                       ("README.md", _readme(found, out, parts, length_unit))):
+        with export_errors(out / name):
+            atomic_write_text(out / name, text, parents=True)
     return counts

@@ -44,7 +44,8 @@ from typing import Any
 
 import numpy as np
 
-from pcmgn_jax.data.exporters.common import ExportError, write_text_atomic
+from pcmgn_jax.atomic import atomic_write_text
+from pcmgn_jax.data.exporters.common import ExportError, export_errors
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.sim.mesh import Mesh, MeshSpec, build_mesh
 
@@ -284,7 +285,8 @@ def write_inp(path: str | os.PathLike, scene: Scene, preset: str | MeshSpec,
     count."""
     mesh = calculix_mesh(scene, preset)
     text = inp_text(scene, mesh, settings, title=f"pcmgn_jax scene, design {scene.design}")
-    write_text_atomic(path, text)
+    with export_errors(path):
+        atomic_write_text(path, text, parents=True)
     n_axis = int(np.count_nonzero(mesh.points[:, 0] <= 0.0))
     return {"inp": str(path), "n_nodes": mesh.n_nodes, "n_nodes_wedge": 2 * mesh.n_nodes - n_axis,
             "n_elements": int(len(mesh.cells)),

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pcmgn_jax.data.exporters.common import ExportError, write_text_atomic
+from pcmgn_jax.atomic import atomic_write_text
+from pcmgn_jax.data.exporters.common import ExportError, export_errors
 from pcmgn_jax.data.importers.units import ANSYS_UNIT_SYSTEMS, length_factor
 from pcmgn_jax.trajectory import Trajectory
 
@@ -112,7 +113,8 @@ def write_cdb(path: str | os.PathLike, traj: Trajectory, *, unit: str = "mm", un
         for a in range(0, len(items), 8):
             lines.append("".join(f"{v:10d}" for v in items[a:a + 8]))
     lines.append("FINISH")
-    write_text_atomic(path, "\n".join(lines) + "\n")
+    with export_errors(path):
+        atomic_write_text(path, "\n".join(lines) + "\n", parents=True)
     return ids
 
 

@@ -1,5 +1,5 @@
-"""What every ANSYS-format writer shares: :class:`ExportError` and the atomic file / folder writes that
-turn a failure into one (:mod:`pcmgn_jax.atomic` underneath)."""
+"""What every ANSYS-format writer shares: :class:`ExportError`, the folder write and the error mapping that
+turn a failure into one (the atomic writes themselves: :mod:`pcmgn_jax.atomic`)."""
 from __future__ import annotations
 
 import os
@@ -7,7 +7,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from pcmgn_jax.atomic import atomic_dir, atomic_write_text
+from pcmgn_jax.atomic import atomic_dir
 
 __all__ = ["ExportError"]
 
@@ -16,12 +16,11 @@ class ExportError(ValueError):
     """An export could not be written (one line naming the path and the cause)."""
 
 
-def write_text_atomic(path: str | os.PathLike, text: str) -> None:
-    """:func:`pcmgn_jax.atomic.atomic_write_text`, creating the folder, with a failure as :class:`ExportError`."""
-    path = Path(path)
+@contextmanager
+def export_errors(path: str | os.PathLike) -> Iterator[None]:
+    """An ``OSError`` inside the block (writing ``path``) as :class:`ExportError` naming ``path``."""
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(path, text)
+        yield
     except OSError as err:
         raise ExportError(f"{path}: cannot write: {err.strerror or err}") from None
 

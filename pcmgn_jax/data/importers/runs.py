@@ -35,17 +35,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
+from pcmgn_jax.atomic import to_jsonable
 from pcmgn_jax.data.importers.ansys_text import import_ansys_text
 from pcmgn_jax.data.importers.errors import InputFileError
 from pcmgn_jax.data.importers.meshes import read_mesh
 from pcmgn_jax.data.importers.parts import parse_parts
-from pcmgn_jax.data.trajectory_io import (
-    TrajectoryFileError,
-    read_sidecar,
-    read_trajectory,
-    to_jsonable,
-    write_trajectory,
-)
+from pcmgn_jax.data.trajectory_io import TrajectoryFileError, read_sidecar, read_trajectory, write_trajectory
 from pcmgn_jax.geometry import RoiCropError
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.trajectory import Trajectory, crop_trajectory

@@ -1,5 +1,12 @@
-"""The cases of ``python -m experiments.calculix_check``: Hertz and the panel designs in both codes, and the
-report (check.json, check.md). CalculiX runs are reused when their deck is unchanged (OUT/runs/<label>/)."""
+"""The built-in solver against CalculiX, run: one scene in each code, the cases of ``python -m
+experiments.calculix_check`` (Hertz and the panel designs in both codes) and their report (check.json, check.md).
+
+    traj, extra, wall = run_calculix(folder, scene, preset, settings)   # ccx, reused while its deck is unchanged
+    traj, force, wall, result = run_builtin(scene, preset, penalty_factor=1.0)
+
+The figures and the comparison they are scored by: :mod:`pcmgn_jax.eval.calculix_check`. ``args`` of the cases
+and the report: the check's settings (``experiments.calculix_check.CheckArgs``: preset, frames, penalty
+factors, increments per frame, slave faces, time-out, the Hertz case's mesh)."""
 from __future__ import annotations
 
 import dataclasses
@@ -11,24 +18,24 @@ from typing import Any
 import numpy as np
 
 from pcmgn_jax import markdown
+from pcmgn_jax.atomic import atomic_write_json, atomic_write_text
 from pcmgn_jax.data.calculix import frd_trajectory, run_ccx
 from pcmgn_jax.data.exporters.calculix import CCX_COUNTERPART, CalculixSettings, calculix_mesh, inp_text
-from pcmgn_jax.data.exporters.common import write_text_atomic
-from pcmgn_jax.data.trajectory_io import atomic_write_json
 from pcmgn_jax.eval.calculix_check import CHECKED, compare, field_errors, impact_figures
 from pcmgn_jax.scene import Scene, default_scene
 from pcmgn_jax.sim import solver
-from pcmgn_jax.sim.hertz import TARGETS, hertz_impact, hertz_mesh_spec, hertz_scene
+from pcmgn_jax.sim.hertz import TARGET_MATERIALS, hertz_impact, hertz_mesh_spec, hertz_scene
 
 
-def _ccx(folder: Path, scene: Scene, preset, settings: CalculixSettings, timeout: float | None = None):
-    """CalculiX run of ``scene`` (reused when folder/job.inp holds the same deck and job.frd exists)."""
+def run_calculix(folder: Path, scene: Scene, preset, settings: CalculixSettings, timeout: float | None = None):
+    """CalculiX run of ``scene`` on ``preset``'s mesh in ``folder``: (trajectory, :func:`frd_trajectory`'s extra,
+    wall time [s] or None); reused when folder/job.inp holds the same deck and job.frd exists. ``timeout`` [s]."""
     deck = inp_text(scene, calculix_mesh(scene, preset), settings, title=f"pcmgn_jax scene, design {scene.design}")
     inp, frd = folder / "job.inp", folder / "job.frd"
     wall = None
     if not (inp.is_file() and frd.is_file() and inp.read_text() == deck):
         folder.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(inp, deck)
+        atomic_write_text(inp, deck)
         wall = run_ccx(inp, timeout=timeout)["wall_time_s"]
         (folder / "wall_time_s.txt").write_text(f"{wall}\n")
     elif (folder / "wall_time_s.txt").is_file():
@@ -37,7 +44,9 @@ def _ccx(folder: Path, scene: Scene, preset, settings: CalculixSettings, timeout
     return traj, extra, wall
 
 
-def _builtin(scene: Scene, preset, penalty_factor: float, element: str = solver.DEFAULT_SETTINGS.element):
+def run_builtin(scene: Scene, preset, penalty_factor: float, element: str = solver.DEFAULT_SETTINGS.element):
+    """The built-in solver's run of ``scene`` on ``preset``'s mesh at ``penalty_factor`` with the Q4 ``element``:
+    (trajectory, the mean contact force per frame interval (T-1,) [N], wall time [s], the solver's RunResult)."""
     t0 = time.perf_counter()
     settings = solver.SolverSettings(penalty_factor=penalty_factor, element=element)
     res = solver.simulate([scene], preset, settings=settings)
@@ -49,7 +58,7 @@ def _builtin(scene: Scene, preset, penalty_factor: float, element: str = solver.
 def hertz_case(out: Path, args) -> dict[str, Any]:
     """Steel ball on a glass block (sim/hertz.py): CalculiX and the built-in solver against Hunter's theory."""
     scene = hertz_scene(radius=5e-3, velocity=0.62631, target="glass")
-    e, nu, _ = TARGETS["glass"]
+    e, nu, _ = TARGET_MATERIALS["glass"]
     theory = hertz_impact(radius=5e-3, velocity=0.62631, ball=scene.ball, youngs=e, poisson=nu)
     spec = dataclasses.replace(hertz_mesh_spec(theory, elems_per_radius=args.hertz_elems_per_radius),
                                growth=args.hertz_growth)
@@ -59,8 +68,8 @@ def hertz_case(out: Path, args) -> dict[str, Any]:
                                 penalty_factor=args.hertz_penalty_factor,
                                 min_increment_ratio=args.hertz_min_increment_ratio,
                                 slave_faces=args.slave_faces)
-    tc, fc, wall_c = _ccx(out / "runs" / "hertz", scene, spec, settings, args.timeout_s)
-    tb, fb, wall_b, _ = _builtin(scene, spec, args.hertz_penalty_factor)
+    tc, fc, wall_c = run_calculix(out / "runs" / "hertz", scene, spec, settings, args.timeout_s)
+    tb, fb, wall_b, _ = run_builtin(scene, spec, args.hertz_penalty_factor)
     figs = {"calculix": impact_figures(tc, fc["force_N"]), "builtin": impact_figures(tb, fb)}
     ref = {"contact_duration_s": theory["contact_time_s"], "peak_force_N": theory["peak_force_N"]}
     vs_theory = {code: {k: figs[code][k] / v - 1.0 for k, v in ref.items()} for code in figs}
@@ -81,15 +90,15 @@ def panel_case(out: Path, args, design: list[float], label: str) -> dict[str, An
         scene = dataclasses.replace(scene, n_frames=int(args.frames))
     settings = CalculixSettings(increments_per_frame=args.increments_per_frame, penalty_factor=args.penalty_factor,
                                 slave_faces=args.slave_faces)
-    tc, extra, wall_c = _ccx(out / "runs" / label, scene, args.preset, settings, args.timeout_s)
-    tb, fb, wall_b, _ = _builtin(scene, args.preset, args.penalty_factor, CCX_COUNTERPART[settings.element])
+    tc, extra, wall_c = run_calculix(out / "runs" / label, scene, args.preset, settings, args.timeout_s)
+    tb, fb, wall_b, _ = run_builtin(scene, args.preset, args.penalty_factor, CCX_COUNTERPART[settings.element])
     figs = {"calculix": impact_figures(tc, extra["force_N"]), "builtin": impact_figures(tb, fb)}
     frd_vm = extra["von_mises_full"]["frd"][:, extra["node_map"]]
     figs["calculix_frd_stress"] = impact_figures(tc, extra["force_N"], von_mises=frd_vm)
     if args.penalty_factor != 1.0:
-        tp, fp, _, _ = _builtin(scene, args.preset, 1.0, CCX_COUNTERPART[settings.element])
+        tp, fp, _, _ = run_builtin(scene, args.preset, 1.0, CCX_COUNTERPART[settings.element])
         figs["builtin_penalty_1"] = impact_figures(tp, fp)
-    ti, fi, _, _ = _builtin(scene, args.preset, 1.0, "q4i")
+    ti, fi, _, _ = run_builtin(scene, args.preset, 1.0, "q4i")
     figs["builtin_q4i_penalty_1"] = impact_figures(ti, fi)
     start, end = figs["builtin"]["contact_start_s"], figs["builtin"]["contact_end_s"]
     if not np.isfinite(end):
@@ -163,7 +172,7 @@ def write_report(out: Path, cases: list[dict], args, command: str) -> list[str]:
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / "check.json", {"command": command, "args": dict(vars(args)) if hasattr(args, "__dict__")
                                            else dataclasses.asdict(args), "cases": cases})
-    write_text_atomic(out / "check.md", "\n".join(lines) + "\n")
+    atomic_write_text(out / "check.md", "\n".join(lines) + "\n", parents=True)
     return lines
 
 
