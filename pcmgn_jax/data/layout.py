@@ -36,9 +36,9 @@ from typing import Any
 import numpy as np
 
 __all__ = ["DATASET_FORMAT", "GENERATE", "IMPORTED", "LEGACY_ELEMENT", "MANIFEST", "SHARD_PARTS", "SPLITS",
-           "DatasetError", "check_element", "check_entry", "dataset_source", "entry_mismatch", "has_shard_parts",
-           "has_trajectory_files", "load_manifest", "manifest_element", "meta_design", "read_format_json",
-           "split_stems", "trajectory_element"]
+           "DatasetError", "check_element", "check_entry", "check_run_element", "dataset_source", "entry_mismatch",
+           "has_shard_parts", "has_trajectory_files", "load_manifest", "manifest_element", "meta_design",
+           "read_format_json", "split_stems", "trajectory_element"]
 
 MANIFEST = "manifest.json"
 SHARD_PARTS = ".shards"                # folder of the per-shard manifest parts (pcmgn_jax.data.shards)
@@ -172,6 +172,25 @@ def check_element(root: Path, man: dict[str, Any]) -> None:
         raise DatasetError(f"{root / MANIFEST}: generated with the {have!r} element, the solver now makes "
                            f"{DEFAULT_ELEMENT!r}: regenerate into another --out (or delete {root}); the two are "
                            "never mixed (pcmgn_jax.sim.fem)")
+
+
+def check_run_element(workdir: Path, record: dict[str, Any] | None, trajectories: Sequence[Any] = ()) -> None:
+    """DatasetError when a trained run (its ``RUN/data.json`` ``record``) or the solver trajectories it is asked to
+    score were made with another element than the solver's default. A record without an ``element`` is the old
+    element where its data came from the solver (it predates the record), unknown (accepted) for imported data."""
+    from pcmgn_jax.sim.fem import DEFAULT_ELEMENT
+
+    if record is not None:
+        trained = record.get("element", LEGACY_ELEMENT if record.get("source") == GENERATE else None)
+        if trained is not None and trained != DEFAULT_ELEMENT:
+            raise DatasetError(f"{workdir}: trained on {trained!r}-element trajectories, the solver now makes "
+                               f"{DEFAULT_ELEMENT!r}: retrain it on a regenerated dataset (its figures are of the old "
+                               "ground truth)")
+    for t in trajectories:
+        made = trajectory_element(t.meta)
+        if made is not None and made != DEFAULT_ELEMENT:
+            raise DatasetError(f"{t.meta.get('name', 'a trajectory')}: made with the {made!r} element, the solver now "
+                               f"makes {DEFAULT_ELEMENT!r}; regenerate it")
 
 
 def entry_mismatch(entry: dict[str, Any], meta: dict[str, Any], layers: Sequence[str],

@@ -32,7 +32,10 @@ def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str =
     run's rollout contact projection ("" = the run's); ``residual_ball``: a residual run's ball override ("" =
     the run's); ``split``: ``val`` scores the run's validation trajectories instead (RUN/eval/val unless
     ``name``), where a rollout setting is chosen without looking at the test split."""
+    import json
+
     from pcmgn_jax.config import TrainConfig  # here, not at the top: `import pcmgn_jax.eval` stays light
+    from pcmgn_jax.data.layout import check_run_element
     from pcmgn_jax.data.splits import load_directory, load_splits
     from pcmgn_jax.eval import evaluate as evaluation
     from pcmgn_jax.mgn.checkpoint import require_run
@@ -52,6 +55,8 @@ def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str =
                                    n_test=0 if data or split == "val" else cfg.n_test)
     if data:
         test = load_directory(data)
+    record = Path(workdir) / "data.json"
+    check_run_element(Path(workdir), json.loads(record.read_text()) if record.is_file() else None, [*train, *test])
     if split == "val":  # what choices between rollout settings are made on, never the test split
         test, name = val, name or "val"
     out = Path(workdir) / "eval" / (output_name(data, name) or "")

@@ -159,10 +159,13 @@ def write_data_record(workdir, root, source: str, train, val) -> None:
     from pcmgn_jax.atomic import atomic_write_json
     if jax.process_index() != 0:
         return
+    from pcmgn_jax.data.layout import trajectory_element
     def item(t):
         return {"name": t.meta.get("name"), "sha256": t.meta.get("source_sha256"),
-                "source": t.meta.get("source"), "n_nodes": int(t.n_nodes)}
+                "source": t.meta.get("source"), "n_nodes": int(t.n_nodes), "element": trajectory_element(t.meta)}
+    elements = {trajectory_element(t.meta) for t in [*train, *val]}
     Path(workdir).mkdir(parents=True, exist_ok=True)
     atomic_write_json(Path(workdir) / "data.json", {
         "format": "pcmgn_jax.run_data", "format_version": 1, "dataset_dir": str(Path(root).resolve()),
-        "source": source, "train": [item(t) for t in train], "val": [item(t) for t in val]})
+        "source": source, "element": elements.pop() if len(elements) == 1 else sorted(map(str, elements)),
+        "train": [item(t) for t in train], "val": [item(t) for t in val]})

@@ -60,3 +60,17 @@ def test_the_solver_records_its_element_in_every_trajectory():
         result = solver.simulate([scene], "tiny", n_frames=2, settings=settings)
         (traj,) = solver.to_trajectories(result, [scene], "tiny", settings=settings)
         assert layout.trajectory_element(traj.meta) == element
+
+
+def test_a_run_trained_on_the_old_element_is_refused(tmp_path):
+    """RUN/data.json without an element record, of generated data: trained before the record, i.e. on q4."""
+    from pcmgn_jax.data.layout import DatasetError, check_run_element
+
+    with pytest.raises(DatasetError, match=r"trained on 'q4'-element trajectories, the solver now makes 'q4i'"):
+        check_run_element(tmp_path, {"source": "generate", "train": []})
+    check_run_element(tmp_path, {"source": "imported"})                 # imported data: no element to know
+    check_run_element(tmp_path, {"source": "generate", "element": "q4i"})
+    check_run_element(tmp_path, {"source": "generate", "element": None})   # synthetic trajectories
+    old = synthetic_trajectory(meta={"name": "test_0003", "solver": {"settings": {"element": "q4"}}})
+    with pytest.raises(DatasetError, match="test_0003: made with the 'q4' element"):
+        check_run_element(tmp_path, None, [old])
