@@ -195,17 +195,11 @@ def von_mises(stress):
     return xp.where(pos, (3.0 * xp.where(pos, j2, 1.0)) ** 0.5, 0.0)
 
 
-def node_stencil(cells: np.ndarray, ke: np.ndarray, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
-    """The global stiffness as 2x2 node blocks over each node's neighbours (ELL layout), host
-    NumPy: ``(K u)_i = sum_k blocks[..., k, :, :, i] @ u[neighbours[i, k]]``.
+def stencil_index(cells: np.ndarray, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """Host side: where each element's 2x2 node blocks go in :func:`node_stencil`'s layout.
 
-    ke (..., E, 8, 8) [N/m] with any leading batch axes. Returns neighbours (N, W) int64 (the
-    nodes sharing an element with node i, sorted, i itself included; short rows padded with i
-    and a zero block) and blocks (..., W, 2, 2, N) [N/m]. W is the largest neighbour count,
-    9 on a conforming quad mesh. The same sums as :func:`assemble_csr`, arranged so that an
-    explicit solver needs one gather per neighbour slot and no scatter.
-    """
-    n_el = cells.shape[0]
+    Returns neighbours (N, W) int64 (as :func:`node_stencil`) and dest (E*16,) int64: the flat slot
+    ``node * W + k`` of block (a, b) of element e, in the order ``e * 16 + a * 4 + b``."""
     rows = np.repeat(cells, 4, axis=1).ravel()          # (E*16,) node a of pair (a, b)
     cols = np.tile(cells, (1, 4)).ravel()               # node b
     key = rows.astype(np.int64) * n_nodes + cols
@@ -216,10 +210,30 @@ def node_stencil(cells: np.ndarray, ke: np.ndarray, n_nodes: int) -> tuple[np.nd
     width = int(slot.max()) + 1
     neighbours = np.repeat(np.arange(n_nodes)[:, None], width, axis=1)
     neighbours[urow, slot] = ucol
+    return neighbours, (urow[pair] * width + slot[pair]).astype(np.int64)
+
+
+def node_stencil(cells: np.ndarray, ke, n_nodes: int, index=None):
+    """The global stiffness as 2x2 node blocks over each node's neighbours (ELL layout):
+    ``(K u)_i = sum_k blocks[..., k, :, :, i] @ u[neighbours[i, k]]``.
+
+    ke (..., E, 8, 8) [N/m] with any leading batch axes, NumPy (host) or jax (differentiable: a scatter-add).
+    Returns neighbours (N, W) int64 (the nodes sharing an element with node i, sorted, i itself included;
+    short rows padded with i and a zero block) and blocks (..., W, 2, 2, N) [N/m]. W is the largest
+    neighbour count, 9 on a conforming quad mesh. The same sums as :func:`assemble_csr`, arranged so that
+    an explicit solver needs one gather per neighbour slot and no scatter. ``index``: a precomputed
+    :func:`stencil_index` of these cells.
+    """
+    xp = _xp(ke)
+    neighbours, dest = stencil_index(cells, n_nodes) if index is None else index
+    width, n_el = neighbours.shape[1], cells.shape[0]
     batch = ke.shape[:-3]
     kb = ke.reshape(-1, n_el, 4, 2, 4, 2).transpose(1, 2, 4, 3, 5, 0).reshape(n_el * 16, 2, 2, -1)
-    flat = np.zeros((n_nodes * width, 2, 2, kb.shape[-1]))
-    np.add.at(flat, urow[pair] * width + slot[pair], kb)
+    if xp is np:
+        flat = np.zeros((n_nodes * width, 2, 2, kb.shape[-1]))
+        np.add.at(flat, dest, kb)
+    else:
+        flat = xp.zeros((n_nodes * width, 2, 2, kb.shape[-1]), kb.dtype).at[dest].add(kb)
     blocks = flat.reshape(n_nodes, width, 2, 2, -1).transpose(4, 1, 2, 3, 0)
     return neighbours, blocks.reshape(*batch, width, 2, 2, n_nodes)
 
