@@ -131,13 +131,20 @@ def objective_weights(points, cells, cell_part, node_part, *, part: int, reading
             raise ValueError(f"objective {reading!r}: no node of part {part} at x < {x_max} m")
         return sel / sel.sum()
     cells = np.asarray(cells)
-    keep = (np.asarray(cell_part) == part) & np.all(pts[cells, 0] <= x_max * (1 + 1e-9), axis=1)
+    keep = section_cells(pts, cells, cell_part, part=part, x_max=x_max)
     if not keep.any():
         raise ValueError(f"objective {reading!r}: no cell of part {part} lies wholly at x <= {x_max} m")
     out = section_weights(pts, cells[keep], disc=reading == "disc_mean")
     if not out.sum() > 0:
         raise ValueError(f"objective {reading!r}: the section has zero measure")
     return out
+
+
+def section_cells(points, cells, cell_part, *, part: int, x_max: float = OBJECTIVE_X_MAX) -> np.ndarray:
+    """(E,) bool: the cells of ``part`` whose nodes all lie at reference x <= ``x_max`` [m] (the area and
+    disc readings' section); host NumPy."""
+    pts = np.asarray(points, np.float64)
+    return (np.asarray(cell_part) == part) & np.all(pts[np.asarray(cells), 0] <= x_max * (1 + 1e-9), axis=1)
 
 
 def section_weights(points, section_cells, *, disc: bool = False):

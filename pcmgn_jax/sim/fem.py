@@ -37,7 +37,7 @@ ELEMENTS = ("q4i", "q4")
 DEFAULT_ELEMENT = ELEMENTS[0]
 
 
-def _xp(*arrays):
+def array_module(*arrays):
     """The array module of the inputs: ``jax.numpy`` when any is a jax array (or tracer), else NumPy.
     One definition of the element serves both: the host path (NumPy, float64) and the differentiable
     solver (:mod:`pcmgn_jax.sim.differentiable`, jax arrays of the node coordinates and materials)."""
@@ -56,8 +56,8 @@ def shape_functions(xi: float, eta: float) -> tuple[np.ndarray, np.ndarray]:
 
 def elasticity_matrix(youngs, poisson):
     """(E,4,4) isotropic D [Pa] for (xx, yy, xy, zz) from youngs (E,) [Pa] and poisson (E,); valid for both
-    plane strain and axisymmetry. NumPy or jax arrays (:func:`_xp`)."""
-    xp = _xp(youngs, poisson)
+    plane strain and axisymmetry. NumPy or jax arrays (:func:`array_module`)."""
+    xp = array_module(youngs, poisson)
     youngs = xp.asarray(youngs, float)[:, None, None]
     nu = xp.asarray(poisson, float)[:, None, None]
     lam = youngs * nu / ((1 + nu) * (1 - 2 * nu))
@@ -73,7 +73,7 @@ def _det2(jac):
 
 def _inv2(jac, det):
     """Inverse of (E,2,2) matrices with their determinants (E,): the adjugate over det."""
-    xp = _xp(jac)
+    xp = array_module(jac)
     adj = xp.stack([xp.stack([jac[:, 1, 1], -jac[:, 0, 1]], -1), xp.stack([-jac[:, 1, 0], jac[:, 0, 0]], -1)], 1)
     return adj / det[:, None, None]
 
@@ -82,7 +82,7 @@ def _strain_rows(dx, dy, hoop, n_cols: int):
     """(E,4,2 n_cols) strain operator of a 2-component field with ``n_cols`` functions per component, the
     x component's functions first or interleaved: rows (xx, yy, xy, zz) from the physical derivatives dx,
     dy (E,n_cols) and the hoop row's functions over r (E,n_cols) (zeros in plane strain)."""
-    xp = _xp(dx, dy, hoop)
+    xp = array_module(dx, dy, hoop)
     zero = xp.zeros_like(dx)
     rows = [(dx, zero), (zero, dy), (dy, dx), (hoop, zero)]
     return xp.stack([xp.stack([a, b], -1).reshape(dx.shape[0], 2 * n_cols) for a, b in rows], 1)
@@ -93,9 +93,9 @@ def b_matrices(xy, xi: float, eta: float, axisymmetric: bool):
 
     Public: the solver's element operators and the objective's element integration
     (:func:`pcmgn_jax.metrics.objective_weights`) share this one definition of det J and 2 pi r.
-    NumPy or jax arrays (:func:`_xp`); the radius is floored at 1e-300 m (finite on the axis).
+    NumPy or jax arrays (:func:`array_module`); the radius is floored at 1e-300 m (finite on the axis).
     """
-    xp = _xp(xy)
+    xp = array_module(xy)
     n, dn = shape_functions(xi, eta)
     jac = xp.einsum("ak,ekb->eab", dn, xy)  # (E,2,2): d(x,y)/d(xi,eta)
     det = _det2(jac)
@@ -122,7 +122,7 @@ def _incompatible_g(xy, xi: float, eta: float, axisymmetric: bool):
     (a1x, a2x, a1y, a2y). The in-plane derivatives use the Jacobian at the element centre scaled by
     det J0 / det J (Taylor, Beresford & Wilson 1976, "QM6"); the hoop row is M / r (axisymmetric).
     """
-    xp = _xp(xy)
+    xp = array_module(xy)
     modes = np.array([1.0 - xi * xi, 1.0 - eta * eta])
     dnat = np.array([[-2.0 * xi, 0.0], [0.0, -2.0 * eta]])       # d(mode)/d(xi, eta): rows xi, eta
     _, dn0 = shape_functions(0.0, 0.0)
@@ -148,13 +148,13 @@ def element_matrices(points, cells, youngs, poisson, density, *, analysis: str,
     :data:`ELEMENTS` (module docstring); for ``q4i`` the stiffness and the stress operator are those of the
     condensed element. dof order inside an element: (u_x0, u_y0, u_x1, u_y1, ...). NumPy in -> NumPy out
     (the host path, float64); jax arrays of the points or materials in -> jax out, differentiable (the
-    same formulas: :func:`_xp`).
+    same formulas: :func:`array_module`).
     """
     if analysis not in ("axisymmetric", "plane_strain"):
         raise ValueError(f"fem: unknown analysis {analysis!r}")
     if element not in ELEMENTS:
         raise ValueError(f"fem: unknown element {element!r}; one of {ELEMENTS}")
-    xp = _xp(points, youngs, poisson, density)
+    xp = array_module(points, youngs, poisson, density)
     axi = analysis == "axisymmetric"
     xy = xp.asarray(points)[cells]  # (E,4,2)
     # plane strain: row 3 of B is zero (eps_zz = 0) and row 3 of D then gives
@@ -188,7 +188,7 @@ def element_matrices(points, cells, youngs, poisson, density, *, analysis: str,
 def von_mises(stress):
     """von Mises stress [Pa] from (..., 4) = (s_xx, s_yy, s_xy, s_zz); works for numpy and jnp. The root is
     guarded (0 where J2 = 0, with a zero gradient there, not NaN: the unloaded first frame)."""
-    xp = _xp(stress)
+    xp = array_module(stress)
     sxx, syy, sxy, szz = stress[..., 0], stress[..., 1], stress[..., 2], stress[..., 3]
     j2 = ((sxx - syy) ** 2 + (syy - szz) ** 2 + (szz - sxx) ** 2) / 6.0 + sxy**2
     pos = j2 > 0
@@ -224,7 +224,7 @@ def node_stencil(cells: np.ndarray, ke, n_nodes: int, index=None):
     an explicit solver needs one gather per neighbour slot and no scatter. ``index``: a precomputed
     :func:`stencil_index` of these cells.
     """
-    xp = _xp(ke)
+    xp = array_module(ke)
     neighbours, dest = stencil_index(cells, n_nodes) if index is None else index
     width, n_el = neighbours.shape[1], cells.shape[0]
     batch = ke.shape[:-3]

@@ -109,7 +109,7 @@ def _contact_stiffness(slaves, masters, seg, t, k_slave, n_nodes):
 def _tributary(x, axisymmetric: bool):
     """Tributary area [m^2] (axisymmetric ring) or length [m] (plane strain) of sorted x [m] (S,);
     NumPy or jax (differentiable in x)."""
-    xp = fem._xp(x)
+    xp = fem.array_module(x)
     mid = 0.5 * (x[1:] + x[:-1])
     left = xp.maximum(xp.concatenate([xp.maximum(x[:1] - (mid[:1] - x[:1]), 0.0), mid]), 0.0)
     right = xp.concatenate([mid, x[-1:] + (x[-1:] - mid[-1:])])
@@ -121,7 +121,7 @@ def _tributary(x, axisymmetric: bool):
 def soft_modulus(top_youngs, top_poisson, ball_youngs, ball_poisson):
     """E' [Pa] of the softer contact body: min of the plane-strain moduli E / (1 - nu^2) of the top layer
     and the ball (the penalty's scale, :func:`slave_penalty`); floats or jax scalars."""
-    xp = fem._xp(top_youngs, top_poisson, ball_youngs, ball_poisson)
+    xp = fem.array_module(top_youngs, top_poisson, ball_youngs, ball_poisson)
     return xp.minimum(top_youngs / (1 - top_poisson**2), ball_youngs / (1 - ball_poisson**2))
 
 

@@ -19,7 +19,9 @@ vectorise over a batch of designs and gathers do not (docs/design.md §9; timing
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -194,3 +196,60 @@ def apply(w, coefs, layout: SliceLayout, *, rigid_x: bool = False, extra_rows=No
     if not idx:
         return f
     return f.at[:, :, jnp.concatenate(idx)].add(jnp.concatenate(vals, axis=-1))
+
+
+def _float_coefs(coefs):
+    return {"blocks": coefs["blocks"], "rem_blocks": coefs["rem_blocks"]}
+
+
+@partial(jax.custom_vjp, nondiff_argnums=(0, 1))
+def _apply_sym(layout, rigid_x, w, coefs, sym, row_scale, rem_rows, rem_cols, extra_rows, extra):
+    full = {**coefs, "rem_rows": rem_rows, "rem_cols": rem_cols}
+    return apply(w, full, layout, rigid_x=rigid_x, extra_rows=extra_rows, extra=extra)
+
+
+def _apply_sym_fwd(layout, rigid_x, w, coefs, sym, row_scale, rem_rows, rem_cols, extra_rows, extra):
+    out = _apply_sym(layout, rigid_x, w, coefs, sym, row_scale, rem_rows, rem_cols, extra_rows, extra)
+    return out, (w, coefs, sym, row_scale, rem_rows, rem_cols, extra_rows, extra)
+
+
+def _apply_sym_bwd(layout, rigid_x, res, g):
+    w, coefs, sym, row_scale, rem_rows, rem_cols, extra_rows, extra = res
+    # the operator is D K (D = row_scale, K symmetric): its transpose K D is the same stencil of K on D g
+    w_bar = apply(row_scale * g, {**sym, "rem_rows": rem_rows, "rem_cols": rem_cols}, layout, rigid_x=rigid_x)
+    # the coefficients' cotangents: each output row's cotangent times the neighbour differences it multiplied
+    p = layout.pad
+    wx, wy = w[0], w[1]
+    px, py = jnp.pad(wx, ((0, 0), (p, p))), jnp.pad(wy, ((0, 0), (p, p)))
+    blocks_bar = []
+    for (r0, r1, offs, _), c in zip(layout.blocks, coefs["blocks"]):
+        own = jnp.stack([wx[:, r0:r1] if rigid_x else jnp.zeros_like(wx[:, r0:r1]), wy[:, r0:r1]])  # (2,B,rows)
+        diffs = jnp.stack([jnp.stack([px, py])[:, :, p + r0 + d:p + r1 + d] for d in offs]) - own  # (n_off,2,B,rows)
+        cb = g[None, :, None, :, r0:r1] * diffs[:, None]              # (n_off,2,2,B,rows): [k, a, b] = g_a d_b
+        blocks_bar.append(cb if c.shape[3] == cb.shape[3] else cb.sum(axis=3, keepdims=True))
+    rem = coefs["rem_blocks"]
+    if rem_rows.shape[0]:
+        gx = wx[:, rem_cols] - (wx[:, rem_rows] if rigid_x else 0.0)
+        gy = wy[:, rem_cols] - wy[:, rem_rows]
+        fx, fy = g[0][:, rem_rows], g[1][:, rem_rows]
+        rb = jnp.stack([jnp.stack([fx * gx, fx * gy]), jnp.stack([fy * gx, fy * gy])])
+        rem_bar = rb if rem.shape[2] == rb.shape[2] else rb.sum(axis=2, keepdims=True)
+    else:
+        rem_bar = jnp.zeros_like(rem)
+    extra_bar = None if extra is None else g[:, :, extra_rows]
+    return (w_bar, {"blocks": blocks_bar, "rem_blocks": rem_bar}, None, None, None, None, None, extra_bar)
+
+
+_apply_sym.defvjp(_apply_sym_fwd, _apply_sym_bwd)
+
+
+def apply_symmetric(w, coefs, sym_coefs, row_scale, *, layout: SliceLayout, rigid_x: bool = False, extra_rows=None,
+                    extra=None):
+    """:func:`apply` of coefficients that are a row scaling of a symmetric operator's, ``coefs = D K`` with
+    D = ``row_scale`` (2,B,N) and K's own coefficients ``sym_coefs`` (the same layout), with a hand-written
+    reverse pass: the displacement's cotangent is K (D g), one more stencil product, and the coefficients'
+    are the products of g with the neighbour differences (autodiff's transpose of the shifted slices would
+    pad every slice to the full length). Only ``coefs`` and ``extra`` enter the value: the cotangents of
+    ``sym_coefs`` and ``row_scale`` are zero (they describe the transpose)."""
+    return _apply_sym(layout, rigid_x, w, _float_coefs(coefs), _float_coefs(sym_coefs), row_scale,
+                      coefs["rem_rows"], coefs["rem_cols"], extra_rows, extra)
