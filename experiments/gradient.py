@@ -25,7 +25,7 @@ class GradientArgs:
     preset: str = "cpu"                 # mesh preset (tiny, cpu, paper)
     design: str = ""                    # design-layer thicknesses in µm, comma-separated (default: the scene's)
     scene: str = ""                     # a scene file (TOML / JSON; default: the paper's panel)
-    params: str = ""                    # names, comma-separated (default: layer thicknesses, moduli; ball radius, speed
+    params: str = ""                    # names, comma-separated (default: thicknesses, moduli; ball radius, speed)
     reading: str = "area_mean"          # objective reading: area_mean | node_mean | disc_mean | peak
     fd_steps: str = ""                  # relative central-difference steps, comma-separated (1e-4,1e-5); empty: none
     fd_params: str = ""                 # parameters of the step study (default: all of --params)
