@@ -3,6 +3,7 @@
   python -m experiments.gradient --preset cpu --design 120,80 --out g.json                 # every default parameter
   python -m experiments.gradient --preset tiny --design 50,100 --fd_steps 1e-3,1e-4 --out g.json   # + a step study
   python -m experiments.gradient --scene my.toml --params OCA1.thickness,CG.youngs,ball.radius --out g.json
+  python -m experiments.gradient --table 'results/gradients/*.json' --out results/gradients/table.md
 
 Writes JSON (pcmgn_jax/sim/gradient_check.py): the objective [Pa], its gradient per named parameter in SI units
 (every layer's thickness and Young's modulus, the ball's radius and speed by default; ``--params`` names others:
@@ -30,6 +31,7 @@ class GradientArgs:
     fd_steps: str = ""                  # relative central-difference steps, comma-separated (1e-4,1e-5); empty: none
     fd_params: str = ""                 # parameters of the step study (default: all of --params)
     out: str = ""                       # write the JSON here
+    table: str = ""                     # instead: the accuracy and cost tables (markdown) of these JSON files (a glob)
 
 
 def main(argv=None) -> int:
@@ -38,6 +40,17 @@ def main(argv=None) -> int:
     from pcmgn_jax.scene import Scene
     from pcmgn_jax.sim.gradient_check import gradient_report
 
+    if args.table:
+        import glob
+
+        from pcmgn_jax.sim.gradient_check import accuracy_table
+        files = sorted(glob.glob(args.table))
+        text = "\n".join(accuracy_table([json.loads(open(f).read()) for f in files])) + "\n"
+        if args.out:
+            from pathlib import Path
+            Path(args.out).write_text(text)
+        print(text)
+        return 0
     scene = Scene.load(args.scene) if args.scene else Scene()
     if args.design:
         scene = scene.with_design(*(float(v) * 1e-6 for v in args.design.split(",")))

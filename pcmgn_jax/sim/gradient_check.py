@@ -96,3 +96,28 @@ def gradient_report(scene: Scene, preset: str | MeshSpec, *, names=None, reading
             errs = [min(r["error_pct_of_norm"].values()) for r in report["fd"].values()]
             report["fd_max_error_pct_of_norm"] = float(max(errs))
     return report
+
+
+def accuracy_table(reports: Sequence[dict]) -> list[str]:
+    """Markdown lines: per report (design) and parameter of its step study, the scaled gradient theta_k g_k
+    [MPa], the error of the central difference at each step [% of the scaled norm], and whether the differences
+    settled; then the cost and memory of each report."""
+    from pcmgn_jax import markdown
+
+    rows = []
+    for r in reports:
+        design = ", ".join(f"{t:.0f}" for t in r["design_um"])
+        for name, s in r.get("fd", {}).items():
+            scaled = r["parameters"][name]["scaled_gradient_pa"] * 1e-6
+            errs = " / ".join(f"{e:.3f}" for e in s["error_pct_of_norm"].values())
+            rows.append([r["preset"], design, r["reading"], name, f"{scaled:+.4f}", errs,
+                         "yes" if s["converged"] else f"no ({s['fd_change_pct_of_norm']:.2f})"])
+    steps = " / ".join(next((list(s["fd"]) for r in reports for s in r.get("fd", {}).values()), []))
+    lines = markdown.table(["preset", "design [µm]", "reading", "parameter", "θ·∂f/∂θ [MPa]",
+                            f"FD error, steps {steps} [% of norm]", "FD settled (change %)"], rows)
+    cost = [[r["preset"], ", ".join(f"{t:.0f}" for t in r["design_um"]), r["n_nodes"],
+             f"{r['n_frames']} × {r['n_substeps_per_frame']}", f"{r['objective_pa'] * 1e-6:.4f}",
+             f"{r['wall_value_s']:.2f}", f"{r['wall_value_and_grad_s']:.2f}", f"{r['cost_ratio']:.2f}",
+             f"{r['peak_rss_mb']:.0f}"] for r in reports]
+    return lines + [""] + markdown.table(["preset", "design [µm]", "nodes", "frames × substeps", "objective [MPa]",
+                                          "value [s]", "value + gradient [s]", "ratio", "peak RSS [MB]"], cost)
