@@ -66,8 +66,8 @@ class GradientSetup:
     node_slots: np.ndarray      # (N, 4)
     avg_weight: np.ndarray      # (N, 4)
     reading: str                # the objective reading (metrics.OBJECTIVES)
-    section: np.ndarray         # (E_s, 4) full-mesh cells of the area / disc section, or
-    node_weights: np.ndarray    # (N,) fixed weights of node_mean / the peak's mask
+    section: np.ndarray         # (E_s, 4) full-mesh cells of the area / disc readings' section
+    node_weights: np.ndarray    # (N,) fixed weights of node_mean / the peak's mask (zeros for area / disc)
     dtype: str
 
     @property
