@@ -115,9 +115,10 @@ def accuracy_table(reports: Sequence[dict]) -> list[str]:
     steps = " / ".join(next((list(s["fd"]) for r in reports for s in r.get("fd", {}).values()), []))
     lines = markdown.table(["preset", "design [µm]", "reading", "parameter", "θ·∂f/∂θ [MPa]",
                             f"FD error, steps {steps} [% of norm]", "FD settled (change %)"], rows)
-    cost = [[r["preset"], ", ".join(f"{t:.0f}" for t in r["design_um"]), r["n_nodes"],
+    cost = [[r["preset"], ", ".join(f"{t:.0f}" for t in r["design_um"]), r["reading"], r["n_nodes"],
              f"{r['n_frames']} × {r['n_substeps_per_frame']}", f"{r['objective_pa'] * 1e-6:.4f}",
              f"{r['wall_value_s']:.2f}", f"{r['wall_value_and_grad_s']:.2f}", f"{r['cost_ratio']:.2f}",
              f"{r['peak_rss_mb']:.0f}"] for r in reports]
-    return lines + [""] + markdown.table(["preset", "design [µm]", "nodes", "frames × substeps", "objective [MPa]",
-                                          "value [s]", "value + gradient [s]", "ratio", "peak RSS [MB]"], cost)
+    head = ["preset", "design [µm]", "reading", "nodes", "frames × substeps", "objective [MPa]", "value [s]",
+            "value + gradient [s]", "ratio", "peak RSS [MB]"]
+    return lines + [""] + markdown.table(head, cost)
