@@ -23,7 +23,8 @@ from typing import Sequence
 COMMANDS = ("generate", "train", "evaluate", "report", "explore", "optimize", "optimize_table", "active", "ensemble",
             "tasks_table", "learning_curve",
             "export", "import_ansys", "export_ansys", "study", "ablation", "objective_convergence",
-            "panel_report", "hertz_check", "reach", "calculix", "calculix_check", "mesh_series", "calculix_locking")
+            "panel_report", "hertz_check", "reach", "calculix", "calculix_check", "mesh_series", "calculix_locking",
+            "gradient")
 PACKAGE = "experiments"
 
 

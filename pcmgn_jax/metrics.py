@@ -121,34 +121,52 @@ def objective_weights(points, cells, cell_part, node_part, *, part: int, reading
     - ``peak``       max over the section's nodes (and frames, see :func:`oled_objective`)
     Weights come from the reference coordinates (small strains). ValueError when the section is empty.
     """
-    # the element integration weights (det J, x 2 pi r for the disc) are the solver's own (sim.fem)
-    from pcmgn_jax.sim.fem import GAUSS_2x2, b_matrices
-
     if reading not in OBJECTIVES:
         raise ValueError(f"objective reading must be one of {OBJECTIVES}, got {reading!r}")
     pts = np.asarray(points, np.float64)
     node_part = np.asarray(node_part)
-    n = len(pts)
     if reading in ("node_mean", "peak"):
         sel = (node_part == part) & (pts[:, 0] < x_max)
         if not sel.any():
             raise ValueError(f"objective {reading!r}: no node of part {part} at x < {x_max} m")
         return sel / sel.sum()
     cells = np.asarray(cells)
-    keep = (np.asarray(cell_part) == part) & np.all(pts[cells, 0] <= x_max * (1 + 1e-9), axis=1)
+    keep = section_cells(pts, cells, cell_part, part=part, x_max=x_max)
     if not keep.any():
         raise ValueError(f"objective {reading!r}: no cell of part {part} lies wholly at x <= {x_max} m")
-    xy = pts[cells[keep]]                                  # (E, 4, 2)
-    w = np.zeros((len(xy), 4))
-    for xi, eta in GAUSS_2x2:                              # Gauss weights are 1 for the 2x2 rule
-        _, dvol, shp = b_matrices(xy, xi, eta, axisymmetric=reading == "disc_mean")
-        w += dvol[:, None] * shp[None, :]
-    out = np.zeros(n)
-    np.add.at(out, cells[keep].ravel(), w.ravel())
-    total = out.sum()
-    if not total > 0:
+    out = section_weights(pts, cells[keep], disc=reading == "disc_mean")
+    if not out.sum() > 0:
         raise ValueError(f"objective {reading!r}: the section has zero measure")
-    return out / total
+    return out
+
+
+def section_cells(points, cells, cell_part, *, part: int, x_max: float = OBJECTIVE_X_MAX) -> np.ndarray:
+    """(E,) bool: the cells of ``part`` whose nodes all lie at reference x <= ``x_max`` [m] (the area and
+    disc readings' section); host NumPy."""
+    pts = np.asarray(points, np.float64)
+    return (np.asarray(cell_part) == part) & np.all(pts[np.asarray(cells), 0] <= x_max * (1 + 1e-9), axis=1)
+
+
+def section_weights(points, section_cells, *, disc: bool = False):
+    """(N,) nodal weights (summing to 1) of the area mean (``disc``: the 3D disc's, dA -> 2 pi r dA) over
+    ``section_cells`` (E_s, 4) of a mesh with points (N, 2) [m]: w_a = sum_cells int N_a dA / area (2x2
+    Gauss). NumPy in -> float64 NumPy out; jax points in -> jax out (differentiable in the points: the
+    differentiable solver's section weights move with the design map)."""
+    # the element integration weights (det J, x 2 pi r for the disc) are the solver's own (sim.fem)
+    from pcmgn_jax.sim.fem import GAUSS_2x2, b_matrices
+
+    xp = _xp(points)
+    xy = points[section_cells]                             # (E_s, 4, 2)
+    w = 0.0
+    for xi, eta in GAUSS_2x2:                              # Gauss weights are 1 for the 2x2 rule
+        _, dvol, shp = b_matrices(xy, xi, eta, axisymmetric=disc)
+        w = w + dvol[:, None] * shp[None, :]
+    if xp is np:
+        out = np.zeros(len(points))
+        np.add.at(out, section_cells.ravel(), w.ravel())
+    else:
+        out = xp.zeros(points.shape[0], w.dtype).at[section_cells.ravel()].add(w.ravel())
+    return out / out.sum()
 
 
 def oled_objective(von_mises, weights, *, reading: str = DEFAULT_OBJECTIVE):

@@ -17,10 +17,11 @@ from pcmgn_jax.scene import Scene
 from pcmgn_jax.sim.mesh import Mesh, MeshSpec, build_mesh, roi
 
 
-def design_mesh(scene: Scene, design, preset: str | MeshSpec) -> Mesh:
-    """The preset's region-of-interest mesh of ``scene`` at ``design`` (D,) [m]."""
-    mesh, _ = roi(build_mesh(scene.with_design(*np.asarray(design, float)), preset), preset)
-    return mesh
+def design_mesh(scene: Scene, design, preset: str | MeshSpec, *, crop: bool = True) -> Mesh:
+    """The preset's region-of-interest mesh of ``scene`` at ``design`` (D,) [m] (the full solver mesh when
+    ``crop`` is False)."""
+    full = build_mesh(scene.with_design(*np.asarray(design, float)), preset)
+    return roi(full, preset)[0] if crop else full
 
 
 @dataclass(frozen=True)
@@ -37,28 +38,29 @@ class DesignMap:
 
     @classmethod
     def build(cls, scene: Scene, preset: str | MeshSpec, d0=None, *, step: float = 10e-6,
-              check_tol: float = 1e-12) -> "DesignMap":
+              check_tol: float = 1e-12, crop: bool = True) -> "DesignMap":
         """Finite-difference the mesh around ``d0`` (default: the scene's design) with ``step`` [m] and
         check the map is affine (the mesh at d0 + 2 step along every axis, predicted to ``check_tol`` [m]);
-        ValueError when a design changes the topology or the map is not affine."""
+        ValueError when a design changes the topology or the map is not affine. ``crop``: the region of
+        interest (the surrogates' mesh) or, False, the full solver mesh (the differentiable solver's)."""
         d0 = np.asarray(scene.design if d0 is None else d0, float)
-        base = design_mesh(scene, d0, preset)
+        base = design_mesh(scene, d0, preset, crop=crop)
         cols = []
         for k in range(len(d0)):
             e = np.zeros_like(d0)
             e[k] = step
-            cols.append((cls._points(scene, d0 + e, preset, base) - base.points) / step)
+            cols.append((cls._points(scene, d0 + e, preset, base, crop) - base.points) / step)
         dm = cls(mesh=base, d0=d0, p0=base.points.copy(), jac=np.stack(cols))
         probe = d0 + 2 * step
-        err = np.abs(cls._points(scene, probe, preset, base) - dm.points(probe)).max()
+        err = np.abs(cls._points(scene, probe, preset, base, crop) - dm.points(probe)).max()
         if err > check_tol:
             raise ValueError(f"design map: the mesh is not affine in the design (error {err:.3e} m at "
                              f"{probe * 1e6} µm); gradients through the mesh would be wrong")
         return dm
 
     @staticmethod
-    def _points(scene, d, preset, base: Mesh) -> np.ndarray:
-        m = design_mesh(scene, d, preset)
+    def _points(scene, d, preset, base: Mesh, crop: bool) -> np.ndarray:
+        m = design_mesh(scene, d, preset, crop=crop)
         if m.n_nodes != base.n_nodes or not np.array_equal(m.cells, base.cells):
             raise ValueError(f"design {np.asarray(d) * 1e6} µm gives another topology than "
                              f"{np.asarray(base.points.shape)} nodes at the reference design")

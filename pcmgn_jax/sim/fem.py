@@ -37,6 +37,16 @@ Q4_ELEMENTS = ("q4i", "q4")
 DEFAULT_ELEMENT = Q4_ELEMENTS[0]
 
 
+def array_module(*arrays):
+    """The array module of the inputs: ``jax.numpy`` when any is a jax array (or tracer), else NumPy.
+    One definition of the element serves both: the host path (NumPy, float64) and the differentiable
+    solver (:mod:`pcmgn_jax.sim.differentiable`, jax arrays of the node coordinates and materials)."""
+    if all(isinstance(a, (np.ndarray, np.generic, float, int, list, tuple)) for a in arrays):
+        return np
+    import jax.numpy as jnp
+    return jnp
+
+
 def shape_functions(xi: float, eta: float) -> tuple[np.ndarray, np.ndarray]:
     """Q4 shape functions N (4,) and their natural derivatives dN (2,4) at (xi, eta)."""
     n = 0.25 * (1 + _XI[:, 0] * xi) * (1 + _XI[:, 1] * eta)
@@ -44,10 +54,12 @@ def shape_functions(xi: float, eta: float) -> tuple[np.ndarray, np.ndarray]:
     return n, dn
 
 
-def elasticity_matrix(youngs: np.ndarray, poisson: np.ndarray) -> np.ndarray:
-    """(E,4,4) isotropic D for (xx, yy, xy, zz); valid for both plane strain and axisymmetry."""
-    youngs = np.asarray(youngs, float)[:, None, None]
-    nu = np.asarray(poisson, float)[:, None, None]
+def elasticity_matrix(youngs, poisson):
+    """(E,4,4) isotropic D [Pa] for (xx, yy, xy, zz) from youngs (E,) [Pa] and poisson (E,); valid for both
+    plane strain and axisymmetry. NumPy or jax arrays (:func:`array_module`)."""
+    xp = array_module(youngs, poisson)
+    youngs = xp.asarray(youngs, float)[:, None, None]
+    nu = xp.asarray(poisson, float)[:, None, None]
     lam = youngs * nu / ((1 + nu) * (1 - 2 * nu))
     mu = youngs / (2 * (1 + nu))
     base = np.array([[1, 1, 0, 1], [1, 1, 0, 1], [0, 0, 0, 0], [1, 1, 0, 1]], float)
@@ -55,130 +67,139 @@ def elasticity_matrix(youngs: np.ndarray, poisson: np.ndarray) -> np.ndarray:
     return lam * base + mu * diag
 
 
-def b_matrices(xy: np.ndarray, xi: float, eta: float, axisymmetric: bool):
-    """B (E,4,8), integration weight (E,) without the Gauss weight, N (4,) at (xi, eta).
+def _det2(jac):
+    return jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
+
+
+def _inv2(jac, det):
+    """Inverse of (E,2,2) matrices with their determinants (E,): the adjugate over det."""
+    xp = array_module(jac)
+    adj = xp.stack([xp.stack([jac[:, 1, 1], -jac[:, 0, 1]], -1), xp.stack([-jac[:, 1, 0], jac[:, 0, 0]], -1)], 1)
+    return adj / det[:, None, None]
+
+
+def _strain_rows(dx, dy, hoop, n_cols: int):
+    """(E,4,2 n_cols) strain operator of a 2-component field with ``n_cols`` functions per component, the
+    x component's functions first or interleaved: rows (xx, yy, xy, zz) from the physical derivatives dx,
+    dy (E,n_cols) and the hoop row's functions over r (E,n_cols) (zeros in plane strain)."""
+    xp = array_module(dx, dy, hoop)
+    zero = xp.zeros_like(dx)
+    rows = [(dx, zero), (zero, dy), (dy, dx), (hoop, zero)]
+    return xp.stack([xp.stack([a, b], -1).reshape(dx.shape[0], 2 * n_cols) for a, b in rows], 1)
+
+
+def b_matrices(xy, xi: float, eta: float, axisymmetric: bool):
+    """B (E,4,8), integration weight (E,) without the Gauss weight, N (4,) at (xi, eta); xy (E,4,2) [m].
 
     Public: the solver's element operators and the objective's element integration
     (:func:`pcmgn_jax.metrics.objective_weights`) share this one definition of det J and 2 pi r.
+    NumPy or jax arrays (:func:`array_module`); the radius is floored at 1e-300 m (finite on the axis).
     """
+    xp = array_module(xy)
     n, dn = shape_functions(xi, eta)
-    jac = np.einsum("ak,ekb->eab", dn, xy)  # (E,2,2): d(x,y)/d(xi,eta)
-    det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
-    if np.any(det <= 0):
+    jac = xp.einsum("ak,ekb->eab", dn, xy)  # (E,2,2): d(x,y)/d(xi,eta)
+    det = _det2(jac)
+    if xp is np and np.any(det <= 0):
         bad = int(np.argmin(det))
         raise ValueError(f"fem: element {bad} has a non-positive Jacobian ({det[bad]:.3e}); "
                          "check node ordering (counter-clockwise) and distortion")
-    inv = np.linalg.inv(jac)
-    dxy = np.einsum("eab,bk->eak", inv, dn)  # (E,2,4) physical derivatives
-    ne = xy.shape[0]
-    b = np.zeros((ne, 4, 8))
-    b[:, 0, 0::2] = dxy[:, 0]
-    b[:, 1, 1::2] = dxy[:, 1]
-    b[:, 2, 0::2] = dxy[:, 1]
-    b[:, 2, 1::2] = dxy[:, 0]
+    dxy = xp.einsum("eab,bk->eak", _inv2(jac, det), dn)  # (E,2,4) physical derivatives
     r = xy[:, :, 0] @ n  # (E,) radius at the point
     if axisymmetric:
-        b[:, 3, 0::2] = n[None, :] / np.maximum(r, 1e-300)[:, None]
+        hoop = n[None, :] / xp.maximum(r, 1e-300)[:, None]
         weight = det * 2.0 * np.pi * r
     else:
+        hoop = xp.zeros_like(dxy[:, 0])
         weight = det
-    return b, weight, n
+    # dof order (u_x0, u_y0, u_x1, ...): the x and y functions interleave
+    return _strain_rows(dxy[:, 0], dxy[:, 1], hoop, 4), weight, n
 
 
-def _incompatible_g(xy: np.ndarray, xi: float, eta: float, axisymmetric: bool) -> np.ndarray:
+def _incompatible_g(xy, xi: float, eta: float, axisymmetric: bool):
     """The incompatible modes' strain operator G (E,4,4) at (xi, eta), before the patch-test correction.
 
     Modes (Wilson et al. 1973): u_x and u_y each get a1 (1 - xi^2) + a2 (1 - eta^2); internal dofs ordered
     (a1x, a2x, a1y, a2y). The in-plane derivatives use the Jacobian at the element centre scaled by
     det J0 / det J (Taylor, Beresford & Wilson 1976, "QM6"); the hoop row is M / r (axisymmetric).
     """
+    xp = array_module(xy)
     modes = np.array([1.0 - xi * xi, 1.0 - eta * eta])
     dnat = np.array([[-2.0 * xi, 0.0], [0.0, -2.0 * eta]])       # d(mode)/d(xi, eta): rows xi, eta
     _, dn0 = shape_functions(0.0, 0.0)
-    _, dn = shape_functions(xi, eta)
-    jac0 = np.einsum("ak,ekb->eab", dn0, xy)
-    jac = np.einsum("ak,ekb->eab", dn, xy)
-    det0 = jac0[:, 0, 0] * jac0[:, 1, 1] - jac0[:, 0, 1] * jac0[:, 1, 0]
-    det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
-    dxy = np.einsum("eab,bk->eak", np.linalg.inv(jac0), dnat) * (det0 / det)[:, None, None]  # (E,2,2)
-    g = np.zeros((xy.shape[0], 4, 4))
-    g[:, 0, 0:2] = dxy[:, 0]
-    g[:, 1, 2:4] = dxy[:, 1]
-    g[:, 2, 0:2] = dxy[:, 1]
-    g[:, 2, 2:4] = dxy[:, 0]
+    n, dn = shape_functions(xi, eta)
+    jac0 = xp.einsum("ak,ekb->eab", dn0, xy)
+    det0, det = _det2(jac0), _det2(xp.einsum("ak,ekb->eab", dn, xy))
+    dxy = xp.einsum("eab,bk->eak", _inv2(jac0, det0), dnat) * (det0 / det)[:, None, None]  # (E,2,2)
     if axisymmetric:
-        n, _ = shape_functions(xi, eta)
-        r = xy[:, :, 0] @ n
-        g[:, 3, 0:2] = modes[None, :] / np.maximum(r, 1e-300)[:, None]
-    return g
+        hoop = modes[None, :] / xp.maximum(xy[:, :, 0] @ n, 1e-300)[:, None]
+    else:
+        hoop = xp.zeros_like(dxy[:, 0])
+    # internal dofs (a1x, a2x, a1y, a2y): the x modes first, then the y modes
+    g = _strain_rows(dxy[:, 0], dxy[:, 1], hoop, 2)
+    return g[..., np.array([0, 2, 1, 3])]
 
 
-def element_matrices(points: np.ndarray, cells: np.ndarray, youngs: np.ndarray,
-                     poisson: np.ndarray, density: np.ndarray, *, analysis: str,
+def element_matrices(points, cells, youngs, poisson, density, *, analysis: str,
                      element: str = DEFAULT_ELEMENT):
     """Per-element stiffness (E,8,8) [N/m], row-sum lumped nodal masses (E,4) [kg], and the
     centroid stress operator D B_c (E,4,8) [Pa/m] giving (s_xx, s_yy, s_xy, s_zz).
 
-    ``element``: one of :data:`Q4_ELEMENTS` (module docstring); for ``q4i`` the stiffness and the stress
-    operator are those of the condensed element. dof order inside an element: (u_x0, u_y0, u_x1, u_y1, ...).
+    points (N,2) [m], cells (E,4), youngs / poisson / density (E,) [Pa, -, kg/m^3]. ``element``: one of
+    :data:`Q4_ELEMENTS` (module docstring); for ``q4i`` the stiffness and the stress operator are those of the
+    condensed element. dof order inside an element: (u_x0, u_y0, u_x1, u_y1, ...). NumPy in -> NumPy out
+    (the host path, float64); jax arrays of the points or materials in -> jax out, differentiable (the
+    same formulas: :func:`array_module`).
     """
     if analysis not in ("axisymmetric", "plane_strain"):
         raise ValueError(f"fem: unknown analysis {analysis!r}")
     if element not in Q4_ELEMENTS:
         raise ValueError(f"fem: unknown element {element!r}; one of {Q4_ELEMENTS}")
+    xp = array_module(points, youngs, poisson, density)
     axi = analysis == "axisymmetric"
-    xy = points[cells]  # (E,4,2)
+    xy = xp.asarray(points)[cells]  # (E,4,2)
     # plane strain: row 3 of B is zero (eps_zz = 0) and row 3 of D then gives
     # sigma_zz = lambda (eps_xx + eps_yy), which enters the von Mises stress.
     d = elasticity_matrix(youngs, poisson)
-    ne = len(cells)
-    mass = np.zeros((ne, 4))
     bs, gs, ws = [], [], []
+    mass = 0.0
     for xi, eta in GAUSS_2x2:
         b, w, n = b_matrices(xy, xi, eta, axi)
-        if not axi:
-            b[:, 3, :] = 0.0
         bs.append(b)
         ws.append(w)
         gs.append(_incompatible_g(xy, xi, eta, axi) if element == "q4i" else None)
-        mass += np.asarray(density)[:, None] * n[None, :] * w[:, None]
-    ke = sum(np.einsum("eki,ekl,elj->eij", b, d, b) * w[:, None, None] for b, w in zip(bs, ws))
+        mass = mass + xp.asarray(density)[:, None] * n[None, :] * w[:, None]
+    ke = sum(xp.einsum("eki,ekl,elj->eij", b, d, b) * w[:, None, None] for b, w in zip(bs, ws))
     bc, _, _ = b_matrices(xy, 0.0, 0.0, axi)
-    if not axi:
-        bc[:, 3, :] = 0.0
     if element == "q4":
-        return ke, mass, np.einsum("ekl,elj->ekj", d, bc)
+        return ke, mass, xp.einsum("ekl,elj->ekj", d, bc)
     # orthogonality to constant stress (Simo & Rifai 1990): subtract the volume mean of G
     vol = sum(ws)
     g_mean = sum(g * w[:, None, None] for g, w in zip(gs, ws)) / vol[:, None, None]
     gs = [g - g_mean for g in gs]
-    k_aa = sum(np.einsum("eki,ekl,elj->eij", g, d, g) * w[:, None, None] for g, w in zip(gs, ws))
-    k_au = sum(np.einsum("eki,ekl,elj->eij", g, d, b) * w[:, None, None] for g, w, b in zip(gs, ws, bs))
-    cond = np.linalg.solve(k_aa, k_au)                      # (E,4,8): a = -cond @ u
-    ke = ke - np.einsum("eai,eaj->eij", k_au, cond)
-    ke = 0.5 * (ke + np.swapaxes(ke, 1, 2))                 # symmetric to round-off
+    k_aa = sum(xp.einsum("eki,ekl,elj->eij", g, d, g) * w[:, None, None] for g, w in zip(gs, ws))
+    k_au = sum(xp.einsum("eki,ekl,elj->eij", g, d, b) * w[:, None, None] for g, w, b in zip(gs, ws, bs))
+    cond = xp.linalg.solve(k_aa, k_au)                      # (E,4,8): a = -cond @ u
+    ke = ke - xp.einsum("eai,eaj->eij", k_au, cond)
+    ke = 0.5 * (ke + xp.swapaxes(ke, 1, 2))                 # symmetric to round-off
     gc = _incompatible_g(xy, 0.0, 0.0, axi) - g_mean
-    return ke, mass, np.einsum("ekl,elj->ekj", d, bc - np.einsum("eka,eaj->ekj", gc, cond))
+    return ke, mass, xp.einsum("ekl,elj->ekj", d, bc - xp.einsum("eka,eaj->ekj", gc, cond))
 
 
-def von_mises(stress: np.ndarray) -> np.ndarray:
-    """von Mises stress [Pa] from (..., 4) = (s_xx, s_yy, s_xy, s_zz); works for numpy and jnp."""
+def von_mises(stress):
+    """von Mises stress [Pa] from (..., 4) = (s_xx, s_yy, s_xy, s_zz); works for numpy and jnp. The root is
+    guarded (0 where J2 = 0, with a zero gradient there, not NaN: the unloaded first frame)."""
+    xp = array_module(stress)
     sxx, syy, sxy, szz = stress[..., 0], stress[..., 1], stress[..., 2], stress[..., 3]
     j2 = ((sxx - syy) ** 2 + (syy - szz) ** 2 + (szz - sxx) ** 2) / 6.0 + sxy**2
-    return (3.0 * j2) ** 0.5
+    pos = j2 > 0
+    return xp.where(pos, (3.0 * xp.where(pos, j2, 1.0)) ** 0.5, 0.0)
 
 
-def node_stencil(cells: np.ndarray, ke: np.ndarray, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
-    """The global stiffness as 2x2 node blocks over each node's neighbours (ELL layout), host
-    NumPy: ``(K u)_i = sum_k blocks[..., k, :, :, i] @ u[neighbours[i, k]]``.
+def stencil_index(cells: np.ndarray, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """Host side: where each element's 2x2 node blocks go in :func:`node_stencil`'s layout.
 
-    ke (..., E, 8, 8) [N/m] with any leading batch axes. Returns neighbours (N, W) int64 (the
-    nodes sharing an element with node i, sorted, i itself included; short rows padded with i
-    and a zero block) and blocks (..., W, 2, 2, N) [N/m]. W is the largest neighbour count,
-    9 on a conforming quad mesh. The same sums as :func:`assemble_csr`, arranged so that an
-    explicit solver needs one gather per neighbour slot and no scatter.
-    """
-    n_el = cells.shape[0]
+    Returns neighbours (N, W) int64 (as :func:`node_stencil`) and dest (E*16,) int64: the flat slot
+    ``node * W + k`` of block (a, b) of element e, in the order ``e * 16 + a * 4 + b``."""
     rows = np.repeat(cells, 4, axis=1).ravel()          # (E*16,) node a of pair (a, b)
     cols = np.tile(cells, (1, 4)).ravel()               # node b
     key = rows.astype(np.int64) * n_nodes + cols
@@ -189,10 +210,30 @@ def node_stencil(cells: np.ndarray, ke: np.ndarray, n_nodes: int) -> tuple[np.nd
     width = int(slot.max()) + 1
     neighbours = np.repeat(np.arange(n_nodes)[:, None], width, axis=1)
     neighbours[urow, slot] = ucol
+    return neighbours, (urow[pair] * width + slot[pair]).astype(np.int64)
+
+
+def node_stencil(cells: np.ndarray, ke, n_nodes: int, index=None):
+    """The global stiffness as 2x2 node blocks over each node's neighbours (ELL layout):
+    ``(K u)_i = sum_k blocks[..., k, :, :, i] @ u[neighbours[i, k]]``.
+
+    ke (..., E, 8, 8) [N/m] with any leading batch axes, NumPy (host) or jax (differentiable: a scatter-add).
+    Returns neighbours (N, W) int64 (the nodes sharing an element with node i, sorted, i itself included;
+    short rows padded with i and a zero block) and blocks (..., W, 2, 2, N) [N/m]. W is the largest
+    neighbour count, 9 on a conforming quad mesh. The same sums as :func:`assemble_csr`, arranged so that
+    an explicit solver needs one gather per neighbour slot and no scatter. ``index``: a precomputed
+    :func:`stencil_index` of these cells.
+    """
+    xp = array_module(ke)
+    neighbours, dest = stencil_index(cells, n_nodes) if index is None else index
+    width, n_el = neighbours.shape[1], cells.shape[0]
     batch = ke.shape[:-3]
     kb = ke.reshape(-1, n_el, 4, 2, 4, 2).transpose(1, 2, 4, 3, 5, 0).reshape(n_el * 16, 2, 2, -1)
-    flat = np.zeros((n_nodes * width, 2, 2, kb.shape[-1]))
-    np.add.at(flat, urow[pair] * width + slot[pair], kb)
+    if xp is np:
+        flat = np.zeros((n_nodes * width, 2, 2, kb.shape[-1]))
+        np.add.at(flat, dest, kb)
+    else:
+        flat = xp.zeros((n_nodes * width, 2, 2, kb.shape[-1]), kb.dtype).at[dest].add(kb)
     blocks = flat.reshape(n_nodes, width, 2, 2, -1).transpose(4, 1, 2, 3, 0)
     return neighbours, blocks.reshape(*batch, width, 2, 2, n_nodes)
 

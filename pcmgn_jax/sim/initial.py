@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from pcmgn_jax.scene import Scene
+from pcmgn_jax.sim.fem import array_module
 
 
 def initial_velocity(scene: Scene, node_part) -> np.ndarray:
@@ -11,7 +12,12 @@ def initial_velocity(scene: Scene, node_part) -> np.ndarray:
     drop speed ``scene.ball.velocity`` [m/s], every other node is at rest.
 
     node_part: (N,) part id of every node (0 = ball)."""
-    node_part = np.asarray(node_part)
-    v0 = np.zeros((node_part.shape[0], 2))
-    v0[node_part == 0, 1] = -scene.ball.velocity
-    return v0
+    return ball_velocity(scene.ball.velocity, node_part)
+
+
+def ball_velocity(speed, node_part):
+    """The same rule for a drop speed [m/s] (...) as NumPy or jax (differentiable in the speed): (..., N, 2)."""
+    xp = array_module(speed)
+    is_ball = np.asarray(node_part) == 0
+    vy = xp.where(is_ball, -xp.asarray(speed, float)[..., None], 0.0)
+    return xp.stack([xp.zeros_like(vy), vy], axis=-1)

@@ -63,13 +63,18 @@ def _frame_stress(u, db, cells, node_slots, avg_weight, rigid_x: bool):
     return (slots[node_slots] * avg_weight).sum(axis=1)
 
 
-@partial(jax.jit, static_argnames=("layout", "n_frames", "n_sub", "rigid_x"))
+@partial(jax.jit, static_argnames=("layout", "n_frames", "n_sub", "rigid_x", "remat"))
 def _run(arrays: dict[str, Any], u0, v0, dt, *, layout: stencil.SliceLayout, n_frames: int,
-         n_sub: int, rigid_x: bool):
+         n_sub: int, rigid_x: bool, remat: bool = False):
     """A batch of B designs of one topology (see :func:`_device_arrays`).
 
     u0, v0 (2,B,N) [m, m/s]; dt (B,) [s]. Returns u, v (B,T,N,2), von Mises (B,T,N) [Pa],
-    energies (B,T,3) [J] and per-substep histories (force, approach), each (B,T-1,n_sub)."""
+    energies (B,T,3) [J] and per-substep histories (force, approach), each (B,T-1,n_sub).
+    ``remat``: for reverse-mode derivatives (:mod:`pcmgn_jax.sim.differentiable`; ``arrays`` then also hold
+    "stencil_sym" and "row_scale", :func:`node_arrays`): each frame is a ``jax.checkpoint`` (the backward
+    pass keeps the frames' states and re-integrates one frame at a time, so memory grows with frames +
+    substeps per frame, not their product), and the stiffness product has a hand-written reverse pass
+    (:func:`stencil.apply_symmetric`)."""
     mass = arrays["mass"]                                           # (1,B,N) [kg]
     ball_w = arrays["ball_weight"]                                  # (B,N)
     slaves, masters = arrays["slaves"], arrays["masters"]
@@ -100,8 +105,13 @@ def _run(arrays: dict[str, Any], u0, v0, dt, *, layout: stencil.SliceLayout, n_f
         ec, gc, force = contact(w + c[:, None] * ball_y)
         # -M^-1 (K w + contact gradient): the stencil rows are scaled by -1/m (zero on fixed
         # dofs), the contact gradient is added in the stencil's remainder scatter
-        a = stencil.apply(w, arrays["stencil"], layout, rigid_x=rigid_x, extra_rows=contact_rows,
-                          extra=gc * contact_scale)
+        if remat:
+            a = stencil.apply_symmetric(w, arrays["stencil"], arrays["stencil_sym"], arrays["row_scale"],
+                                        layout=layout, rigid_x=rigid_x, extra_rows=contact_rows,
+                                        extra=gc * contact_scale)
+        else:
+            a = stencil.apply(w, arrays["stencil"], layout, rigid_x=rigid_x, extra_rows=contact_rows,
+                              extra=gc * contact_scale)
         # the ball's mean acceleration is the contact force over its mass: its internal forces
         # sum to zero (K annihilates a vertical translation of the free ball), so the
         # mass-weighted mean of a[1] over the ball is this, without a reduction over N
@@ -143,7 +153,8 @@ def _run(arrays: dict[str, Any], u0, v0, dt, *, layout: stencil.SliceLayout, n_f
     w0, vw0 = u0 - c0[:, None] * ball_y, v0 - vc0[:, None] * ball_y
     a0, abar0, _, _ = accel(w0, c0)
     init = (w0, vw0 - 0.5 * dt_ * a0, c0, vc0 - 0.5 * dt * abar0)
-    carry, (us, vs, es, ws, hist) = jax.lax.scan(frame, init, None, length=n_frames)
+    carry, (us, vs, es, ws, hist) = jax.lax.scan(jax.checkpoint(frame) if remat else frame, init, None,
+                                                 length=n_frames)
     u_last, v_last, e_last = record(*carry)
     us = jnp.concatenate([us, u_last[None]], axis=0)               # (T,2,B,N)
     vs = jnp.concatenate([vs, v_last[None]], axis=0)
@@ -162,6 +173,38 @@ def _run(arrays: dict[str, Any], u0, v0, dt, *, layout: stencil.SliceLayout, n_f
 _run_batch = _run
 
 
+def node_arrays(*, coefs, mass, free, ball_weight, slaves, masters, points, k_slave, cells, node_slots,
+                avg_weight, db, sym_coefs=None):
+    """The arrays of :func:`_run` (their layout: (2,B,N) node arrays) from B designs' stencil coefficients
+    (:func:`stencil.build` of :func:`scaled_blocks`), masses (B,N) [kg], free-dof mask (N,2), ball weights
+    (B,N), contact node ids, points (B,N,2) [m], penalties (B,S) [N/m] and the stress operator (B,E,4,8)
+    [Pa/m]; NumPy or jax. ``sym_coefs``: the same layout's coefficients of K itself (unscaled), for
+    ``_run(remat=True)``: they and the row scale -free/m (2,B,N) [1/kg] give the reverse pass."""
+    xp = fem.array_module(mass)
+    rows = np.concatenate([slaves, masters])
+    row_scale = -np.moveaxis(free, -1, 0)[:, None] / mass[None]
+    out = {"stencil": coefs, "mass": mass[None], "ball_weight": ball_weight, "contact_scale": row_scale[..., rows],
+           "points": xp.moveaxis(points, -1, 0), "slaves": slaves, "masters": masters,
+           "k_slave": k_slave, "cells": cells, "node_slots": node_slots,
+           "avg_weight": avg_weight, "db": db}
+    if sym_coefs is not None:
+        out.update(stencil_sym=sym_coefs, row_scale=row_scale)
+    return out
+
+
+def scaled_blocks(blocks, free, mass):
+    """Stencil blocks (B,W,2,2,N) [N/m] -> rows scaled by -1/m [1/kg] and zeroed on fixed dofs (free (N,2)):
+    the stencil then gives accelerations -M^-1 K w. NumPy or jax."""
+    return blocks * (-np.moveaxis(free, -1, 0)[None, None, :, None, :] / mass[:, None, None, None, :])
+
+
+def ball_weights(mass, node_part):
+    """(B,N) the ball's nodes' mass fractions (zero off the ball) from masses (B,N) [kg]; NumPy or jax."""
+    is_ball = (np.asarray(node_part) == 0).astype(float)
+    m = mass * is_ball[None]
+    return m / m.sum(axis=1, keepdims=True)
+
+
 def _device_arrays(*, points, cells, ke, db, mass, free, ball_weight, slaves, masters, k_slave,
                    node_slots, avg_weight, shared_rows, dtype):
     """Host arrays of B designs of one topology (leading axis B, (N,...) node arrays) -> the
@@ -172,19 +215,15 @@ def _device_arrays(*, points, cells, ke, db, mass, free, ball_weight, slaves, ma
     design."""
     n = points.shape[1]
     neighbours, blocks = fem.node_stencil(cells, ke, n)            # (N,W), (B,W,2,2,N)
-    # rows scaled by -1/m and zeroed on fixed dofs: the stencil gives accelerations -M^-1 K w
-    blocks = blocks * (-np.moveaxis(free, -1, 0)[None, None, :, None, :] / mass[:, None, None, None, :])
+    blocks = scaled_blocks(blocks, free, mass)
     shared = np.asarray(shared_rows, bool)
     scale = np.abs(blocks).max()
     if not np.all(np.abs(blocks[..., shared] - blocks[:1, ..., shared]) <= 1e-9 * scale):
         shared = np.zeros(n, bool)
     layout, coefs = stencil.build(neighbours, blocks, shared)
-    rows = np.concatenate([slaves, masters])
-    host = {"stencil": coefs, "mass": mass[None], "ball_weight": ball_weight,
-            "contact_scale": -np.moveaxis(free[rows], -1, 0)[:, None] / mass[None][..., rows],
-            "points": np.moveaxis(points, -1, 0), "slaves": slaves, "masters": masters,
-            "k_slave": k_slave, "cells": cells, "node_slots": node_slots,
-            "avg_weight": avg_weight, "db": db}
+    host = node_arrays(coefs=coefs, mass=mass, free=free, ball_weight=ball_weight, slaves=slaves, masters=masters,
+                       points=points, k_slave=k_slave, cells=cells, node_slots=node_slots, avg_weight=avg_weight,
+                       db=db)
     arrays = jax.tree.map(lambda v: jnp.asarray(v, dtype=dtype if np.asarray(v).dtype.kind == "f"
                                                 else jnp.int32), host)
     return arrays, layout

@@ -106,15 +106,30 @@ def _contact_stiffness(slaves, masters, seg, t, k_slave, n_nodes):
     return sp.csr_matrix((vals.ravel(), (rows, cols)), shape=(2 * n_nodes, 2 * n_nodes))
 
 
-def _tributary(x: np.ndarray, axisymmetric: bool) -> np.ndarray:
-    """Tributary area [m^2] (axisymmetric ring) or length [m] (plane strain) of sorted x."""
+def _tributary(x, axisymmetric: bool):
+    """Tributary area [m^2] (axisymmetric ring) or length [m] (plane strain) of sorted x [m] (S,);
+    NumPy or jax (differentiable in x)."""
+    xp = fem.array_module(x)
     mid = 0.5 * (x[1:] + x[:-1])
-    left = np.concatenate([[max(x[0] - (mid[0] - x[0]), 0.0)], mid])
-    right = np.concatenate([mid, [x[-1] + (x[-1] - mid[-1])]])
-    left = np.maximum(left, 0.0)
+    left = xp.maximum(xp.concatenate([xp.maximum(x[:1] - (mid[:1] - x[:1]), 0.0), mid]), 0.0)
+    right = xp.concatenate([mid, x[-1:] + (x[-1:] - mid[-1:])])
     if axisymmetric:
         return np.pi * (right**2 - left**2)
     return right - left
+
+
+def soft_modulus(top_youngs, top_poisson, ball_youngs, ball_poisson):
+    """E' [Pa] of the softer contact body: min of the plane-strain moduli E / (1 - nu^2) of the top layer
+    and the ball (the penalty's scale, :func:`slave_penalty`); floats or jax scalars."""
+    xp = fem.array_module(top_youngs, top_poisson, ball_youngs, ball_poisson)
+    return xp.minimum(top_youngs / (1 - top_poisson**2), ball_youngs / (1 - ball_poisson**2))
+
+
+def slave_penalty(x_slaves, x_masters, e_soft, *, factor: float, axisymmetric: bool):
+    """Penalty stiffness per slave node k_s [N/m] = factor * E'/h [N/m^3] times the slave's tributary area
+    [m^2] (length in plane strain), h [m] the first master segment; x of the slaves (S,) and masters (M,)
+    sorted [m], E' [Pa] (:func:`soft_modulus`). NumPy or jax."""
+    return factor * e_soft / (x_masters[1] - x_masters[0]) * _tributary(x_slaves, axisymmetric)
 
 
 def _material_arrays(scene: Scene, cell_part: np.ndarray):
@@ -142,7 +157,7 @@ def prepare(scenes: Sequence[Scene], preset: str | MeshSpec,
     masters = m0.panel_top[np.argsort(m0.points[m0.panel_top, 0])]
     top = scenes[0].layers[0]
     ball = scenes[0].ball
-    e_soft = min(top.youngs / (1 - top.poisson**2), ball.youngs / (1 - ball.poisson**2))
+    e_soft = soft_modulus(top.youngs, top.poisson, ball.youngs, ball.poisson)
     out = {k: [] for k in ("points", "ke", "db", "mass", "k_slave", "w2m", "w2c", "w2t")}
     for scene, m in zip(scenes, meshes):
         youngs, poisson, density = _material_arrays(scene, m.cell_part)
@@ -154,9 +169,7 @@ def prepare(scenes: Sequence[Scene], preset: str | MeshSpec,
         minv = 1.0 / np.sqrt(np.repeat(mass, 2)[free_dofs])
         w2m = _largest_omega2(k_glob, minv, free_dofs)
         xm = m.points[masters, 0]
-        h = float(xm[1] - xm[0])
-        k_p = settings.penalty_factor * e_soft / h
-        k_s = k_p * _tributary(m.points[slaves, 0], axi)
+        k_s = slave_penalty(m.points[slaves, 0], xm, e_soft, factor=settings.penalty_factor, axisymmetric=axi)
         # contact bound: each slave spring on its own node, and the springs a master can see
         ksum = np.zeros(len(masters))
         xs = m.points[slaves, 0]

@@ -54,6 +54,7 @@ from pcmgn_jax.sim.integrate import (
     _frame_stress,
     _run,
     _run_batch,
+    ball_weights,
     contact_energy,
 )
 from pcmgn_jax.sim.mesh import MeshSpec
@@ -143,8 +144,7 @@ class Calls:
         self.dtype = jnp.dtype(settings.dtype)
         if self.dtype == jnp.float64 and not jax.config.read("jax_enable_x64"):
             raise ValueError("simulate: dtype float64 needs `with jax.enable_x64(True):`")
-        is_ball = (m0.node_part == 0).astype(float)
-        self.ball_w = prep.mass * is_ball[None] / np.sum(prep.mass * is_ball[None], axis=1, keepdims=True)
+        self.ball_w = ball_weights(prep.mass, m0.node_part)
         # stiffness rows of nodes touching no design-layer element are the same for every design
         # (the layers above only translate), so the batch reads them once
         design_parts = [m0.part_names.index(name) for name in base.design_layers]

@@ -19,7 +19,9 @@ vectorise over a batch of designs and gathers do not (docs/design.md §9; timing
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -60,18 +62,30 @@ def _best_width(offsets: set[int], current: int | None) -> int | None:
     return max(cands, key=score)
 
 
-def build(neighbours: np.ndarray, blocks: np.ndarray, shared_rows: np.ndarray):
-    """Host side: the slice layout and its coefficient arrays.
+def build(neighbours: np.ndarray, blocks, shared_rows: np.ndarray, live: np.ndarray | None = None):
+    """The slice layout and its coefficient arrays: :func:`plan` (host, the structure) then :func:`gather`
+    (the coefficients: NumPy on the host, jax arrays in the differentiable solver).
 
     neighbours (N,W) and blocks (B,W,2,2,N) [N/m] from :func:`fem.node_stencil` (B designs of
-    one topology); shared_rows (N,) bool: rows whose blocks are the same for every design.
+    one topology); shared_rows (N,) bool: rows whose blocks are the same for every design;
+    live (N,W) bool: the non-zero blocks (default: read from ``blocks``, which must then be NumPy).
     Returns (layout, coefs) with coefs = {"blocks": [per block (n_off,2,2,Bc,rows)],
     "rem_rows": (R,), "rem_cols": (R,), "rem_blocks": (2,2,Bc,R)} (R remainder entries:
     row, neighbour, block), Bc = 1 or B.
     """
-    n_design, width, _, _, n = blocks.shape
+    if live is None:
+        live = (np.abs(blocks) > 0).any(axis=(0, 2, 3)).T                    # (N,W) non-zero entries
+    layout, sources = plan(neighbours, live, shared_rows)
+    return layout, gather(blocks, layout, sources)
+
+
+def plan(neighbours: np.ndarray, live: np.ndarray, shared_rows: np.ndarray):
+    """Host side of :func:`build`: the layout, and the sources of every coefficient: {"blocks": per block
+    (n_off, rows) int64, "rem": (R,) int64, "rem_rows", "rem_cols"}, a source being ``k * N + i`` (block k
+    of row i in the flattened (W, N) node-block axes) or ``W * N`` (an empty slot, read as zero)."""
+    n, width = neighbours.shape
     rows = np.arange(n)
-    live = (np.abs(blocks) > 0).any(axis=(0, 2, 3)).T                        # (N,W) non-zero entries
+    empty = width * n
     offsets = [set((neighbours[i, live[i]] - i).tolist()) | {0} for i in rows]
     # 1. runs of rows sharing one row length w (misfit rows stay and feed the remainder)
     runs, start, w_cur = [], 0, None
@@ -101,38 +115,47 @@ def build(neighbours: np.ndarray, blocks: np.ndarray, shared_rows: np.ndarray):
     runs = merged
     # 2. split runs where the shared / per-design flag changes
     cut = np.flatnonzero(np.diff(shared_rows.astype(int))) + 1
-    layout_blocks, coef_blocks, rem = [], [], []
+    layout_blocks, sources, rem = [], [], []
     for r0, r1, w in runs:
         edges = [r0] + [int(c) for c in cut if r0 < c < r1] + [r1]
         offs = _offsets_for_width(w)
         slot_of = {d: k for k, d in enumerate(offs)}
         for a, b in zip(edges[:-1], edges[1:]):
-            per_design = not bool(shared_rows[a])
-            coef = np.zeros((len(offs), 2, 2, n_design if per_design else 1, b - a))
+            src = np.full((len(offs), b - a), empty, np.int64)
             for i in range(a, b):
                 for k in np.flatnonzero(live[i]):
                     d = int(neighbours[i, k] - i)
-                    val = blocks[:, k, :, :, i] if per_design else blocks[:1, k, :, :, i]
                     if d in slot_of:
-                        coef[slot_of[d], :, :, :, i - a] += np.moveaxis(val, 0, -1)
+                        src[slot_of[d], i - a] = k * n + i
                     else:
                         rem.append((i, int(neighbours[i, k]), k))
-            layout_blocks.append((a, b, offs, per_design))
-            coef_blocks.append(coef)
+            layout_blocks.append((a, b, offs, not bool(shared_rows[a])))
+            sources.append(src)
     # 3. the remainder as a flat list of (row, neighbour, block) entries
     rem_rows = np.asarray([r for r, _, _ in rem], np.int64)
     rem_cols = np.asarray([c for _, c, _ in rem], np.int64)
     rem_per_design = bool(len(rem)) and not bool(np.all(shared_rows[rem_rows]))
-    rem_bl = np.zeros((2, 2, n_design if rem_per_design else 1, len(rem)))
-    for e, (r, _, k) in enumerate(rem):
-        val = blocks[:, k, :, :, r] if rem_per_design else blocks[:1, k, :, :, r]
-        rem_bl[:, :, :, e] = np.moveaxis(val, 0, -1)
     pad = max(max(abs(d) for d in offs) for _, _, offs, _ in layout_blocks)
-    layout = SliceLayout(blocks=tuple(layout_blocks), pad=int(pad),
-                         remainder_per_design=rem_per_design)
-    coefs = {"blocks": coef_blocks, "rem_rows": rem_rows, "rem_cols": rem_cols,
-             "rem_blocks": rem_bl}
-    return layout, coefs
+    layout = SliceLayout(blocks=tuple(layout_blocks), pad=int(pad), remainder_per_design=rem_per_design)
+    rem_src = np.asarray([k * n + r for r, _, k in rem], np.int64)
+    return layout, {"blocks": sources, "rem": rem_src, "rem_rows": rem_rows, "rem_cols": rem_cols}
+
+
+def gather(blocks, layout: SliceLayout, sources: dict):
+    """The coefficient arrays of :func:`build` from blocks (B,W,2,2,N) [N/m] and :func:`plan`'s sources;
+    NumPy in -> NumPy out, jax in -> jax out (a gather: differentiable in the blocks)."""
+    xp = np if isinstance(blocks, np.ndarray) else jnp
+    n_design, width, _, _, n = blocks.shape
+    flat = xp.transpose(blocks, (2, 3, 0, 1, 4)).reshape(2, 2, n_design, width * n)     # (2,2,B,W*N)
+    flat = xp.concatenate([flat, xp.zeros((2, 2, n_design, 1), flat.dtype)], axis=-1)
+
+    def take(src, per_design):
+        vals = flat[:, :, :, src] if per_design else flat[:, :, :1, src]     # (2,2,Bc,*src.shape)
+        return vals if src.ndim == 1 else xp.moveaxis(vals, 3, 0)           # (n_off,2,2,Bc,rows)
+
+    coef_blocks = [take(src, per_design) for (_, _, _, per_design), src in zip(layout.blocks, sources["blocks"])]
+    return {"blocks": coef_blocks, "rem_rows": sources["rem_rows"], "rem_cols": sources["rem_cols"],
+            "rem_blocks": take(sources["rem"], layout.remainder_per_design)}
 
 
 def apply(w, coefs, layout: SliceLayout, *, rigid_x: bool = False, extra_rows=None, extra=None):
@@ -173,3 +196,60 @@ def apply(w, coefs, layout: SliceLayout, *, rigid_x: bool = False, extra_rows=No
     if not idx:
         return f
     return f.at[:, :, jnp.concatenate(idx)].add(jnp.concatenate(vals, axis=-1))
+
+
+def _float_coefs(coefs):
+    return {"blocks": coefs["blocks"], "rem_blocks": coefs["rem_blocks"]}
+
+
+@partial(jax.custom_vjp, nondiff_argnums=(0, 1))
+def _apply_sym(layout, rigid_x, w, coefs, sym, row_scale, rem_rows, rem_cols, extra_rows, extra):
+    full = {**coefs, "rem_rows": rem_rows, "rem_cols": rem_cols}
+    return apply(w, full, layout, rigid_x=rigid_x, extra_rows=extra_rows, extra=extra)
+
+
+def _apply_sym_fwd(layout, rigid_x, w, coefs, sym, row_scale, rem_rows, rem_cols, extra_rows, extra):
+    out = _apply_sym(layout, rigid_x, w, coefs, sym, row_scale, rem_rows, rem_cols, extra_rows, extra)
+    return out, (w, coefs, sym, row_scale, rem_rows, rem_cols, extra_rows, extra)
+
+
+def _apply_sym_bwd(layout, rigid_x, res, g):
+    w, coefs, sym, row_scale, rem_rows, rem_cols, extra_rows, extra = res
+    # the operator is D K (D = row_scale, K symmetric): its transpose K D is the same stencil of K on D g
+    w_bar = apply(row_scale * g, {**sym, "rem_rows": rem_rows, "rem_cols": rem_cols}, layout, rigid_x=rigid_x)
+    # the coefficients' cotangents: each output row's cotangent times the neighbour differences it multiplied
+    p = layout.pad
+    wx, wy = w[0], w[1]
+    px, py = jnp.pad(wx, ((0, 0), (p, p))), jnp.pad(wy, ((0, 0), (p, p)))
+    blocks_bar = []
+    for (r0, r1, offs, _), c in zip(layout.blocks, coefs["blocks"]):
+        own = jnp.stack([wx[:, r0:r1] if rigid_x else jnp.zeros_like(wx[:, r0:r1]), wy[:, r0:r1]])  # (2,B,rows)
+        diffs = jnp.stack([jnp.stack([px, py])[:, :, p + r0 + d:p + r1 + d] for d in offs]) - own  # (n_off,2,B,rows)
+        cb = g[None, :, None, :, r0:r1] * diffs[:, None]              # (n_off,2,2,B,rows): [k, a, b] = g_a d_b
+        blocks_bar.append(cb if c.shape[3] == cb.shape[3] else cb.sum(axis=3, keepdims=True))
+    rem = coefs["rem_blocks"]
+    if rem_rows.shape[0]:
+        gx = wx[:, rem_cols] - (wx[:, rem_rows] if rigid_x else 0.0)
+        gy = wy[:, rem_cols] - wy[:, rem_rows]
+        fx, fy = g[0][:, rem_rows], g[1][:, rem_rows]
+        rb = jnp.stack([jnp.stack([fx * gx, fx * gy]), jnp.stack([fy * gx, fy * gy])])
+        rem_bar = rb if rem.shape[2] == rb.shape[2] else rb.sum(axis=2, keepdims=True)
+    else:
+        rem_bar = jnp.zeros_like(rem)
+    extra_bar = None if extra is None else g[:, :, extra_rows]
+    return (w_bar, {"blocks": blocks_bar, "rem_blocks": rem_bar}, None, None, None, None, None, extra_bar)
+
+
+_apply_sym.defvjp(_apply_sym_fwd, _apply_sym_bwd)
+
+
+def apply_symmetric(w, coefs, sym_coefs, row_scale, *, layout: SliceLayout, rigid_x: bool = False, extra_rows=None,
+                    extra=None):
+    """:func:`apply` of coefficients that are a row scaling of a symmetric operator's, ``coefs = D K`` with
+    D = ``row_scale`` (2,B,N) and K's own coefficients ``sym_coefs`` (the same layout), with a hand-written
+    reverse pass: the displacement's cotangent is K (D g), one more stencil product, and the coefficients'
+    are the products of g with the neighbour differences (autodiff's transpose of the shifted slices would
+    pad every slice to the full length). Only ``coefs`` and ``extra`` enter the value: the cotangents of
+    ``sym_coefs`` and ``row_scale`` are zero (they describe the transpose)."""
+    return _apply_sym(layout, rigid_x, w, _float_coefs(coefs), _float_coefs(sym_coefs), row_scale,
+                      coefs["rem_rows"], coefs["rem_cols"], extra_rows, extra)

@@ -351,3 +351,24 @@ def test_axisymmetric_clamped_plate_does_not_lock():
         got[element] = -_solve_static(pts, cells, ke, f, fixed)[idx[1, 0], 1] / ref
     assert abs(got["q4i"] - 1) < 0.02, got
     assert got["q4"] < 0.8, got
+
+
+@pytest.mark.parametrize("analysis", ["axisymmetric", "plane_strain"])
+@pytest.mark.parametrize("element", fem.Q4_ELEMENTS)
+def test_jax_arrays_give_the_host_matrices(analysis, element):
+    """One element definition: jax inputs (float64) give the NumPy path's stiffness, masses and stress
+    operator, and the matrices are differentiable in the node coordinates (finite jacobian)."""
+    import jax
+    import jax.numpy as jnp
+
+    pts, cells, _ = distorted_grid(4, 3, x0=0.0, seed=3, amp=0.3)
+    mats = _mats(len(cells))
+    host = fem.element_matrices(pts, cells, *mats, analysis=analysis, element=element)
+    with jax.enable_x64(True):
+        dev = fem.element_matrices(jnp.asarray(pts), cells, *map(jnp.asarray, mats), analysis=analysis,
+                                   element=element)
+        jac = jax.jacfwd(lambda p: fem.element_matrices(p, cells, *mats, analysis=analysis, element=element)[0])(
+            jnp.asarray(pts))
+    for a, b in zip(host, dev):
+        np.testing.assert_allclose(np.asarray(b), a, rtol=0, atol=1e-13 * np.abs(a).max())
+    assert np.isfinite(np.asarray(jac)).all()

@@ -111,3 +111,37 @@ def test_rows_scaled_and_zeroed_as_the_solver_does(tiny):
     with jax.enable_x64(True):
         a = _apply(layout, coefs, u, jnp.float64)
     np.testing.assert_allclose(a, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("analysis", ["axisymmetric", "plane_strain"])
+def test_apply_symmetric_reverse_pass_equals_autodiff(analysis):
+    """apply_symmetric's hand-written reverse pass (K D g for the displacement, products for the coefficients
+    and the extra forces) equals jax's own transpose of apply, for rows scaled by -free/m as in the solver."""
+    prep, *_ = _prepared(analysis)
+    mesh = prep.mesh
+    rigid_x = analysis == "plane_strain"
+    free = (~mesh.fixed).astype(float)
+    neighbours, blocks = fem.node_stencil(mesh.cells, prep.ke, mesh.n_nodes)
+    scale = -free.T[:, None, :] / prep.mass[None]                   # (2,B,N)
+    shared = np.zeros(mesh.n_nodes, bool)
+    layout, coefs = stencil.build(neighbours, blocks * np.moveaxis(scale, 1, 0)[:, None, :, None, :], shared)
+    _, sym = stencil.build(neighbours, blocks, shared, live=(np.abs(blocks) > 0).any(axis=(0, 2, 3)).T)
+    rng = np.random.default_rng(6)
+    rows = np.array([3, mesh.n_nodes - 1])
+    with jax.enable_x64(True):
+        w, g, extra = (jnp.asarray(rng.normal(size=s)) for s in ((2, 2, mesh.n_nodes), (2, 2, mesh.n_nodes),
+                                                                  (2, 2, 2)))
+        floats = {"blocks": [jnp.asarray(c) for c in coefs["blocks"]], "rem_blocks": jnp.asarray(coefs["rem_blocks"])}
+        ints = {"rem_rows": coefs["rem_rows"], "rem_cols": coefs["rem_cols"]}
+
+        def plain(w, c, e):
+            return stencil.apply(w, {**c, **ints}, layout, rigid_x=rigid_x, extra_rows=rows, extra=e)
+
+        def hand(w, c, e):
+            return stencil.apply_symmetric(w, {**c, **ints}, {**sym}, jnp.asarray(scale), layout=layout,
+                                           rigid_x=rigid_x, extra_rows=rows, extra=e)
+        out_a, vjp_a = jax.vjp(plain, w, floats, extra)
+        out_b, vjp_b = jax.vjp(hand, w, floats, extra)
+        np.testing.assert_array_equal(np.asarray(out_a), np.asarray(out_b))
+        for a, b in zip(jax.tree.leaves(vjp_a(g)), jax.tree.leaves(vjp_b(g))):
+            np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=0, atol=1e-10 * np.abs(np.asarray(a)).max())
