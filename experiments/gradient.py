@@ -36,7 +36,7 @@ class GradientArgs:
 
 def main(argv=None) -> int:
     args = cli.parse(GradientArgs, argv, description=__doc__, prog="python -m experiments.gradient")
-    from pcmgn_jax.data.trajectory_io import atomic_write_json
+    from pcmgn_jax.atomic import atomic_write_json
     from pcmgn_jax.scene import Scene
     from pcmgn_jax.sim.gradient_check import gradient_report
 

@@ -14,8 +14,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from pcmgn_jax import markdown
-from pcmgn_jax.atomic import atomic_dir, atomic_write_text
-from pcmgn_jax.data.trajectory_io import atomic_write_json
+from pcmgn_jax.atomic import atomic_dir, atomic_write_json, atomic_write_text
 
 FILES = ("error_budget.md", "error_budget.png", "error_budget.json")   # the JSON last: the commit marker
 STYLE = {"rollout": ("r-", "rollout"), "teacher_forced": ("b--", "teacher-forced (one step from the truth)"),
