@@ -2,7 +2,7 @@
 training compute at which the fit meets a baseline.
 
     points = [curve_point(run) for run in runs]          # one per trained run (RUN/config.json, RUN/eval/...)
-    fits = {m: fit_power_law(points, m) for m in METRICS}  # error = a * steps ** -b, least squares in log-log
+    fits = {m: fit_power_law(points, m) for m in CURVE_METRICS}  # error = a * steps ** -b, least squares in log-log
     s = crossing(fits[m], baseline_value)                   # steps at which the fit meets the baseline
 
 The fit is ordinary least squares of ln(error) on ln(steps) over every run (each seed its own point), its parameter
@@ -24,10 +24,10 @@ import numpy as np
 from pcmgn_jax import metrics as M
 
 # (metrics.json key, label); the objective is the area-mean reading the task table scores
-METRICS = (("oled_objective_area_rel_error_pct_mean", "objective error, area mean [%]"),
+CURVE_METRICS = (("oled_objective_area_rel_error_pct_mean", "objective error, area mean [%]"),
            ("position_mae_um", "position MAE [µm]"), ("stress_mae_mpa", "stress MAE [MPa]"))
-OBJECTIVE = METRICS[0][0]
-BASELINES = ("none", "nearest", "kriging", "mop", "rom")
+OBJECTIVE = CURVE_METRICS[0][0]
+CURVE_BASELINES = ("none", "nearest", "kriging", "mop", "rom")
 
 
 @dataclass(frozen=True)
@@ -64,11 +64,11 @@ def curve_point(run: str | Path) -> CurvePoint:
         raise ValueError(f"{run / 'config.json'}: num_steps {steps}: the curve needs runs of a fixed step count")
     return CurvePoint(run=str(run), steps=steps, seed=int(cfg.get("seed", 0)),
                       steps_per_s=float(np.median(rates)) if rates else float("nan"),
-                      errors={k: float(m[k]) for k, _ in METRICS},
+                      errors={k: float(m[k]) for k, _ in CURVE_METRICS},
                       objective_true=np.asarray(m["oled_objective_area_true_mpa"], np.float64),
                       objective_pred=np.asarray(m["oled_objective_area_pred_mpa"], np.float64),
-                      baselines={k: {key: v[key] for key, _ in METRICS if key in v}
-                                 for k, v in m.get("baselines", {}).items() if k in BASELINES})
+                      baselines={k: {key: v[key] for key, _ in CURVE_METRICS if key in v}
+                                 for k, v in m.get("baselines", {}).items() if k in CURVE_BASELINES})
 
 
 @dataclass(frozen=True)
@@ -152,7 +152,7 @@ def summary(points: list[CurvePoint], *, gpu_steps_per_s: float | None = None) -
     base = points[-1].baselines
     out = dict(runs=[dict(run=p.run, steps=p.steps, seed=p.seed, steps_per_s=p.steps_per_s, **p.errors)
                      for p in points], cpu_steps_per_s=rate, gpu_steps_per_s=gpu_steps_per_s, metrics={})
-    for key, label in METRICS:
+    for key, label in CURVE_METRICS:
         fit = fit_power_law(points, key)
         se = np.sqrt(np.diag(fit.cov))
         entry = dict(label=label, a=float(np.exp(fit.ln_a)), b=fit.b, b_se=float(se[1]), ln_a_se=float(se[0]),
@@ -183,9 +183,9 @@ def _hours(h: float) -> str:
 def markdown_lines(s: dict) -> list[str]:
     """The page's tables: the runs, then per metric the fit and the crossings."""
     from pcmgn_jax import markdown
-    lines = markdown.table(["run", "steps", "seed", "steps/s (CPU)", *(label for _, label in METRICS)],
+    lines = markdown.table(["run", "steps", "seed", "steps/s (CPU)", *(label for _, label in CURVE_METRICS)],
                            [[Path(r["run"]).name, r["steps"], r["seed"], f"{r['steps_per_s']:.2f}",
-                             *(f"{r[k]:.4g}" for k, _ in METRICS)] for r in s["runs"]])
+                             *(f"{r[k]:.4g}" for k, _ in CURVE_METRICS)] for r in s["runs"]])
     for key, e in s["metrics"].items():
         lines += ["", f"**{e['label']}**: error = {e['a']:.4g} × steps^−{e['b']:.3f} (b ± {e['b_se']:.3f}, "
                   f"{e['n']} runs)", ""]
@@ -217,7 +217,7 @@ def plot(path, s: dict) -> None:
             ax.plot([r["steps"] for r in rs], [r[key] for r in rs], "o", label=f"MGN seed {seed}")
         ax.plot(grid, e["a"] * grid ** -e["b"], "k--", lw=1, label=f"fit, b = {e['b']:.2f}")
         for name, c in sorted(e["baselines"].items()):
-            ax.axhline(c["value"], lw=1, alpha=0.7, color=f"C{2 + BASELINES.index(name)}", label=name)
+            ax.axhline(c["value"], lw=1, alpha=0.7, color=f"C{2 + CURVE_BASELINES.index(name)}", label=name)
         ax.set(xscale="log", yscale="log", xlabel="training steps", ylabel=e["label"])
         ax.grid(True, which="both", alpha=0.3)
     np.atleast_1d(axes)[0].legend(fontsize=7)
