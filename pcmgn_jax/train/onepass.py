@@ -29,8 +29,7 @@ import optax
 
 from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.metrics import objective_weights, relative_error_pct
-from pcmgn_jax.mgn import checkpoint
-from pcmgn_jax.mgn import onepass as op
+from pcmgn_jax.mgn import checkpoint, onepass as op
 from pcmgn_jax.train.resume import resume_point
 from pcmgn_jax.train.setup import loss_weights
 from pcmgn_jax.train.step import TrainState
@@ -174,7 +173,8 @@ def train(cfg: op.OnePassConfig, workdir: str | Path, *, train_trajs: Sequence, 
                 if val is None or err < best_val:
                     best_val = err if val is not None else best_val
                     best_state = state._replace(params=state.ema_params, ema_params=None)
-                    checkpoint.save(best_mgr, best_state.to_dict(), stats, {**meta, "best_val_error_pct": err if np.isfinite(err) else None})
+                    checkpoint.save(best_mgr, best_state.to_dict(), stats,
+                                    {**meta, "best_val_error_pct": err if np.isfinite(err) else None})
             if rec is not None:
                 log.write(json.dumps(rec) + "\n")
                 log.flush()
@@ -190,5 +190,6 @@ def train(cfg: op.OnePassConfig, workdir: str | Path, *, train_trajs: Sequence, 
     summary = dict(step=done, seconds=time.perf_counter() - t_start, steps_this_call=done - first,
                    step_seconds=per_step, first_step_seconds=t_first, best_val_objective_error_pct=best_val,
                    batch_graphs=batch, n_train=len(train_trajs), n_val=len(val_trajs))
-    atomic_write_json(workdir / "train_summary.json", summary)
+    if done > first:   # a call that trained (a resume of a finished run keeps the summary of the one that did)
+        atomic_write_json(workdir / "train_summary.json", summary)
     return summary

@@ -8,8 +8,8 @@ import json
 import jax
 import numpy as np
 import pytest
-from fixtures.helpers import CompileCounter
 
+from fixtures.helpers import CompileCounter
 from pcmgn_jax import metrics
 from pcmgn_jax.mgn import onepass as op
 from pcmgn_jax.surrogates.kinds import kind
