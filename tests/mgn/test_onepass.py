@@ -33,6 +33,7 @@ def run40(tiny_trajs, tmp_path_factory):
     return workdir, summary, steps.count
 
 
+@pytest.mark.slow  # trains the tiny one-pass run (~50 s on the loaded 2-core machine)
 def test_time_targets_and_shapes(tiny_trajs, run40):
     t = tiny_trajs[0]
     y = op.time_targets(t)
@@ -60,6 +61,7 @@ def test_objective_of_the_time_fields_is_the_objective(tiny_trajs, reading):
         assert abs(metrics.oled_objective(y[:, 1][None], w, reading=reading) - truth) > 1e-3 * truth
 
 
+@pytest.mark.slow  # trains the tiny one-pass run (~50 s on the loaded 2-core machine)
 def test_loss_decreases_and_compiles_once(run40):
     workdir, summary, compiles = run40
     lines = [json.loads(x) for x in (workdir / "metrics.jsonl").read_text().splitlines()]
@@ -70,6 +72,7 @@ def test_loss_decreases_and_compiles_once(run40):
     assert np.isfinite(summary["best_val_objective_error_pct"])
 
 
+@pytest.mark.slow  # trains the tiny one-pass run (~50 s on the loaded 2-core machine)
 def test_resume_after_a_kill_equals_an_uninterrupted_run(tiny_trajs, run40, tmp_path):
     kw = dict(train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:], progress=None)
     stopped = training.train(_cfg(), tmp_path, stop_after=25, **kw)
@@ -86,6 +89,7 @@ def test_resume_after_a_kill_equals_an_uninterrupted_run(tiny_trajs, run40, tmp_
     assert logged == sorted(set(logged))   # no step logged twice
 
 
+@pytest.mark.slow  # trains the tiny one-pass run (~50 s on the loaded 2-core machine)
 def test_the_kind_answers_the_objective_and_refuses_per_frame_fields(tiny_trajs, run40):
     assert kind("onepass").fields == "" and not kind("onepass").baseline
     s = fit("onepass", workdir=run40[0])
