@@ -30,7 +30,7 @@ class Kind:
 
     name: str
     label: str                  # what the explorer's page calls it
-    family: str                 # 'mgn' | 'regression' | 'surface' | 'rom' (registry.FITTERS)
+    family: str                 # 'mgn' | 'regression' | 'surface' | 'rom' | 'time_fields' (registry.FITTERS)
     fields: str = "any"
     objective_surface: bool = False
     std: bool = False
@@ -57,6 +57,9 @@ KINDS: dict[str, Kind] = {k.name: k for k in (
     # the rom with the MGN rollout's hard contact (surrogates.correction.rigid_contact): what the constraint
     # alone gives, beside a baseline-corrected MGN (residual_of=rom); scored by evaluate only
     Kind("rom_contact", "POD reduced-order model + the rollout's contact", "rom", explore=False, rank=8),
+    # a trained one-pass run (mgn/onepass.py): the time-mean and peak fields and the objective, no per-frame fields
+    Kind("onepass", "one-pass graph model (the run's)", "time_fields", fields="", baseline=False, explore=False,
+         rank=9),
 )}
 
 

@@ -15,6 +15,7 @@ take are refused (TypeError):
 - ``surface`` (kriging, mop): ``fields`` (fit the field surface too; default: on a shared mesh)
 - ``rom`` (rom, rom_contact): ``energy`` (the POD's kept energy fraction)
 - ``mgn``: ``workdir`` (the run), ``ref``, ``which``, ``batch``, ``cfg`` (:func:`mgn.fit`)
+- ``time_fields`` (onepass): ``workdir`` (a one-pass run), ``which`` (:func:`onepass.fit`): objectives only
 
 To add a predictor: a :class:`~pcmgn_jax.surrogates.kinds.Kind` row in :data:`KINDS` (its name, label, family
 and where it is used) and, for a new family, a module with ``fit(kind, train, **options)`` returning an
@@ -24,12 +25,13 @@ from __future__ import annotations
 
 from typing import Sequence
 
-from pcmgn_jax.surrogates import mgn, regression, rom, surfaces
+from pcmgn_jax.surrogates import mgn, onepass, regression, rom, surfaces
 from pcmgn_jax.surrogates.kinds import KINDS, Kind, Surrogate, kind, names
 
 __all__ = ["FITTERS", "KINDS", "Kind", "Surrogate", "fit", "kind", "names"]
 
-FITTERS = {"regression": regression.fit, "surface": surfaces.fit, "rom": rom.fit, "mgn": mgn.fit}  # by Kind.family
+FITTERS = {"regression": regression.fit, "surface": surfaces.fit, "rom": rom.fit, "mgn": mgn.fit,
+           "time_fields": onepass.fit}  # by Kind.family
 
 
 def fit(name: str, train: Sequence = (), **options) -> Surrogate:

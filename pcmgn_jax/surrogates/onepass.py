@@ -1,0 +1,85 @@
+"""The one-pass family: a trained one-pass run (:mod:`pcmgn_jax.mgn.onepass`) as the ``onepass`` kind.
+
+    s = fit("onepass", train, workdir="runs/onepass")     # registry.fit: the run's best checkpoint
+    s.objectives(test)                                    # {reading: (B,) [MPa]}, every reading of metrics.OBJECTIVES
+    s.time_fields(test)                                   # {target: list of (N_b,)}: the fields it predicts
+
+It predicts, per design, the time-mean and the peak von Mises stress and the peak deflection of every node, in one
+pass from the design's initial state (frame 0 of each query trajectory, on its own mesh), and the objective
+readings from them by the one definition (:func:`pcmgn_jax.metrics.oled_objective`: a linear reading of the
+time-mean field as one frame, ``peak`` of the peak field). It has no per-frame fields: ``predict_trajectories``
+and ``predict`` refuse, naming them.
+"""
+from __future__ import annotations
+
+import time
+from typing import Sequence
+
+import numpy as np
+
+from pcmgn_jax.metrics import OBJECTIVES, objective_weights, oled_objective
+from pcmgn_jax.mgn import onepass as op
+
+PER_FRAME = "the per-frame fields (displacement (T, N, 2) and von_mises (T, N) of every frame)"
+
+
+class OnePassSurrogate:
+    """A trained one-pass run as a surrogate (module docstring). ``part``: the objective's part id (default: the
+    run's ``objective_part`` found by name in each query); ``readings``: the objective readings it answers."""
+
+    name = "onepass"
+
+    def __init__(self, workdir, *, which: str = "best", readings: Sequence[str] = OBJECTIVES, part: int | None = None):
+        t0 = time.perf_counter()
+        self.run = op.load(workdir, which)
+        bad = [r for r in readings if r not in OBJECTIVES]
+        if bad:
+            raise ValueError(f"onepass: readings {bad} must be among {OBJECTIVES}")
+        self.readings, self.part, self.workdir = tuple(readings), part, workdir
+        self.fit_seconds, self.warnings = time.perf_counter() - t0, []
+        self.predict_seconds = 0.0
+
+    def time_fields(self, trajs) -> dict[str, list[np.ndarray]]:
+        """{target: one (N_b,) array per trajectory} of :data:`pcmgn_jax.mgn.onepass.TARGETS` [Pa, Pa, m], each on the
+        query's own mesh (queries of one node numbering are batched together; others one at a time)."""
+        trajs = list(trajs)
+        t0 = time.perf_counter()
+        groups: dict = {}
+        for i, t in enumerate(trajs):
+            groups.setdefault((t.n_nodes, np.asarray(t.cells).tobytes()), []).append(i)
+        out: list = [None] * len(trajs)
+        for ids in groups.values():
+            fields = self.run.predict([self.run.inputs(trajs[i]) for i in ids])
+            for i, f in zip(ids, fields):
+                out[i] = f
+        self.predict_seconds = time.perf_counter() - t0
+        return {name: [f[:, k] for f in out] for k, name in enumerate(op.TARGETS)}
+
+    def objectives(self, trajs, *, return_std: bool = False) -> dict[str, np.ndarray]:
+        """{reading: (B,) [MPa]} at each trajectory's design, from the predicted time fields."""
+        if return_std:
+            raise ValueError("onepass: no posterior std (kriging has one)")
+        trajs = list(trajs)
+        fields = self.time_fields(trajs)
+        out = {r: [] for r in self.readings}
+        for t, mean, peak in zip(trajs, fields["mean_von_mises"], fields["peak_von_mises"]):
+            part = op.part_id(t, self.run.cfg.objective_part) if self.part is None else self.part
+            for r in self.readings:
+                w = objective_weights(t.points, t.cells, t.cell_part, t.node_part, part=part, reading=r)
+                out[r].append(float(oled_objective((peak if r == "peak" else mean)[None], w, reading=r)))
+        return {r: np.asarray(v) for r, v in out.items()}
+
+    def predict_trajectories(self, trajs):
+        raise ValueError(f"onepass: predicts the time-mean and peak von Mises and the peak deflection of each node "
+                         f"(time_fields) and the objective from them (objectives), not {PER_FRAME}")
+
+    def predict(self, designs_m):
+        raise ValueError(f"onepass: predicts no fields at designs alone and not {PER_FRAME}; use objectives(trajs) "
+                         "or time_fields(trajs) with the designs' trajectories (their meshes and initial states)")
+
+
+def fit(kind: str, train_trajs=(), *, workdir, which: str = "best", readings: Sequence[str] = OBJECTIVES,
+        part: int | None = None, queries: Sequence = ()) -> OnePassSurrogate:
+    """The one-pass run in ``workdir`` as the ``onepass`` kind (``train_trajs`` and ``queries`` are not used: the
+    run was trained on its own split)."""
+    return OnePassSurrogate(workdir, which=which, readings=readings, part=part)
