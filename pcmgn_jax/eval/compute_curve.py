@@ -27,7 +27,6 @@ from pcmgn_jax import metrics as M
 CURVE_METRICS = (("oled_objective_area_rel_error_pct_mean", "objective error, area mean [%]"),
            ("position_mae_um", "position MAE [µm]"), ("stress_mae_mpa", "stress MAE [MPa]"))
 OBJECTIVE = CURVE_METRICS[0][0]
-CURVE_BASELINES = ("none", "nearest", "kriging", "mop", "rom")
 
 
 @dataclass(frozen=True)
@@ -68,7 +67,7 @@ def curve_point(run: str | Path) -> CurvePoint:
                       objective_true=np.asarray(m["oled_objective_area_true_mpa"], np.float64),
                       objective_pred=np.asarray(m["oled_objective_area_pred_mpa"], np.float64),
                       baselines={k: {key: v[key] for key, _ in CURVE_METRICS if key in v}
-                                 for k, v in m.get("baselines", {}).items() if k in CURVE_BASELINES})
+                                 for k, v in m.get("baselines", {}).items() if "not_applicable" not in v})
 
 
 @dataclass(frozen=True)
@@ -142,9 +141,10 @@ def objective_bootstrap(points: list[CurvePoint], target: float, *, draws: int =
 
 
 def summary(points: list[CurvePoint], *, gpu_steps_per_s: float | None = None) -> dict:
-    """Per metric: the fit (a, b and their standard errors) and, per baseline below the MGN's last point, the
-    crossing in steps (with its interval) and in hours at this machine's measured rate (and at ``gpu_steps_per_s``,
-    a measured GPU rate, when given). The baselines are the largest run's (they do not depend on the MGN)."""
+    """Per metric: the fit (a, b and their standard errors) and, per baseline the evaluation scored (each one
+    that reports the metric), the crossing in steps (with its interval) and in hours at this machine's measured
+    rate (and at ``gpu_steps_per_s``, a measured GPU rate, when given). The baselines are the largest run's
+    (they do not depend on the MGN)."""
     if not points:
         raise ValueError("no runs given")
     points = sorted(points, key=lambda p: (p.steps, p.seed))
@@ -217,7 +217,7 @@ def plot(path, s: dict) -> None:
             ax.plot([r["steps"] for r in rs], [r[key] for r in rs], "o", label=f"MGN seed {seed}")
         ax.plot(grid, e["a"] * grid ** -e["b"], "k--", lw=1, label=f"fit, b = {e['b']:.2f}")
         for name, c in sorted(e["baselines"].items()):
-            ax.axhline(c["value"], lw=1, alpha=0.7, color=f"C{2 + CURVE_BASELINES.index(name)}", label=name)
+            ax.axhline(c["value"], lw=1, alpha=0.7, color=f"C{2 + list(e['baselines']).index(name) % 8}", label=name)
         ax.set(xscale="log", yscale="log", xlabel="training steps", ylabel=e["label"])
         ax.grid(True, which="both", alpha=0.3)
     np.atleast_1d(axes)[0].legend(fontsize=7)
