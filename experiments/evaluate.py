@@ -34,6 +34,9 @@ class EvaluateArgs:
     # also roll out the training split: a GP of the MGN's objective residuals gives each prediction a ± (metrics.json
     # mgn_spread)
     mgn_spread: bool = False
+    # fit and score the baselines beside the model (--no_baselines: the model only; runs of one recipe on one
+    # dataset share the baselines, e.g. a compute curve's, experiments.compute_curve)
+    baselines: bool = True
 
 
 def main(argv=None) -> int:
@@ -45,7 +48,7 @@ def main(argv=None) -> int:
     from pcmgn_jax.eval.pipeline import output_name
     m = run(args.workdir, which=args.which, data=args.data, name=args.name,
             contact_projection=args.contact_projection, mgn_spread=args.mgn_spread, residual_ball=args.residual_ball,
-            split=args.split)
+            split=args.split, baselines=args.baselines)
     print(summary_table(m))
     if "mgn_spread" in m:
         s = m["mgn_spread"]

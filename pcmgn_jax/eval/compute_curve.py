@@ -143,13 +143,16 @@ def objective_bootstrap(points: list[CurvePoint], target: float, *, draws: int =
 def summary(points: list[CurvePoint], *, gpu_steps_per_s: float | None = None) -> dict:
     """Per metric: the fit (a, b and their standard errors) and, per baseline the evaluation scored (each one
     that reports the metric), the crossing in steps (with its interval) and in hours at this machine's measured
-    rate (and at ``gpu_steps_per_s``, a measured GPU rate, when given). The baselines are the largest run's
-    (they do not depend on the MGN)."""
+    rate (and at ``gpu_steps_per_s``, a measured GPU rate, when given). The baselines are those of the largest
+    run that scored them (they do not depend on the MGN)."""
     if not points:
         raise ValueError("no runs given")
     points = sorted(points, key=lambda p: (p.steps, p.seed))
     rate = float(np.nanmedian([p.steps_per_s for p in points]))
-    base = points[-1].baselines
+    scored = [p for p in points if p.baselines]
+    if not scored:
+        raise ValueError("no run's evaluation scored the baselines (evaluate one run without --no_baselines)")
+    base = scored[-1].baselines
     out = dict(runs=[dict(run=p.run, steps=p.steps, seed=p.seed, steps_per_s=p.steps_per_s, **p.errors)
                      for p in points], cpu_steps_per_s=rate, gpu_steps_per_s=gpu_steps_per_s, metrics={})
     for key, label in CURVE_METRICS:

@@ -120,14 +120,16 @@ def summary_table(m: dict) -> str:
 
 def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence = (), which: str = "best",
              batch: int = 4, plot: bool = True, name: str | None = None, contact_projection: str = "",
-             mgn_spread: bool = False, residual_ball: str = "") -> dict:
+             mgn_spread: bool = False, residual_ball: str = "", baselines: bool = True) -> dict:
     """Roll the run's model out on ``test_trajs`` and score it beside the baselines fitted on
     ``train_trajs`` (the run's training split). Writes WORKDIR/eval[/name]/metrics.json and PNGs.
     ``contact_projection``: "on" / "off" overrides the run's formulation in the rollouts (the projection
     is rollout-only, so the same checkpoint serves both); "" keeps it. ``mgn_spread``: also roll the model
     out on ``train_trajs`` and put the std of a GP of its objective residuals there beside each test
     prediction (``mgn_spread`` in metrics.json, :class:`pcmgn_jax.eval.ensemble.ResidualSpread`).
-    ``residual_ball``: "baseline" / "network" overrides a ``residual_of`` run's ``residual_ball`` (rollout-only)."""
+    ``residual_ball``: "baseline" / "network" overrides a ``residual_of`` run's ``residual_ball`` (rollout-only).
+    ``baselines=False``: score the model only (they do not depend on it: runs of one recipe on one dataset share
+    them; metrics.json then has no "baselines")."""
     workdir = Path(workdir)
     ref = test_trajs[0]
     T = ref.n_frames
@@ -159,7 +161,7 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
              window_has_all_phases=all(v[0] is not None for p in phases for v in p.values()))
     # a stack scene outside the stack family's ranges (the model is answered there all the same): named here
     m["warnings"] = stack_warnings(test_trajs)
-    if train_trajs:
+    if train_trajs and baselines:
         m["baselines"] = baseline_metrics(train_trajs, test_trajs,
                                            lambda u, vm: _scores(scene, test_trajs, u, vm, bnodes, pnodes),
                                            kinds=BASELINES)

@@ -22,7 +22,8 @@ def output_name(data: str = "", name: str = "") -> str | None:
 
 
 def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str = "",
-        contact_projection: str = "", mgn_spread: bool = False, residual_ball: str = "", split: str = "test") -> dict:
+        contact_projection: str = "", mgn_spread: bool = False, residual_ball: str = "", split: str = "test",
+        baselines: bool = True) -> dict:
     """Evaluate the run in ``workdir`` and return the metrics dict written to
     ``WORKDIR/eval[/NAME]/metrics.json`` (:mod:`pcmgn_jax.eval.evaluate`; PNG plots beside it).
 
@@ -31,7 +32,8 @@ def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str =
     ``data`` folder's name, :func:`output_name`); ``contact_projection``: ``on`` / ``off`` overrides the
     run's rollout contact projection ("" = the run's); ``residual_ball``: a residual run's ball override ("" =
     the run's); ``split``: ``val`` scores the run's validation trajectories instead (RUN/eval/val unless
-    ``name``), where a rollout setting is chosen without looking at the test split."""
+    ``name``), where a rollout setting is chosen without looking at the test split; ``baselines=False``: the
+    model only (:func:`pcmgn_jax.eval.evaluate.evaluate`)."""
     import json
 
     from pcmgn_jax.config import TrainConfig  # here, not at the top: `import pcmgn_jax.eval` stays light
@@ -63,4 +65,4 @@ def run(workdir: str | Path, *, which: str = "best", data: str = "", name: str =
     with hold(out, "evaluate"):   # one evaluation writes into RUN/eval[/NAME] at a time
         return evaluation.evaluate(workdir, test_trajs=test, train_trajs=train, which=which,
                                    name=output_name(data, name), contact_projection=contact_projection,
-                                   mgn_spread=mgn_spread, residual_ball=residual_ball)
+                                   mgn_spread=mgn_spread, residual_ball=residual_ball, baselines=baselines)

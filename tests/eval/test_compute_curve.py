@@ -46,6 +46,9 @@ def test_noisy_points_widen_the_interval_and_a_flat_curve_never_crosses(tmp_path
     errs = {1000: 3.0, 4000: 2.2, 16000: 2.0}
     runs = [_run(tmp_path, s, 0, e, 0.3, 2.0) for s, e in errs.items()]
     runs.append(_run(tmp_path, 16000, 1, 2.6, 0.3, 2.0))
+    m = json.loads((runs[-1] / "eval" / "metrics.json").read_text())
+    del m["baselines"]                      # evaluated with --no_baselines: the others' baselines serve
+    (runs[-1] / "eval" / "metrics.json").write_text(json.dumps(m))
     s = cc.summary([cc.curve_point(r) for r in runs])
     k = s["metrics"][cc.OBJECTIVE]["baselines"]["kriging"]
     assert k["p16"] < k["steps"] < k["p84"] and k["p84"] / k["p16"] > 2
@@ -75,3 +78,13 @@ def test_the_command_writes_the_page_json_and_plot(tmp_path):
     data = json.loads((out / "compute_curve.json").read_text())
     assert [r["steps"] for r in data["runs"]] == [1000, 4000, 16000]
     assert (out / "compute_curve.png").stat().st_size > 1000
+
+
+def test_evaluate_without_baselines_scores_the_model_only(tiny_run, tiny_trajs):
+    from pcmgn_jax.eval import evaluate as evaluation
+    _, workdir, _ = tiny_run
+    kw = dict(test_trajs=tiny_trajs[3:], train_trajs=tiny_trajs[:3], plot=False)
+    bare = evaluation.evaluate(workdir, name="model_only", baselines=False, **kw)
+    full = evaluation.evaluate(workdir, name="with_baselines", **kw)
+    assert "baselines" not in bare and "kriging" in full["baselines"]
+    assert bare["position_mae_um"] == full["position_mae_um"]            # the model's scores do not change
