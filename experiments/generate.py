@@ -76,8 +76,8 @@ class GenerateArgs:
 
 def preset_sizes(preset: str) -> tuple[int, int, int]:
     """(n_train, n_val, n_test) of ``experiments.train --preset PRESET`` (the train split holds n_train + n_val)."""
-    p = PRESETS[preset].train
-    return p["n_train"], p["n_val"], p["n_test"]
+    cfg = cli.TrainConfig.from_preset(preset)
+    return cfg.n_train, cfg.n_val, cfg.n_test
 
 
 def check_args(args: GenerateArgs, given: set[str]) -> None:

@@ -114,8 +114,7 @@ def test_entry_point_flags(tmp_path, capsys):
     assert (args.n_train, args.n_test, args.out) == (14, 6, "data/cpu")
     args = cli.parse(generate.GenerateArgs, ["--designs", "40,40;40,160", "--split", "extrap", "--out", "d"])
     assert args.designs == "40,40;40,160" and args.split == "extrap" and args.n_train is None
-    assert generate.preset_sizes("cpu") == (PRESETS["cpu"].train["n_train"], PRESETS["cpu"].train["n_val"],
-                                            PRESETS["cpu"].train["n_test"])
+    assert generate.preset_sizes("cpu") == (TrainConfig().n_train, TrainConfig().n_val, TrainConfig().n_test)
     assert cli.parse(panel_report.PanelReportArgs, ["--preset", "cpu", "--frames", "130"]).frames == 130
     assert generate.main(["--out", str(tmp_path), "--bogus", "1"]) == 2
     assert "unknown flag(s): --bogus" in capsys.readouterr().err
@@ -214,3 +213,42 @@ def test_console_script_entry_point(tmp_path):
     assert run.returncode == 0 and "report" in run.stdout, run.stderr
     run = subprocess.run([exe, "nope"], cwd=tmp_path, capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "unknown command 'nope'" in run.stderr
+
+
+def _documented_train_flags() -> dict[str, str]:
+    """{flag name: page} of every ``--flag`` after ``experiments.train`` on a line of the README, docs/ or a
+    results page (the command up to a comment, a pipe or a backtick)."""
+    import re
+    flags: dict[str, str] = {}
+    pages = [ROOT / "README.md", *(ROOT / "docs").rglob("*.md"), *(ROOT / "results").rglob("*.md")]
+    for page in pages:
+        for cmd in re.findall(r"experiments\.train([^`|#&\n]*)", page.read_text()):
+            for flag in re.findall(r"--([A-Za-z][\w-]*)", cmd):
+                flags.setdefault(flag.replace("-", "_"), str(page.relative_to(ROOT)))
+    return flags
+
+
+def test_every_documented_train_flag_parses():
+    """Every experiments.train flag the docs and results pages show is a flag of the command line (the
+    config's nesting by concern leaves them flat), and the main job's command parses to TrainConfig()."""
+    flags = _documented_train_flags()
+    assert {"n_train", "dataset_dir", "num_steps", "seed", "preset", "formulation", "reach"} <= set(flags)
+    names, bools = cli._flags(cli.TrainArgs)
+    known = names | {"no_" + b for b in bools} | {"formulation"}
+    assert not {f: p for f, p in flags.items() if f not in known}
+    args = cli.parse_train(["--dataset_dir", "data/cpu", "--n_train", "100", "--num_steps", "50", "--seed", "3"])
+    assert args.config == TrainConfig().replace(dataset_dir="data/cpu", n_train=100, num_steps=50, seed=3)
+    assert cli.parse_train([]).config == TrainConfig() == TrainConfig.from_preset("cpu")
+    assert cli.parse_train(["--lambda_pen=10", "--noise_std", "3e-7"]).config == TrainConfig(lambda_pen=10.0,
+                                                                                             noise_std=3e-7)
+
+
+def test_old_config_files_without_the_main_jobs_fields_keep_their_old_defaults():
+    """A config.json written before a field existed ran with that field's old default: the fields whose
+    default became the main job's read their old values when missing (config.BEFORE_MAIN_JOB_DEFAULTS)."""
+    from pcmgn_jax.config import BEFORE_MAIN_JOB_DEFAULTS
+    full = TrainConfig().to_dict()
+    old = {k: v for k, v in full.items() if k not in BEFORE_MAIN_JOB_DEFAULTS}
+    cfg = TrainConfig.from_json(old)
+    assert {k: getattr(cfg, k) for k in BEFORE_MAIN_JOB_DEFAULTS} == BEFORE_MAIN_JOB_DEFAULTS
+    assert TrainConfig.from_json(full) == TrainConfig()
