@@ -71,9 +71,13 @@ def test_help_lists_every_field_with_its_comment(capsys, monkeypatch):
         cli.parse_train(["--help"], prog="train")
     assert exit_.value.code == 0
     out = capsys.readouterr().out
-    import dataclasses
-    for f in dataclasses.fields(TrainConfig):
-        assert f"--{f.name}" in out, f.name
+    import re
+
+    from pcmgn_jax.config import FIELDS, GROUPS
+    assert not set(GROUPS) & set(re.findall(r"--([\w.]+)", out)) and "--data.n_train" not in out
+    assert len(FIELDS) > 40
+    for name in FIELDS:
+        assert f"--{name}" in out, name
     assert "weight of the penetration term" in out and "--workdir" in out and "--resume" in out
 
 
@@ -140,6 +144,10 @@ def test_config_json_nests_the_formulation_and_reads_old_flat_files(tmp_path):
     assert d["formulation"]["panel_target"] == "position" and d["formulation_name"] == "paper"
     cfg.save_json(tmp_path / "config.json")
     assert TrainConfig.load(tmp_path / "config.json") == cfg
+    import dataclasses
+    grouped = dataclasses.asdict(cfg)   # the groups' form
+    assert set(grouped) == {"data", "model", "loss", "optim", "log"} and cfg.model.latent_size == cfg.latent_size
+    assert TrainConfig.from_json(grouped) == cfg
     flat = {k: v for k, v in d.items() if k not in ("formulation", "formulation_name")}
     flat.update(formulation="paper", target="velocity", panel_target="position", ball_target="", ball_model="rigid",
                 normalization="", features="", loss_weighting="", panel_model="", contact_projection="on",
@@ -149,6 +157,8 @@ def test_config_json_nests_the_formulation_and_reads_old_flat_files(tmp_path):
         panel_target="position", rigid_ball=True, contact_projection=True, scene_features=("ball_radius",))
     with pytest.raises(ValueError, match=r"unknown key\(s\) \['bogus'\]"):
         TrainConfig.from_json({**d, "bogus": 1})
+    with pytest.raises(ValueError, match=r"config loss: unknown key\(s\) \['latent_size'\]"):
+        TrainConfig.from_json({**grouped, "loss": {**grouped["loss"], "latent_size": 8}})
 
 
 def test_resume_names_nested_fields(tmp_path):
@@ -239,14 +249,14 @@ def test_every_documented_train_flag_parses():
     args = cli.parse_train(["--dataset_dir", "data/cpu", "--n_train", "100", "--num_steps", "50", "--seed", "3"])
     assert args.config == TrainConfig().replace(dataset_dir="data/cpu", n_train=100, num_steps=50, seed=3)
     assert cli.parse_train([]).config == TrainConfig() == TrainConfig.from_preset("cpu")
-    assert cli.parse_train(["--lambda_pen=10", "--noise_std", "3e-7"]).config == TrainConfig(lambda_pen=10.0,
-                                                                                             noise_std=3e-7)
+    assert cli.parse_train(["--lambda_pen=10", "--noise_std", "3e-7"]).config == TrainConfig.of(lambda_pen=10.0,
+                                                                                                noise_std=3e-7)
 
 
 def test_old_config_files_without_the_main_jobs_fields_keep_their_old_defaults():
     """A config.json written before a field existed ran with that field's old default: the fields whose
-    default became the main job's read their old values when missing (config.BEFORE_MAIN_JOB_DEFAULTS)."""
-    from pcmgn_jax.config import BEFORE_MAIN_JOB_DEFAULTS
+    default became the main job's read their old values when missing (config_files.BEFORE_MAIN_JOB_DEFAULTS)."""
+    from pcmgn_jax.config_files import BEFORE_MAIN_JOB_DEFAULTS
     full = TrainConfig().to_dict()
     old = {k: v for k, v in full.items() if k not in BEFORE_MAIN_JOB_DEFAULTS}
     cfg = TrainConfig.from_json(old)
