@@ -303,8 +303,8 @@ def check_resume(cfg: TrainConfig, workdir: str | Path) -> None:
     diff = config_diff(TrainConfig.load(path), cfg)
     if diff:
         lines = ", ".join(f"{k}: saved {a!r}, given {b!r}" for k, a, b in ((k, *v) for k, v in diff.items()))
-        raise ValueError(f"--resume: the config differs from the run's {path} in {sorted(diff)} ({lines}); "
-                         f"drop those flags to continue the run, or train in a new --workdir")
+        raise ValueError(f"the config differs from the run's {path} in {sorted(diff)} ({lines}); a resumed run "
+                         f"keeps its saved config: resume with the saved values, or train in a new folder")
 
 
 FORMULATION_FIELDS = tuple(f.name for f in dataclasses.fields(Formulation))
@@ -347,7 +347,7 @@ def check_batch_split(batch_graphs: int, devices: int) -> None:
     """Data parallelism splits every batch evenly: ``ValueError`` unless ``devices`` divides ``batch_graphs``."""
     if batch_graphs % devices:
         raise ValueError(f"config: batch_graphs={batch_graphs} is not divisible by devices={devices}; each "
-                         f"device takes batch_graphs / devices graphs of every step (e.g. --batch_graphs="
+                         f"device takes batch_graphs / devices graphs of every step (e.g. batch_graphs="
                          f"{devices * max(1, round(batch_graphs / devices))})")
 
 

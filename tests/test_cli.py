@@ -262,3 +262,29 @@ def test_old_config_files_without_the_main_jobs_fields_keep_their_old_defaults()
     cfg = TrainConfig.from_json(old)
     assert {k: getattr(cfg, k) for k in BEFORE_MAIN_JOB_DEFAULTS} == BEFORE_MAIN_JOB_DEFAULTS
     assert TrainConfig.from_json(full) == TrainConfig()
+
+
+def test_the_library_names_values_and_the_command_line_maps_them_to_flags(tmp_path):
+    """train.pipeline.claim refuses a folder naming the folder and the values (RunFolderError, no flag);
+    experiments.train says the same in its flags; config.check_resume names fields, parse_train adds the flags."""
+    from experiments import train
+    from pcmgn_jax.train.pipeline import RunFolderError, claim
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text("{}")
+    cases = [(dict(resume=True, overwrite=True), "resume_and_overwrite", "resume=True and overwrite=True",
+              "--resume and --overwrite"),
+             (dict(resume=False, overwrite=False), "holds_run", "continue it (resume=True)", "--resume, or start over")]
+    for kw, reason, says, flags in cases:
+        with pytest.raises(RunFolderError) as err:
+            claim(run, **kw)
+        assert err.value.reason == reason and says in str(err.value) and "--" not in str(err.value)
+        assert flags in train.flag_message(err.value)
+    with pytest.raises(RunFolderError, match="exists and is not a folder") as err:
+        claim(run / "config.json", resume=False, overwrite=False)
+    assert train.flag_message(err.value).startswith("--workdir ")
+    TrainConfig.from_preset("tiny").save_json(run / "config.json")
+    from pcmgn_jax.config import check_resume
+    with pytest.raises(ValueError, match=r"differs .*\['latent_size'\]") as err:
+        check_resume(TrainConfig.from_preset("tiny", latent_size=8), run)
+    assert "--" not in str(err.value)
