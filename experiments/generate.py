@@ -83,6 +83,8 @@ def preset_sizes(preset: str) -> tuple[int, int, int]:
 def check_args(args: GenerateArgs, given: set[str]) -> None:
     """ValueError naming a design box upside down, or a flag that does not apply to the preset or mode
     (:func:`pcmgn_jax.cli.refuse_inapplicable`): before anything is created."""
+    if args.shard is not None and args.merge:   # the library names the values; here, the flags
+        raise ValueError("--shard and --merge exclude each other: run the shards, then --merge once")
     if not args.low_um < args.high_um:     # each > 0 and finite: BOUNDS (cli.check_bounds)
         raise ValueError(f"--low_um={args.low_um:g} and --high_um={args.high_um:g}: need 0 < low < high (µm)")
     family, explicit = args.preset in FAMILIES, args.designs is not None or args.scene_params is not None

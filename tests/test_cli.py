@@ -288,3 +288,21 @@ def test_the_library_names_values_and_the_command_line_maps_them_to_flags(tmp_pa
     with pytest.raises(ValueError, match=r"differs .*\['latent_size'\]") as err:
         check_resume(TrainConfig.from_preset("tiny", latent_size=8), run)
     assert "--" not in str(err.value)
+
+
+def test_generate_and_study_say_their_flags_where_the_library_names_values(tmp_path, capsys):
+    """--shard with --merge, an unknown --name / --formulations: the command names its flags before the library
+    (which names the values: shard=..., merge=True; study name=...)."""
+    from experiments import generate, study
+    from pcmgn_jax.data.dataset import DatasetError, ensure_dataset
+    assert cli.run(generate.main, ["--out", str(tmp_path / "d"), "--shard", "0/2", "--merge"]) == 2
+    assert "--shard and --merge exclude each other" in capsys.readouterr().err and not (tmp_path / "d").exists()
+    with pytest.raises(DatasetError, match=r"shard=\(0, 2\) and merge=True exclude each other") as err:
+        ensure_dataset(tmp_path / "d", preset="tiny", shard=(0, 2), merge=True)
+    assert "--" not in str(err.value)
+    from pcmgn_jax.studies import paper
+    with pytest.raises(ValueError, match="--formulations: unknown"):
+        study.main(["--name", "lambda", "--formulations", "paper,nope"])
+    with pytest.raises(ValueError, match="study name='nope' must be one of"):
+        paper.run("nope", formulations=["paper"], seeds=[0], num_steps=1, runs=str(tmp_path), out=str(tmp_path),
+                  data="", command="")
