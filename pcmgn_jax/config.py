@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, get_args
 
-from pcmgn_jax.config_files import BEFORE_MAIN_JOB_DEFAULTS, drop_retired, from_flat
-from pcmgn_jax.mgn.formulation import FORMULATIONS, NOISE_PARTS, Formulation, NoiseParts, scene_feature_names
+from pcmgn_jax.config_files import BEFORE_MAIN_JOB_DEFAULTS, drop_retired, from_flat, scene_feature_names
+from pcmgn_jax.mgn.formulation import FORMULATIONS, NOISE_PARTS, Formulation, NoiseParts
 from pcmgn_jax.presets import PRESETS, PresetName
 from pcmgn_jax.surrogates.kinds import names as kind_names
 

@@ -1,9 +1,8 @@
 """The older forms of a run's config.json, read by :meth:`pcmgn_jax.config.TrainConfig.from_json`: the flat
 files (the formulation a name, its fields beside it under their old names), the fields whose defaults moved, and
-the research toggles that were removed (loaded when off, refused by name when on)."""
+the research toggles that were removed (loaded when off, refused by name when on); and the scene features' comma
+list (:func:`scene_feature_names`), which old files and the command line write."""
 from __future__ import annotations
-
-from pcmgn_jax.mgn.formulation import scene_feature_names
 
 # the defaults these fields had before TrainConfig() became the main job's (cpu preset's) configuration: a
 # config.json written before a field existed (to_dict writes every field) ran with them, so a missing key means them
@@ -57,3 +56,10 @@ def from_flat(data: dict) -> dict:
         kw["scene_features"] = scene_feature_names(scene)
     kw.setdefault("processor", "per_frame")  # flat configs predate the per-design processor
     return {**data, "formulation": data.get("formulation") or "default", **kw}
+
+
+def scene_feature_names(value) -> tuple[str, ...]:
+    """Scene feature names as a tuple, from a tuple/list or a comma list (``"ball_radius,layer_thickness"``;
+    ``"none"`` or ``""``: no features)."""
+    items = value.split(",") if isinstance(value, str) else value
+    return tuple(f.strip() for f in items if f.strip() and f.strip() != "none")

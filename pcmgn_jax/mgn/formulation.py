@@ -202,13 +202,6 @@ FORMULATIONS = {
 FORMULATIONS["realtime"] = FORMULATIONS["default"].replace(processor="per_design")
 
 
-def scene_feature_names(value) -> tuple[str, ...]:
-    """Scene feature names as a tuple, from a tuple/list or a comma list (``"ball_radius,layer_thickness"``;
-    ``"none"`` or ``""``: no features)."""
-    items = value.split(",") if isinstance(value, str) else value
-    return tuple(f.strip() for f in items if f.strip() and f.strip() != "none")
-
-
 def _xp(a):
     return np if isinstance(a, np.ndarray) else jnp
 
