@@ -148,9 +148,9 @@ def test_optimize_searches_a_stack_run(stack_run):
     tag = result_tag("kriging", "ga", "area_mean", layers, ("OCA1.thickness", "ball.velocity"))   # named by its search
     assert tag.startswith("kriging_ga_CG-OCA1-OCA2-OLED-PLATE_p")
     saved = json.loads((stack_run / "optimize" / f"{tag}.json").read_text())
-    assert saved["optimum"] == pytest.approx(out["optimum"]) and saved["stack"] == layers.split(",")
+    assert saved["optimum"] == pytest.approx(out["optimum"]) and saved["stack"] == list(layers)
     assert list(saved["searched"]) == ["OCA1.thickness", "ball.velocity"]
-    base = nominal(layers.split(","))
+    base = nominal(list(layers))
     held = {n: v for n, v in saved["optimum"].items() if n not in saved["searched"] and n.endswith("thickness")
             and saved["optimum"][n.replace("thickness", "present")]}
     assert held == pytest.approx({n: base[n] for n in held})
