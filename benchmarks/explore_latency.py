@@ -27,6 +27,7 @@ import numpy as np
 
 from benchmarks import common
 from pcmgn_jax import cli
+from pcmgn_jax.eval import bench
 
 GOAL_S = 1.0
 
@@ -84,7 +85,7 @@ def main(argv=None) -> int:
               "n_frames": first.n_frames, "load_s": load_s, "kriging_load_s": kriging_load_s,
               "default_move": _stats(default), "page_move": _stats(page), "kriging_move": _stats(kriging),
               "goal_s": GOAL_S, "goal_met_default": max(default) <= GOAL_S, "goal_met_kriging": max(kriging) <= GOAL_S,
-              "command": cli.command_line("benchmarks.explore_latency", argv), "machine": common.machine_info()}
+              "command": cli.command_line("benchmarks.explore_latency", argv), "machine": bench.machine_info()}
     rows = [[f"default ({ex.default}" + (", after the page" if ex.default in ex.deferred else "") + ")",
              result["default_move"]["median_s"], result["default_move"]["max_s"]],
             ["page at once (the live predictors)", result["page_move"]["median_s"], result["page_move"]["max_s"]],

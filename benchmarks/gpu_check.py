@@ -8,7 +8,7 @@ Measured on ``jax.devices()[0]``, each after compilation (compile time reported 
   default 8192 on an accelerator, 1024 on a CPU), the reference for the fractions below;
 - the MeshGraphNet forward and Adam train step (one per dispatch, and ``--scan`` per dispatch) on the
   ROI graph of ``--preset`` (``benchmarks.mgn_vs_torch.prepare_jax``: the model, an MSE loss, Adam), as
-  steps/s and as a fraction of the matmul rate (analytic MLP FLOPs, ``common.mgn_flops``; train = 3 x forward);
+  steps/s and as a fraction of the matmul rate (analytic MLP FLOPs, ``bench.mgn_flops``; train = 3 x forward);
 - one ``--frames`` rollout of the same model size with random parameters on the preset's ROI mesh
   (``pcmgn_jax.mgn.rollout.rollout``, set up by ``benchmarks.rollout_throughput.rollout_setup``);
 - one solver trajectory of the ``--preset`` mesh (``benchmarks.solver_speed.timed_simulate``: a compile
@@ -40,6 +40,7 @@ from types import SimpleNamespace
 
 from benchmarks import common
 from pcmgn_jax import cli
+from pcmgn_jax.eval import bench
 from pcmgn_jax.presets import PresetName
 
 FULL = {"preset": "paper", "latent": 128, "layers": 15, "frames": 100, "solver_frames": 0, "repeats": 5,
@@ -87,11 +88,11 @@ def train_and_forward(a, n_nodes: int) -> dict:
     mesh (ball pressed into the glass, so contact edges are live), with the FLOPs of each."""
     from benchmarks.mgn_vs_torch import jax_results, prepare_jax
 
-    g = common.bench_graph(n_nodes, a.preset)
+    g = bench.bench_graph(n_nodes, a.preset)
     gi = g["info"]
     fns, meta = prepare_jax(g, SimpleNamespace(latent=a.latent, layers=a.layers, mlp_layers=2, scan=a.scan))
-    res = jax_results(common.time_calls(fns, repeats=a.repeats, warmup=1), meta)
-    flops = common.mgn_flops(gi["n_nodes"], {"mesh": gi["n_mesh_edges"], "contact": gi["contact_capacity"]},
+    res = jax_results(bench.time_calls(fns, repeats=a.repeats, warmup=1), meta)
+    flops = bench.mgn_flops(gi["n_nodes"], {"mesh": gi["n_mesh_edges"], "contact": gi["contact_capacity"]},
                              {"node": gi["node_feature_dim"], "mesh": g["mesh_features"].shape[1],
                               "contact": g["contact_features"].shape[1]},
                              latent=a.latent, mlp_layers=2, steps=a.layers)
@@ -112,7 +113,7 @@ def rollout_time(a) -> dict:
     t0 = time.perf_counter()
     fn = rollout.lower(s["spec"], a.frames, *args).compile()
     compile_s = time.perf_counter() - t0
-    t = common.time_calls({"rollout": lambda: jax.block_until_ready(fn(*args))}, repeats=a.repeats, warmup=1)
+    t = bench.time_calls({"rollout": lambda: jax.block_until_ready(fn(*args))}, repeats=a.repeats, warmup=1)
     ms = t["rollout"]["median_ms"]
     return {"frames": a.frames, "s": ms / 1e3, "ms_per_frame": ms / a.frames, "compile_s": compile_s,
             "n_nodes": s["n_nodes"], "timing": t["rollout"]}
@@ -129,10 +130,10 @@ def solver_time(a) -> dict:
 
 def run_part(a) -> dict:
     """The child's work: one part on the default device, with the device and machine blocks."""
-    out: dict = {"device": device_info(), "machine": common.machine_info()}
+    out: dict = {"device": device_info(), "machine": bench.machine_info()}
     if a.part == "matmul":
         n = a.matmul_n or (1024 if out["device"]["backend"] == "cpu" else 8192)
-        out["result"] = {"n": n, "gflops": common.matmul_gflops_jax(n, repeats=max(a.repeats, 3))}
+        out["result"] = {"n": n, "gflops": bench.matmul_gflops_jax(n, repeats=max(a.repeats, 3))}
     elif a.part == "rollout":
         out["result"] = rollout_time(a)
     elif a.part == "mgn":
@@ -210,7 +211,7 @@ def main(argv=None) -> dict:
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {SMOKE_XLA_FLAGS}".strip()
     from pcmgn_jax.atomic import atomic_write_text
     if a.part is not None:                          # a child process: one part, its JSON to --part_out
-        atomic_write_text(Path(a.part_out), json.dumps(common._clean(run_part(a)), allow_nan=False))
+        atomic_write_text(Path(a.part_out), json.dumps(common.clean(run_part(a)), allow_nan=False))
         return {}
 
     parts = a.parts.split(",")
@@ -236,7 +237,7 @@ def main(argv=None) -> dict:
         if json_path is None:
             return
         json_path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(json_path, json.dumps(common._clean(result), indent=1, allow_nan=False) + "\n")
+        atomic_write_text(json_path, json.dumps(common.clean(result), indent=1, allow_nan=False) + "\n")
         atomic_write_text(md_path, table())
 
     child_argv = _drop_values(argv, ("--json", "--md", "--budget_s", "--parts"))

@@ -31,6 +31,7 @@ from typing import Literal
 
 from benchmarks import common
 from pcmgn_jax import cli
+from pcmgn_jax.eval import bench
 
 
 @dataclass(frozen=True)
@@ -48,7 +49,7 @@ class MgnVsTorchArgs(common.Outputs):
     compile: Literal["on", "off"] = "on"   # also time torch.compile
     torch: bool = True                # the PyTorch side (--no_torch: JAX only)
     torch_1thread: bool = True        # the extra single-thread PyTorch variants (--no_torch_1thread: skip them)
-    # op-kind breakdown of the JAX forward and train step (jax.profiler trace; benchmarks.common.profile_ops)
+    # op-kind breakdown of the JAX forward and train step (jax.profiler trace; benchmarks.bench.profile_ops)
     profile: bool = False
 
 
@@ -58,7 +59,7 @@ def prepare_jax(g: dict, a) -> tuple[dict, dict]:
     import jax.numpy as jnp
     import optax
 
-    from benchmarks.common import jraph_graph
+    from pcmgn_jax.eval.bench import jraph_graph
     from pcmgn_jax.mgn.model import EncodeProcessDecode
 
     graph = jraph_graph(g)
@@ -224,7 +225,7 @@ def torch_results(t: dict, variants: dict, info: dict, threads: int) -> dict:
 def main(argv=None) -> dict:
     a = cli.parse(MgnVsTorchArgs, argv, description=__doc__, prog="python -m benchmarks.mgn_vs_torch")
     threads = a.threads or len(os.sched_getaffinity(0))
-    g = common.bench_graph(a.nodes, a.preset)
+    g = bench.bench_graph(a.nodes, a.preset)
     gi = g["info"]
     have_torch = False
     if a.torch:
@@ -236,27 +237,27 @@ def main(argv=None) -> dict:
     if have_torch:
         import torch
         torch.set_num_threads(threads)
-    flops = common.mgn_flops(gi["n_nodes"], {"mesh": gi["n_mesh_edges"], "contact": gi["contact_capacity"]},
+    flops = bench.mgn_flops(gi["n_nodes"], {"mesh": gi["n_mesh_edges"], "contact": gi["contact_capacity"]},
                              {"node": gi["node_feature_dim"], "mesh": g["mesh_features"].shape[1],
                               "contact": g["contact_features"].shape[1]},
                              latent=a.latent, mlp_layers=a.mlp_layers, steps=a.layers)
-    mm_jax = common.matmul_gflops_jax()
+    mm_jax = bench.matmul_gflops_jax()
     fns, jmeta = prepare_jax(g, a)
     if have_torch:
         tfns, variants, tinfo = prepare_torch(g, a, threads)
         fns.update(tfns)
     # one interleaved round-robin over every implementation: load changes hit all alike
-    t = common.time_calls(fns, repeats=a.repeats, warmup=a.warmup)
+    t = bench.time_calls(fns, repeats=a.repeats, warmup=a.warmup)
     jres = jax_results(t, jmeta)
     jres["per_call_os"] = os_profile({k: f for k, f in fns.items() if k.startswith("jax/")}, jmeta)
     if a.profile:  # where the time goes, by XLA op kind [ms per call]: what bounds the fraction of peak
-        jres["profile_ms"] = {k: common.profile_ops(fns[f"jax/{k}"]) for k in ("forward", "train_step")}
+        jres["profile_ms"] = {k: bench.profile_ops(fns[f"jax/{k}"]) for k in ("forward", "train_step")}
     tres = torch_results(t, variants, tinfo, threads) if have_torch else None
     if tres:
         best = {f"{tres['forward_variant']}/forward", f"{tres['train_step_variant']}/train_step"}
         tres["per_call_os"] = os_profile({k: f for k, f in fns.items() if k in best}, jmeta)
-    mm_torch = common.matmul_gflops_torch() if have_torch else None
-    mm_jax2 = common.matmul_gflops_jax()  # again after, to see drift
+    mm_torch = bench.matmul_gflops_torch() if have_torch else None
+    mm_jax2 = bench.matmul_gflops_jax()  # again after, to see drift
     peak = max(mm_jax, mm_jax2)
 
     def rate(ms, fl):
@@ -286,7 +287,7 @@ def main(argv=None) -> dict:
         ratios["goal_2x_met_against_any_thread_count"] = bool(
             ratios["forward_best_any_threads_torch_over_jax"] >= 2 and
             ratios["train_step_best_any_threads_torch_over_jax"] >= 2)
-    machine = common.machine_info(threads if have_torch else None)
+    machine = bench.machine_info(threads if have_torch else None)
     from pcmgn_jax import heap
     machine.update(keep_heap=heap.applied(), threads=threads, matmul_1024_gflops_jax=mm_jax,
                    matmul_1024_gflops_jax_after=mm_jax2, matmul_1024_gflops_torch=mm_torch)

@@ -13,7 +13,7 @@ region-of-interest mesh of the default scene (:func:`benchmarks.rollout_throughp
   on one graph (the training step's network cost at ``batch_graphs=1``; the optimiser update and, for
   ``realtime``, the 7 extra decoder readouts of ``frames_per_sample`` are not in it);
 - ``rollout_ms``: one jitted ``--frames``-frame rollout of one design (``pcmgn_jax.mgn.rollout.rollout``).
-Timed after compilation (AOT), interleaved round-robin (:func:`benchmarks.common.time_calls`).
+Timed after compilation (AOT), interleaved round-robin (:func:`benchmarks.bench.time_calls`).
 """
 from __future__ import annotations
 
@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from benchmarks import common
 from benchmarks.rollout_throughput import GraphArgs, rollout_setup
 from pcmgn_jax import cli
+from pcmgn_jax.eval import bench
 
 VARIANTS = {"local 8": (8, "local"), "local 15": (15, "local"), "multiscale 8": (8, "multiscale"),
             "attention 8": (8, "attention")}
@@ -64,8 +65,8 @@ def main(argv=None) -> dict:
             fns[key + " rollout"] = (lambda roll=roll, c=common_args, one=one: blk(roll(*c, *one)))
             info[key] = {"params": int(sum(x.size for x in jax.tree.leaves(s["params"]))), "steps": steps,
                          "reach": reach, "formulation": fname, "nodes": s["n_nodes"]}
-    times = common.time_calls(fns, repeats=a.repeats, warmup=1)
-    rows, result = [], {"preset": a.preset, "latent": a.latent, "frames": a.frames, "machine": common.machine_info(),
+    times = bench.time_calls(fns, repeats=a.repeats, warmup=1)
+    rows, result = [], {"preset": a.preset, "latent": a.latent, "frames": a.frames, "machine": bench.machine_info(),
                         "command": cli.command_line("benchmarks.reach_cost", argv), "variants": {}}
     for key, meta in info.items():
         tr, ro = times[key + " train"]["median_ms"], times[key + " rollout"]["median_ms"]

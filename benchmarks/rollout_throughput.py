@@ -26,6 +26,7 @@ import numpy as np
 
 from benchmarks import common
 from pcmgn_jax import cli
+from pcmgn_jax.eval import bench
 from pcmgn_jax.presets import PresetName
 
 
@@ -139,7 +140,7 @@ def _profile(spec, common_args, one, s, b: int) -> dict:
     vmapped = jax.jit(lambda c, p, u, v: jax.vmap(lambda p, u, v: step(spec, *c, p, u, v)[:3])(p, u, v))
     blk = jax.block_until_ready
     one = [jnp.asarray(x) for x in one[:3]]
-    profile_ops = common.profile_ops
+    profile_ops = bench.profile_ops
     out = {"1 design": profile_ops(lambda: blk(single(common_args, *one))),
            f"union {b}": profile_ops(lambda: blk(union(common_args[:2], batch, ub, vb))),
            f"vmap {b}": profile_ops(lambda: blk(vmapped(common_args, *stacked)))}
@@ -195,8 +196,8 @@ def main(argv=None) -> dict:
             return blk((uu, vv, vm))
         fns["python_loop"] = loop
         per_call["python_loop"] = 1
-    load0 = common.machine_info()["load_avg_1min"]
-    times = common.time_calls(fns, repeats=a.repeats, warmup=1)
+    load0 = bench.machine_info()["load_avg_1min"]
+    times = bench.time_calls(fns, repeats=a.repeats, warmup=1)
     ms = {k: times[k]["median_ms"] / per_call[k] for k in fns}  # per design
     ref = ms["single"]
     result = {"single": {"rollout_ms": ref, "per_frame_ms": ref / T, "compile_s": compile_s["single"],
@@ -220,7 +221,7 @@ def main(argv=None) -> dict:
               "contact_capacity": s["contact_capacity"], "latent": a.latent, "layers": a.layers,
               "mlp_layers": a.mlp_layers, "frames": T, "repeats": a.repeats, "params": "random (timing only)",
               "command": cli.command_line("benchmarks.rollout_throughput", argv)}
-    machine = common.machine_info()
+    machine = bench.machine_info()
     machine["load_avg_1min_start"] = load0
     result.update(config=config, machine=machine)
     md = [(f"## Surrogate rollout throughput — {a.preset} ROI mesh ({s['n_nodes']} nodes, "

@@ -25,6 +25,7 @@ import numpy as np
 
 from benchmarks import common
 from pcmgn_jax import cli
+from pcmgn_jax.eval import bench
 
 
 @dataclass(frozen=True)
@@ -104,7 +105,7 @@ def main(argv=None) -> dict:
                   scene="default_scene (axisymmetric, 8 mm half width, full mesh, 6 layers)",
                   command=cli.command_line("benchmarks.solver_speed", argv),
                   total_benchmark_s=time.perf_counter() - t_start)
-    result = dict(solver=out, config=config, machine=common.machine_info())
+    result = dict(solver=out, config=config, machine=bench.machine_info())
     md = [f"## Explicit FE solver speed — {frames}-frame default trajectory\n",
           f"`{config['command']}` — {result['machine']['cpu']}, {result['machine']['cores_usable']} cores, "
           f"jax {result['machine']['jax']}\n\n",

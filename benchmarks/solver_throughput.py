@@ -33,6 +33,7 @@ import numpy as np
 
 from benchmarks import common
 from pcmgn_jax import cli
+from pcmgn_jax.eval import bench
 
 
 @dataclass(frozen=True)
@@ -104,12 +105,12 @@ def main(argv=None) -> dict:
               "config": {"presets": a.presets.split(","), "sizes": sizes(a), "frames": a.frames,
                          "repeats": a.repeats, "budget_s": a.budget_s,
                          "command": cli.command_line("benchmarks.solver_throughput", argv)},
-              "machine": common.machine_info(), "rows": [], "skipped": []}
+              "machine": bench.machine_info(), "rows": [], "skipped": []}
 
     def save():
         result["total_s"] = time.perf_counter() - t_start
         path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(path, json.dumps(common._clean(result), indent=1, allow_nan=False) + "\n")
+        atomic_write_text(path, json.dumps(common.clean(result), indent=1, allow_nan=False) + "\n")
 
     print("preset | batch | nodes | substeps/call | compile s | call s | designs/s | designs/s (full, extrap.) "
           "| speed-up vs 1", flush=True)

@@ -36,6 +36,7 @@ import numpy as np
 
 from benchmarks import common
 from pcmgn_jax import cli
+from pcmgn_jax.eval import bench
 
 
 @dataclass(frozen=True)
@@ -285,7 +286,7 @@ def report(points, *, command: str, json_path, md_path, png_path, extra: dict | 
     result = dict(points=points, pareto_position=[points[i]["label"] for i in pareto(points, "position_mae_um")],
                   pareto_stress=[points[i]["label"] for i in pareto(points, "stress_mae_mpa")],
                   verdicts_position=v_pos, verdicts_stress=v_st, png=str(png_path),
-                  config=dict(command=command, **(extra or {})), machine=common.machine_info())
+                  config=dict(command=command, **(extra or {})), machine=bench.machine_info())
     rows = [[p["label"], p["kind"], p["seconds_per_design"], p["position_mae_um"], p["stress_mae_mpa"],
              "yes" if p["label"] in result["pareto_position"] else ""] for p in points]
     md = [f"## Speed vs error — surrogates against the solver ({points[0]['n_designs']} held-out designs)\n",

@@ -35,6 +35,7 @@ from pathlib import Path
 
 from benchmarks import common
 from pcmgn_jax import cli
+from pcmgn_jax.eval import bench
 from pcmgn_jax.presets import PresetName
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -120,7 +121,7 @@ def main(argv=None) -> dict:
         [str(ROOT)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
     result: dict = {"config": {"preset": a.preset, "data": str(data), "budget_s": a.budget_s,
                                "command": cli.command_line("benchmarks.startup", argv)},
-                    "machine": {**common.machine_info(), "jax_backend": "(not used by the measuring process)"},
+                    "machine": {**bench.machine_info(), "jax_backend": "(not used by the measuring process)"},
                     "runs": {}, "skipped": []}
 
     def left() -> float:
@@ -129,7 +130,7 @@ def main(argv=None) -> dict:
     def save():
         result["total_s"] = time.perf_counter() - t_start
         path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(path, json.dumps(common._clean(result), indent=1, allow_nan=False) + "\n")
+        atomic_write_text(path, json.dumps(common.clean(result), indent=1, allow_nan=False) + "\n")
         atomic_write_text(md_path, table(result))
 
     if not (data / "manifest.json").exists():          # the dataset first (not timed here)

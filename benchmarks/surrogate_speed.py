@@ -31,6 +31,7 @@ import numpy as np
 
 from benchmarks import common
 from pcmgn_jax import cli
+from pcmgn_jax.eval import bench
 from pcmgn_jax.presets import PresetName
 
 
@@ -194,7 +195,7 @@ def main(argv=None) -> dict:
         point["ratio_per_frame"] = point["solver_s_per_design"] / point["mgn_per_frame_s_per_design"]
     cmd = cli.command_line("benchmarks.surrogate_speed", argv)
     result = dict(preset=a.preset, workdir=str(workdir) if trained else None, trained=trained, n_designs=len(scenes),
-                  n_frames=n_frames, batch=a.batch, command=cmd, machine=common.machine_info(), **point)
+                  n_frames=n_frames, batch=a.batch, command=cmd, machine=bench.machine_info(), **point)
     fmt = lambda x, f="{:.3g}": "n/a" if x is None else f.format(x)  # noqa: E731
     rows = [["MGN" + (f" ({workdir})" if trained else " (random parameters)"), fmt(point["mgn_s_per_design"]),
              fmt(point["ratio"]), fmt(point["position_mae_um"]), fmt(point["stress_mae_mpa"]),

@@ -88,7 +88,7 @@ class TorchMGN(nn.Module):
 
 
 def torch_graph(g: dict) -> dict[str, torch.Tensor]:
-    """Benchmark graph (numpy dict from benchmarks.common.bench_graph) -> tensors."""
+    """Benchmark graph (numpy dict from pcmgn_jax.eval.bench.bench_graph) -> tensors."""
     out = {"nodes": torch.from_numpy(g["nodes"])}
     for k in EDGE_SETS:
         out[f"{k}_features"] = torch.from_numpy(g[f"{k}_features"])

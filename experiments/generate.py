@@ -76,13 +76,15 @@ class GenerateArgs:
 
 def preset_sizes(preset: str) -> tuple[int, int, int]:
     """(n_train, n_val, n_test) of ``experiments.train --preset PRESET`` (the train split holds n_train + n_val)."""
-    p = PRESETS[preset].train
-    return p["n_train"], p["n_val"], p["n_test"]
+    cfg = cli.TrainConfig.from_preset(preset)
+    return cfg.n_train, cfg.n_val, cfg.n_test
 
 
 def check_args(args: GenerateArgs, given: set[str]) -> None:
     """ValueError naming a design box upside down, or a flag that does not apply to the preset or mode
     (:func:`pcmgn_jax.cli.refuse_inapplicable`): before anything is created."""
+    if args.shard is not None and args.merge:   # the library names the values; here, the flags
+        raise ValueError("--shard and --merge exclude each other: run the shards, then --merge once")
     if not args.low_um < args.high_um:     # each > 0 and finite: BOUNDS (cli.check_bounds)
         raise ValueError(f"--low_um={args.low_um:g} and --high_um={args.high_um:g}: need 0 < low < high (µm)")
     family, explicit = args.preset in FAMILIES, args.designs is not None or args.scene_params is not None

@@ -86,9 +86,11 @@ def main(argv: list[str] | None = None) -> int:
 
     from pcmgn_jax.opt import run
     from pcmgn_jax.opt.pipeline import result_tag
+    from pcmgn_jax.opt.scenes import parse_names
     command = cli.command_line("experiments.optimize", argv)
-    out = run(**asdict(args), command=command)
-    tag = result_tag(args.surrogate, args.method, args.objective, args.stack, args.params)
+    lists = {k: parse_names(getattr(args, k)) for k in ("ensemble", "stack", "params")}   # the comma lists
+    out = run(**{**asdict(args), **lists}, command=command)
+    tag = result_tag(args.surrogate, args.method, args.objective, lists["stack"], lists["params"])
     written = Path(args.workdir) / "optimize" / f"{tag}.json"
     if "optimum" in out:    # a panel-stack run: the optimum is a row of named scene parameters
         print(f"{args.surrogate} {args.method} on the stack {'/'.join(out['stack'])}: predicted "

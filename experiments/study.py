@@ -44,11 +44,17 @@ def main(argv=None) -> int:
     import matplotlib
     matplotlib.use("Agg")  # files only; set here, in the entry point, not in the library
     from pcmgn_jax.studies import paper
+    if args.name not in paper.STUDIES:   # the library names the value; the command line names its flag
+        raise ValueError(f"--name must be one of {list(paper.STUDIES)}, got {args.name!r}")
+    forms = [f for f in args.formulations.split(",") if f]
+    if set(forms) - set(paper.BASE):
+        raise ValueError(f"--formulations: unknown {sorted(set(forms) - set(paper.BASE))}; choose from "
+                         f"{list(paper.BASE)}")
     if args.render:   # the table of a finished (or cut) study again, e.g. after the table's format changed
         paper.render(args.name, out=args.out)
         return 0
     command = cli.command_line("experiments.study", argv)
-    paper.run(args.name, formulations=[f for f in args.formulations.split(",") if f],
+    paper.run(args.name, formulations=forms,
               seeds=[int(s) for s in args.seeds.split(",") if s.strip()], num_steps=args.num_steps,
               runs=args.runs, out=args.out, data=args.data, command=command)
     return 0

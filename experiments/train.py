@@ -35,15 +35,28 @@ def main(argv=None) -> int:
     args = cli.parse_train(argv, description=__doc__, prog="python -m experiments.train")
     args.initialize_distributed()  # several hosts only (--coordinator_address); before jax computes anything
     from pcmgn_jax.train import run
-    from pcmgn_jax.train.pipeline import fit_to_dataset
+    from pcmgn_jax.train.pipeline import RunFolderError, fit_to_dataset
     cfg = args.config if args.resume else fit_to_dataset(args.config, given=cli.given_flags(argv or sys.argv[1:]))
-    res = run(cfg, args.run_dir, resume=args.resume, overwrite=args.overwrite)
+    try:
+        res = run(cfg, args.run_dir, resume=args.resume, overwrite=args.overwrite)
+    except RunFolderError as err:   # the library names values; say it in this command's flags
+        raise ValueError(flag_message(err)) from None
     print(f"done: {res['step']} steps in {res['seconds']:.0f} s; best validation position MAE "
           f"{res['best_val_position_mae_um']:.3f} µm; run directory {args.run_dir}")
     if res.get("best_predates_penalty"):
         print(f"note: --lambda_pen={cfg.lambda_pen:g} never switched on (lambda_start); the kept model was "
               "trained without the penetration term (checkpoint meta best_predates_penalty)")
     return 0
+
+
+def flag_message(err) -> str:
+    """A :class:`pcmgn_jax.train.pipeline.RunFolderError` in this command's flags."""
+    if err.reason == "resume_and_overwrite":
+        return "--resume and --overwrite exclude each other: continue the run, or start it over"
+    if err.reason == "not_a_folder":
+        return f"--workdir {err.workdir}: exists and is not a folder"
+    return (f"{err.workdir}: holds a run ({', '.join(err.found)}); continue it with --resume, or start over with "
+            "--overwrite (moves it aside to WORKDIR.old-<time>)")
 
 
 if __name__ == "__main__":

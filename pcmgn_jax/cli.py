@@ -349,7 +349,11 @@ def parse_train(argv: Sequence[str] | None = None, *, description: str | None = 
         return probe
     base = _select(TrainConfig.load(saved), name)
     args = parse(TrainArgs, argv, description=description, prog=prog, default=TrainArgs(config=base))
-    check_resume(args.config, args.run_dir)
+    try:
+        check_resume(args.config, args.run_dir)
+    except ValueError as err:   # the library names the fields; say it in flags
+        raise ValueError(f"--resume: {err}; drop those flags to continue the run, or train in a new --workdir") \
+            from None
     refuse_inapplicable(given_flags(argv), train_rules(args))
     return args
 

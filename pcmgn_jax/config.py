@@ -1,30 +1,26 @@
-"""Training configuration: one frozen dataclass, started from a preset, paper-style ``--key=value`` flags.
+"""Training configuration: frozen dataclasses nested by concern (data, model, loss, optim, log), one home per default.
 
-Every default lives here with a comment; a preset's values over them live in :data:`pcmgn_jax.presets.PRESETS`
-(its ``train`` settings, beside its mesh and scene family). Unknown keys (in flags or JSON) raise ``ValueError``.
-The formulation (what the model predicts, :class:`pcmgn_jax.mgn.formulation.Formulation`) is one nested
-field, ``cfg.formulation``; a preset names its base (``formulation="default"``, recorded in
-``formulation_name``) and may override its fields (``scene_features=(...)``); so may
-``from_preset(..., formulation="paper", panel_target="position")``. config.json nests it
-(``{"formulation": {...}, "formulation_name": "default", ...}``); :meth:`TrainConfig.from_json` also reads
-the older flat files (``formulation`` a name, ``target`` / ``ball_model`` / ``contact_projection`` on|off
-beside it).
+``TrainConfig()`` is the main job's (the ``cpu`` preset's) configuration; a preset's values over it live in
+:data:`pcmgn_jax.presets.PRESETS` (its ``train`` settings). Fields go by their flat names everywhere (``cfg.n_train``,
+``cfg.replace(latent_size=32)``, ``--n_train`` on the command line: :func:`pcmgn_jax.cli.parse_train`; the library
+takes configs, never flags). The formulation (:class:`pcmgn_jax.mgn.formulation.Formulation`) nests in ``model``; a
+preset names its base (``formulation="default"``) and may override its fields. Unknown keys raise ``ValueError``;
+:meth:`TrainConfig.from_json` also reads the older forms of config.json (no groups; flat, the formulation a name).
 
     cfg = TrainConfig.from_preset("tiny", lambda_pen=0.0, latent_size=32)
     cfg.save_json(workdir / "config.json")
-
-Flags (``--key=value``) are read by the entry points' command line, :func:`pcmgn_jax.cli.parse_config` /
-:func:`pcmgn_jax.cli.parse_train`; the library takes configs, never flags.
 """
 from __future__ import annotations
 
 import dataclasses
 import json
 import math
+import typing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, get_args
 
+from pcmgn_jax.config_files import BEFORE_MAIN_JOB_DEFAULTS, drop_retired, from_flat, scene_feature_names
 from pcmgn_jax.mgn.formulation import FORMULATIONS, NOISE_PARTS, Formulation, NoiseParts
 from pcmgn_jax.presets import PRESETS, PresetName
 from pcmgn_jax.surrogates.kinds import names as kind_names
@@ -36,8 +32,8 @@ RESIDUAL_BASES, RESIDUAL_BALLS = get_args(ResidualBase), get_args(ResidualBall)
 
 
 @dataclass(frozen=True)
-class TrainConfig:
-    # ---- data -------------------------------------------------------------------------------
+class DataConfig:
+    """``TrainConfig.data``: the data: which dataset, which trajectories."""
     preset: PresetName = "cpu"       # which preset filled the defaults (pcmgn_jax.presets.PRESETS)
     data_preset: PresetName = "cpu"  # mesh/solver preset handed to dataset.ensure_dataset (a preset's own name)
     dataset_dir: str = ""            # dataset root; "" -> data/<data_preset>
@@ -48,23 +44,29 @@ class TrainConfig:
     # test trajectories (evaluation); with --dataset_dir of a generated dataset: its manifest's test count unless given
     n_test: int = 6
     data_seed: int = 0               # seed of the Latin-hypercube designs for dataset generation
-    # ---- graph ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """``TrainConfig.model``: the model: graph, network size and the formulation (what it predicts)."""
     contact_radius: float = 0.0      # r_w [m]; 0 -> auto: 1.5 x median CG top-surface side length
     contact_capacity_factor: float = 2.0  # contact buffer = factor x max pairs seen in training
-    # ---- model (paper: 2 x 128, 15 steps) ----------------------------------------------------
     latent_size: int = 64            # width of every MLP layer and of the latents
     mlp_layers: int = 2              # hidden layers per MLP
-    message_passing_steps: int = 8   # processor blocks
-    # ---- formulation: what the model predicts (pcmgn_jax/mgn/formulation.py; docs/design.md §5) -----
-
-    # the formulation's fields are flags of their own (--ball_target, --panel_target, --rigid_ball, --normalization,
+    message_passing_steps: int = 8   # processor blocks (paper: 2 x 128, 15 steps)
+    # formulation: what the model predicts (pcmgn_jax/mgn/formulation.py; docs/design.md §5); its fields are flags
+    # of their own (--ball_target, --panel_target, --rigid_ball, --normalization,
     # --features, --loss_weighting, --scene_features, --panel_model, --contact_projection, --processor);
     # --formulation=paper|default|dynamic|realtime selects the base
     formulation: Formulation = FORMULATIONS["default"]
     # the FORMULATIONS entry the formulation started from (paper | default | dynamic); a record: `formulation` is the
     # truth
     formulation_name: str = "default"
-    # ---- loss -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """``TrainConfig.loss``: the loss: its terms, the residual mode, the input noise, frames per sample."""
     lambda_pen: float = 0.0          # weight of the penetration term (0 = vanilla MGN; paper: 10)
     # weight of the objective term: per graph, the squared error of the OLED's objective-section mean von
     # Mises (normalised; docs/design.md §7); 0 = off
@@ -77,8 +79,9 @@ class TrainConfig:
     # corrects the panel's fields along it) | network (the network's own ball dynamics);
     # rollout-only (evaluate --residual_ball overrides)
     residual_ball: ResidualBall = "baseline"
-    # fraction of training before the penetration term switches on (then a 10 % linear ramp; 0 = from step 0, the paper)
-    lambda_start: float = 0.0
+    # fraction of training before the penetration term switches on (then a 10 % linear ramp; 0 = from step 0, the
+    # paper); the main job's 0.5: with --lambda_pen > 0 the term starts half-way
+    lambda_start: float = 0.5
     poly_ball: int = 6               # polynomial degree of the ball boundary fit (penetration term)
     poly_panel: int = 5              # polynomial degree of the cover-glass fit (penetration term)
     pen_x_max: float = 1e-3          # [m] boundary nodes with reference x <= this enter the fits
@@ -89,25 +92,60 @@ class TrainConfig:
     # frames of each sample's trajectory decoded from its one processor pass per step (the sample's and F-1 more, evenly
     # spread); > 1 needs processor='per_design'; 0 = auto: 8 with processor='per_design', else 1
     frames_per_sample: int = 0
-    # ---- optimisation -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class OptimConfig:
+    """``TrainConfig.optim``: the optimiser: seed, learning rate and decay, parameter average, steps, batches."""
     seed: int = 0                    # model init, data order and noise
     learning_rate: float = 1e-3      # Adam initial learning rate (paper)
-    # >0: validate and keep as "best" the exponential moving average of the parameters (Polyak), e.g. 0.998
-    ema_decay: float = 0.0
+    # >0: validate and keep as "best" the exponential moving average of the parameters (Polyak); 0 = off. The main
+    # job's 0.998: its validation MAE swings between checkpoints otherwise
+    ema_decay: float = 0.998
     lr_decay_rate: float = 0.1       # exponential decay: lr = lr0 * rate ** (step / lr_decay_steps)
     lr_decay_steps: int = 0          # 0 -> total number of steps (lr ends at lr0 * rate)
-    epochs: int = 20                 # passes over all (trajectory, frame) pairs
-    num_steps: int = 0               # >0 overrides epochs: total optimiser steps
+    epochs: int = 1                  # passes over all (trajectory, frame) pairs (used when num_steps = 0)
+    num_steps: int = 4000            # >0 overrides epochs: total optimiser steps
     # graphs per step over all devices (any meshes: one padded disjoint union per device); paper: 1
     batch_graphs: int = 1
     steps_per_dispatch: int = 25     # optimiser steps per jitted call (lax.scan)
     devices: int = 1                 # data-parallel devices splitting each batch (0 = all); divides batch_graphs
-    # ---- bookkeeping ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LogConfig:
+    """``TrainConfig.log``: bookkeeping: logs, checkpoints, validation, progress bar."""
     log_every: int = 100             # steps between metrics.jsonl lines (rounded to the dispatch)
     ckpt_every: int = 1000           # steps between periodic checkpoints (rounded to the dispatch)
-    val_every: int = 1000            # steps between validation rollouts (best checkpoint)
+    val_every: int = 500             # steps between validation rollouts (best checkpoint)
     max_to_keep: int = 2             # periodic checkpoints kept
     progress: bool = True            # tqdm progress bar
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """The training configuration, nested by concern; ``TrainConfig()`` is the main job's (the ``cpu`` preset's).
+
+    Each field has one home, its group; ``cfg.n_train`` reads ``cfg.data.n_train`` (every field name is unique
+    over the groups), and :meth:`of`, :meth:`replace` and :meth:`from_preset` take fields by their flat names.
+    The command line's flags are the flat names too (``--n_train``; tyro's ``OmitArgPrefixes``)."""
+
+    data: DataConfig = DataConfig()
+    model: ModelConfig = ModelConfig()
+    loss: LossConfig = LossConfig()
+    optim: OptimConfig = OptimConfig()
+    log: LogConfig = LogConfig()
+
+    def __getattr__(self, name: str):   # only called for names that are not the groups
+        group = GROUP_OF.get(name)
+        if group is None:
+            raise AttributeError(f"TrainConfig has no field {name!r}")
+        return getattr(object.__getattribute__(self, group), name)
+
+    @classmethod
+    def of(cls, **fields: Any) -> "TrainConfig":
+        """The config of ``TrainConfig()`` with ``fields`` (flat names) set; ``ValueError`` naming unknown ones."""
+        return cls().replace(**fields)
 
     def __post_init__(self):
         def bad(name, why):
@@ -162,22 +200,29 @@ class TrainConfig:
     def from_preset(cls, preset: str = "cpu", **overrides: Any) -> "TrainConfig":
         if preset not in PRESETS:
             raise ValueError(f"config: unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
-        return cls(**resolve_formulation(preset_settings(preset), overrides))
+        return cls.of(**resolve_formulation(preset_settings(preset), overrides))
 
     @classmethod
     def from_json(cls, data: dict) -> "TrainConfig":
-        """A config from its ``to_dict()`` form (``formulation`` nested), or from an older flat config.json
-        (``formulation`` a name, its fields beside it under their old names: converted)."""
-        data = _drop_retired(dict(data))
+        """A config from its ``to_dict()`` form (``formulation`` nested), from the groups' form (``asdict``:
+        ``{"data": {...}, "model": {...}, ...}``), or from an older flat config.json (``formulation`` a name,
+        its fields beside it under their old names: converted)."""
+        data = dict(data)
+        for group in GROUPS:
+            if isinstance(data.get(group), dict):
+                inner = data.pop(group)
+                _check_keys(inner, GROUP_TYPES[group], f"config {group}")
+                data.update(inner)
+        data = {**BEFORE_MAIN_JOB_DEFAULTS, **drop_retired(data)}
         if isinstance(data.get("formulation"), dict):
             form = dict(data.pop("formulation"))
             if "scene_features" in form:
                 form["scene_features"] = tuple(form["scene_features"])
             _check_keys(form, Formulation, "config formulation")
             data["formulation"] = Formulation(**form)
-            _check_keys(data, cls, "config")
-            return cls(**data)
-        return cls(**resolve_formulation({}, _from_flat(data)))
+            _check_keys(data, FIELDS, "config")
+            return cls.of(**data)
+        return cls.of(**resolve_formulation({}, from_flat(data)))
 
     @classmethod
     def load(cls, path: str | Path) -> "TrainConfig":
@@ -193,14 +238,23 @@ class TrainConfig:
         return cls.from_json(data)
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """{field: value} by the fields' flat names (the formulation a nested dict): config.json's form, which
+        the groups leave as it was, so a run's config.json reads the same to every tool."""
+        return {k: v for group in dataclasses.asdict(self).values() for k, v in group.items()}
 
     def save_json(self, path: str | Path) -> None:
         from pcmgn_jax.atomic import atomic_write_text
         atomic_write_text(path, json.dumps(self.to_dict(), indent=2, sort_keys=True) + "\n")
 
     def replace(self, **kw) -> "TrainConfig":
-        return dataclasses.replace(self, **kw)
+        """This config with fields replaced, by their flat names (``latent_size=32``) or whole groups."""
+        groups = {g: kw.pop(g) for g in GROUPS if g in kw}
+        _check_keys(kw, FIELDS, "config")
+        for g in GROUPS:
+            mine = {k: v for k, v in kw.items() if GROUP_OF[k] == g}
+            if mine:
+                groups[g] = dataclasses.replace(groups.get(g, getattr(self, g)), **mine)
+        return dataclasses.replace(self, **groups)
 
     @property
     def scan_formulation(self) -> Formulation:
@@ -228,12 +282,14 @@ class TrainConfig:
 
 def config_diff(old, new, prefix: str = "") -> dict[str, tuple[Any, Any]]:
     """Fields whose values differ: {name: (old value, new value)}, in field order; fields of a nested
-    dataclass are named with its field's prefix (``formulation.panel_target``)."""
+    dataclass are named with its field's prefix (``formulation.panel_target``), except a TrainConfig group's,
+    which keep their flat names (``n_train``, the flag's)."""
     out: dict[str, tuple[Any, Any]] = {}
     for f in dataclasses.fields(old):
         a, b = getattr(old, f.name), getattr(new, f.name)
         if dataclasses.is_dataclass(a) and type(a) is type(b):
-            out.update(config_diff(a, b, prefix=f"{prefix}{f.name}."))
+            group = isinstance(old, TrainConfig) and f.name in GROUPS
+            out.update(config_diff(a, b, prefix=prefix if group else f"{prefix}{f.name}."))
         elif a != b:
             out[prefix + f.name] = (a, b)
     return out
@@ -247,35 +303,19 @@ def check_resume(cfg: TrainConfig, workdir: str | Path) -> None:
     diff = config_diff(TrainConfig.load(path), cfg)
     if diff:
         lines = ", ".join(f"{k}: saved {a!r}, given {b!r}" for k, a, b in ((k, *v) for k, v in diff.items()))
-        raise ValueError(f"--resume: the config differs from the run's {path} in {sorted(diff)} ({lines}); "
-                         f"drop those flags to continue the run, or train in a new --workdir")
+        raise ValueError(f"the config differs from the run's {path} in {sorted(diff)} ({lines}); a resumed run "
+                         f"keeps its saved config: resume with the saved values, or train in a new folder")
 
 
 FORMULATION_FIELDS = tuple(f.name for f in dataclasses.fields(Formulation))
-
-
-# research toggles that lost when measured and are in no paper study: removed from the config. An older
-# config.json that holds one at its off value still loads; one that switched it on is refused, naming the page
-# that keeps the toggle's measured result.
-RETIRED_FIELDS = {
-    "pushforward": (False, "docs/results/changelog.md (pushforward training: 8.7 µm position MAE against 4.7 µm "
-                           "without, the dynamic panel)"),
-}
-
-
-def _drop_retired(data: dict) -> dict:
-    """``data`` without the :data:`RETIRED_FIELDS` keys; ``ValueError`` naming a key set to anything but its
-    off value."""
-    for key, (off, where) in RETIRED_FIELDS.items():
-        if key in data and data.pop(key) != off:
-            raise ValueError(f"config: {key} was removed (a research toggle that lost when measured, in no paper "
-                             f"study; its result: {where}); this config switched it on, so this code cannot "
-                             f"load or resume it: use the commit that trained it")
-    return data
-
-
+GROUP_TYPES = typing.get_type_hints(TrainConfig)                                         # {group: its dataclass}
+GROUPS = tuple(GROUP_TYPES)
+GROUP_OF = {f.name: g for g, t in GROUP_TYPES.items() for f in dataclasses.fields(t)}   # {field: its group}
+FIELDS = tuple(GROUP_OF)                                                                  # every field's flat name
 def _check_keys(data: dict, cls, where: str) -> None:
-    unknown = sorted(set(data) - {f.name for f in dataclasses.fields(cls)})
+    """``ValueError`` naming the keys of ``data`` that are not fields of dataclass ``cls`` (or not in a tuple)."""
+    names = set(cls) if isinstance(cls, tuple) else {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
     if unknown:
         raise ValueError(f"{where}: unknown key(s) {unknown}")
 
@@ -299,51 +339,15 @@ def resolve_formulation(base: dict, overrides: dict, *, check: bool = True) -> d
     if "scene_features" in fields:
         fields["scene_features"] = scene_feature_names(fields["scene_features"])
     if check:
-        _check_keys(kw, TrainConfig, "config")
+        _check_keys(kw, FIELDS, "config")
     return {**kw, "formulation": form.replace(**fields)}
-
-
-def scene_feature_names(value) -> tuple[str, ...]:
-    """Scene feature names as a tuple, from a tuple/list or a comma list (``"ball_radius,layer_thickness"``;
-    ``"none"`` or ``""``: no features)."""
-    items = value.split(",") if isinstance(value, str) else value
-    return tuple(f.strip() for f in items if f.strip() and f.strip() != "none")
-
-
-def _from_flat(data: dict) -> dict:
-    """An older flat config.json's keys (``formulation`` a name; ``target``, ``ball_model``, ``"on"/"off"``
-    ``contact_projection``, comma-list ``scene_features``, ``""`` = the formulation's) as overrides for
-    :func:`resolve_formulation`."""
-    data = dict(data)
-    kw = {k: data.pop(k) for k in ("ball_target", "panel_target", "normalization", "features",
-                                   "loss_weighting", "panel_model") if k in data}
-    kw = {k: v for k, v in kw.items() if v}  # "" = the formulation's
-    target = data.pop("target", "")
-    if target:
-        kw.setdefault("ball_target", target)
-        kw.setdefault("panel_target", target)
-    ball_model = data.pop("ball_model", "")
-    if ball_model:
-        if ball_model not in ("rigid", "nodes"):
-            raise ValueError(f"config: ball_model={ball_model!r} must be rigid or nodes")
-        kw["rigid_ball"] = ball_model == "rigid"
-    projection = data.pop("contact_projection", "")
-    if projection:
-        if projection not in ("on", "off"):
-            raise ValueError(f"config: contact_projection={projection!r} must be on or off")
-        kw["contact_projection"] = projection == "on"
-    scene = data.pop("scene_features", "")
-    if scene:
-        kw["scene_features"] = scene_feature_names(scene)
-    kw.setdefault("processor", "per_frame")  # flat configs predate the per-design processor
-    return {**data, "formulation": data.get("formulation") or "default", **kw}
 
 
 def check_batch_split(batch_graphs: int, devices: int) -> None:
     """Data parallelism splits every batch evenly: ``ValueError`` unless ``devices`` divides ``batch_graphs``."""
     if batch_graphs % devices:
         raise ValueError(f"config: batch_graphs={batch_graphs} is not divisible by devices={devices}; each "
-                         f"device takes batch_graphs / devices graphs of every step (e.g. --batch_graphs="
+                         f"device takes batch_graphs / devices graphs of every step (e.g. batch_graphs="
                          f"{devices * max(1, round(batch_graphs / devices))})")
 
 

@@ -48,16 +48,16 @@ _FAMILY_MESH = dict(h_contact=35e-6, fine_radius=0.45e-3, fine_depth=0.1e-3, gro
 _FAMILY_TINY_MESH = dict(h_contact=50e-6, fine_radius=0.4e-3, fine_depth=0.1e-3, growth=1.4,
                          layer_elems={"CG": 2, "OLED": 1, "PLATE": 3}, h_layer=50e-6, bottom_growth=1.6,
                          roi_x=1.0e-3, roi_ball_height=0.5e-3, thickness_elems=True)
-# training: the cpu preset's model, loss and bookkeeping, shared by the family and stack presets
-_CPU_TRAIN = dict(latent_size=64, message_passing_steps=8, epochs=1, num_steps=4000, steps_per_dispatch=25,
-                  log_every=100, ckpt_every=1000, val_every=500, formulation="default", lambda_pen=0.0,
-                  lambda_start=0.5, noise_std=0.0, noise_rel=0.0, noise_parts="none", ema_decay=0.998)
+# training: TrainConfig() is the cpu preset's (the main job's) model, loss, optimiser and bookkeeping; a preset's
+# `train` holds only what differs from it. The small and paper presets keep no parameter average, the penalty from
+# step 0 and the epoch count they were measured with:
+_NO_MAIN_JOB = dict(ema_decay=0.0, lambda_start=0.0, epochs=20, num_steps=0, val_every=1000)
 
 PRESETS: dict[str, Preset] = {
     # tests and smoke checks: tiny mesh, small model, < 1 min
     "tiny": Preset(
-        train=dict(n_train=3, n_val=1, n_test=2, latent_size=32, message_passing_steps=3, epochs=1, num_steps=400,
-                   steps_per_dispatch=20, log_every=20, ckpt_every=200, val_every=200),
+        train=dict(_NO_MAIN_JOB, n_train=3, n_val=1, n_test=2, latent_size=32, message_passing_steps=3, epochs=1,
+                   num_steps=400, steps_per_dispatch=20, log_every=20, ckpt_every=200, val_every=200),
         mesh=_TINY_MESH),
     # the README's main job on a 2-core CPU: the project's default formulation (rigid ball, quasi-static
     # panel, per-part normalisation, strain features, contact projection); the parameters' moving
@@ -66,15 +66,15 @@ PRESETS: dict[str, Preset] = {
     # from step 0 or from half-way harmful to this formulation (docs/results/surrogate.md,
     # results/ablation/panel.md); with --lambda_pen > 0 the term starts half-way (lambda_start)
     "cpu": Preset(
-        train=dict(n_train=12, n_val=2, n_test=6, **_CPU_TRAIN),
+        train=dict(),
         mesh=dict(h_contact=25e-6, fine_radius=0.5e-3, fine_depth=0.1e-3, growth=1.2,
                   layer_elems={"CG": 4, "OCA1": 3, "POL": 2, "OCA2": 3, "OLED": 2, "PLATE": 6},
                   h_layer=25e-6, bottom_growth=1.4, roi_x=3.0e-3, roi_ball_height=0.6e-3)),
     # the paper: 15 x 128, 100 epochs, 100 training / 50 test trajectories (a GPU job); the paper's best:
     # B.6/P.5, lambda = 10
     "paper": Preset(
-        train=dict(n_train=100, n_val=5, n_test=50, latent_size=128, message_passing_steps=15, epochs=100,
-                   num_steps=0, steps_per_dispatch=50, log_every=500, ckpt_every=10000, val_every=10000,
+        train=dict(_NO_MAIN_JOB, n_train=100, n_val=5, n_test=50, latent_size=128, message_passing_steps=15,
+                   epochs=100, steps_per_dispatch=50, log_every=500, ckpt_every=10000, val_every=10000,
                    formulation="paper", lambda_pen=10.0, noise_std=3e-7, noise_parts="all"),
         mesh=dict(fine_radius=0.4e-3, fine_depth=0.08e-3, growth=1.2,
                   layer_elems={"CG": 10, "OCA1": 5, "POL": 4, "OCA2": 5, "OLED": 3, "PLATE": 8},
@@ -84,13 +84,13 @@ PRESETS: dict[str, Preset] = {
     # stands in for it), 2 graphs per step, the ball radius as a node input (the speed is in the velocity
     # state), heights from the plate's top: a plate change moves nothing above it (design §5)
     "family": Preset(
-        train=dict(n_train=22, n_val=2, n_test=8, batch_graphs=2, **_CPU_TRAIN,
+        train=dict(n_train=22, n_val=2, n_test=8, batch_graphs=2,
                    scene_features=("ball_radius", "layer_thickness"), origin="support_top"),
         mesh=_FAMILY_MESH, family="scene", n_frames=100),
     # tests and smoke checks of the family path: a handful of tiny scenes (80 us), a small model, seconds
     "family_tiny": Preset(
-        train=dict(n_train=4, n_val=1, n_test=2, latent_size=32, message_passing_steps=3, epochs=1, num_steps=60,
-                   steps_per_dispatch=20, batch_graphs=2, log_every=20, ckpt_every=60, val_every=60,
+        train=dict(_NO_MAIN_JOB, n_train=4, n_val=1, n_test=2, latent_size=32, message_passing_steps=3, epochs=1,
+                   num_steps=60, steps_per_dispatch=20, batch_graphs=2, log_every=20, ckpt_every=60, val_every=60,
                    formulation="default", lambda_pen=10.0, noise_rel=1.0, noise_parts="panel",
                    scene_features=("ball_radius", "layer_thickness"), origin="support_top"),
         mesh=_FAMILY_TINY_MESH, family="scene", n_frames=20),
@@ -99,13 +99,13 @@ PRESETS: dict[str, Preset] = {
     # node's own material, layer thickness and depth below the contact layer's top, the stack's total
     # thickness, heights from the contact layer's top; the family preset's mesh, model and loss
     "stack": Preset(
-        train=dict(n_train=100, n_val=4, n_test=20, batch_graphs=2, **_CPU_TRAIN, scene_features=STACK_FEATURES,
+        train=dict(n_train=100, n_val=4, n_test=20, batch_graphs=2, scene_features=STACK_FEATURES,
                    part_identity="role", origin="contact_top"),
         mesh=_FAMILY_MESH, family="stack", n_frames=100),
     # tests and smoke checks of the stack path: tiny stacks, a small model, seconds
     "stack_tiny": Preset(
-        train=dict(n_train=4, n_val=1, n_test=2, latent_size=32, message_passing_steps=3, epochs=1, num_steps=40,
-                   steps_per_dispatch=20, batch_graphs=2, log_every=20, ckpt_every=40, val_every=40,
+        train=dict(_NO_MAIN_JOB, n_train=4, n_val=1, n_test=2, latent_size=32, message_passing_steps=3, epochs=1,
+                   num_steps=40, steps_per_dispatch=20, batch_graphs=2, log_every=20, ckpt_every=40, val_every=40,
                    formulation="default", lambda_pen=0.0, noise_std=0.0, noise_rel=0.0, noise_parts="none",
                    scene_features=STACK_FEATURES, part_identity="role", origin="contact_top"),
         mesh=_FAMILY_TINY_MESH, family="stack", n_frames=20),

@@ -40,7 +40,7 @@ def test_the_run_config_writes_atomically(tmp_path, monkeypatch):
     before = f.read_text()
     monkeypatch.setattr(os, "replace", lambda *a: (_ for _ in ()).throw(OSError("killed (simulated)")))
     with pytest.raises(OSError, match="simulated"):
-        TrainConfig(num_steps=7).save_json(f)
+        TrainConfig.of(num_steps=7).save_json(f)
     assert f.read_text() == before and TrainConfig.load(f) == TrainConfig()
 
 

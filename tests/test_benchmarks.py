@@ -19,7 +19,7 @@ def _load(path):
 
 
 def test_bench_graph_and_flops():
-    from benchmarks.common import bench_graph, mgn_flops
+    from pcmgn_jax.eval.bench import bench_graph, mgn_flops
     g = bench_graph(80)
     info = g["info"]
     assert abs(info["n_nodes"] - 80) < 40
@@ -58,8 +58,8 @@ def test_torch_reference_matches_architecture():
     """Same parameter count as the Flax model (both first-layer variants describe the same MLPs)."""
     import jax
 
-    from benchmarks.common import bench_graph, jraph_graph
     from benchmarks.torch_mgn import TorchMGN, torch_graph
+    from pcmgn_jax.eval.bench import bench_graph, jraph_graph
     from pcmgn_jax.mgn.model import EncodeProcessDecode
     g = bench_graph(60)
     model = EncodeProcessDecode(output_size=3, latent_size=8, mlp_layers=2, message_passing_steps=2)

@@ -71,9 +71,13 @@ def test_help_lists_every_field_with_its_comment(capsys, monkeypatch):
         cli.parse_train(["--help"], prog="train")
     assert exit_.value.code == 0
     out = capsys.readouterr().out
-    import dataclasses
-    for f in dataclasses.fields(TrainConfig):
-        assert f"--{f.name}" in out, f.name
+    import re
+
+    from pcmgn_jax.config import FIELDS, GROUPS
+    assert not set(GROUPS) & set(re.findall(r"--([\w.]+)", out)) and "--data.n_train" not in out
+    assert len(FIELDS) > 40
+    for name in FIELDS:
+        assert f"--{name}" in out, name
     assert "weight of the penetration term" in out and "--workdir" in out and "--resume" in out
 
 
@@ -114,8 +118,7 @@ def test_entry_point_flags(tmp_path, capsys):
     assert (args.n_train, args.n_test, args.out) == (14, 6, "data/cpu")
     args = cli.parse(generate.GenerateArgs, ["--designs", "40,40;40,160", "--split", "extrap", "--out", "d"])
     assert args.designs == "40,40;40,160" and args.split == "extrap" and args.n_train is None
-    assert generate.preset_sizes("cpu") == (PRESETS["cpu"].train["n_train"], PRESETS["cpu"].train["n_val"],
-                                            PRESETS["cpu"].train["n_test"])
+    assert generate.preset_sizes("cpu") == (TrainConfig().n_train, TrainConfig().n_val, TrainConfig().n_test)
     assert cli.parse(panel_report.PanelReportArgs, ["--preset", "cpu", "--frames", "130"]).frames == 130
     assert generate.main(["--out", str(tmp_path), "--bogus", "1"]) == 2
     assert "unknown flag(s): --bogus" in capsys.readouterr().err
@@ -141,6 +144,10 @@ def test_config_json_nests_the_formulation_and_reads_old_flat_files(tmp_path):
     assert d["formulation"]["panel_target"] == "position" and d["formulation_name"] == "paper"
     cfg.save_json(tmp_path / "config.json")
     assert TrainConfig.load(tmp_path / "config.json") == cfg
+    import dataclasses
+    grouped = dataclasses.asdict(cfg)   # the groups' form
+    assert set(grouped) == {"data", "model", "loss", "optim", "log"} and cfg.model.latent_size == cfg.latent_size
+    assert TrainConfig.from_json(grouped) == cfg
     flat = {k: v for k, v in d.items() if k not in ("formulation", "formulation_name")}
     flat.update(formulation="paper", target="velocity", panel_target="position", ball_target="", ball_model="rigid",
                 normalization="", features="", loss_weighting="", panel_model="", contact_projection="on",
@@ -150,6 +157,8 @@ def test_config_json_nests_the_formulation_and_reads_old_flat_files(tmp_path):
         panel_target="position", rigid_ball=True, contact_projection=True, scene_features=("ball_radius",))
     with pytest.raises(ValueError, match=r"unknown key\(s\) \['bogus'\]"):
         TrainConfig.from_json({**d, "bogus": 1})
+    with pytest.raises(ValueError, match=r"config loss: unknown key\(s\) \['latent_size'\]"):
+        TrainConfig.from_json({**grouped, "loss": {**grouped["loss"], "latent_size": 8}})
 
 
 def test_resume_names_nested_fields(tmp_path):
@@ -214,3 +223,86 @@ def test_console_script_entry_point(tmp_path):
     assert run.returncode == 0 and "report" in run.stdout, run.stderr
     run = subprocess.run([exe, "nope"], cwd=tmp_path, capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "unknown command 'nope'" in run.stderr
+
+
+def _documented_train_flags() -> dict[str, str]:
+    """{flag name: page} of every ``--flag`` after ``experiments.train`` on a line of the README, docs/ or a
+    results page (the command up to a comment, a pipe or a backtick)."""
+    import re
+    flags: dict[str, str] = {}
+    pages = [ROOT / "README.md", *(ROOT / "docs").rglob("*.md"), *(ROOT / "results").rglob("*.md")]
+    for page in pages:
+        for cmd in re.findall(r"experiments\.train([^`|#&\n]*)", page.read_text()):
+            for flag in re.findall(r"--([A-Za-z][\w-]*)", cmd):
+                flags.setdefault(flag.replace("-", "_"), str(page.relative_to(ROOT)))
+    return flags
+
+
+def test_every_documented_train_flag_parses():
+    """Every experiments.train flag the docs and results pages show is a flag of the command line (the
+    config's nesting by concern leaves them flat), and the main job's command parses to TrainConfig()."""
+    flags = _documented_train_flags()
+    assert {"n_train", "dataset_dir", "num_steps", "seed", "preset", "formulation", "reach"} <= set(flags)
+    names, bools = cli._flags(cli.TrainArgs)
+    known = names | {"no_" + b for b in bools} | {"formulation"}
+    assert not {f: p for f, p in flags.items() if f not in known}
+    args = cli.parse_train(["--dataset_dir", "data/cpu", "--n_train", "100", "--num_steps", "50", "--seed", "3"])
+    assert args.config == TrainConfig().replace(dataset_dir="data/cpu", n_train=100, num_steps=50, seed=3)
+    assert cli.parse_train([]).config == TrainConfig() == TrainConfig.from_preset("cpu")
+    assert cli.parse_train(["--lambda_pen=10", "--noise_std", "3e-7"]).config == TrainConfig.of(lambda_pen=10.0,
+                                                                                                noise_std=3e-7)
+
+
+def test_old_config_files_without_the_main_jobs_fields_keep_their_old_defaults():
+    """A config.json written before a field existed ran with that field's old default: the fields whose
+    default became the main job's read their old values when missing (config_files.BEFORE_MAIN_JOB_DEFAULTS)."""
+    from pcmgn_jax.config_files import BEFORE_MAIN_JOB_DEFAULTS
+    full = TrainConfig().to_dict()
+    old = {k: v for k, v in full.items() if k not in BEFORE_MAIN_JOB_DEFAULTS}
+    cfg = TrainConfig.from_json(old)
+    assert {k: getattr(cfg, k) for k in BEFORE_MAIN_JOB_DEFAULTS} == BEFORE_MAIN_JOB_DEFAULTS
+    assert TrainConfig.from_json(full) == TrainConfig()
+
+
+def test_the_library_names_values_and_the_command_line_maps_them_to_flags(tmp_path):
+    """train.pipeline.claim refuses a folder naming the folder and the values (RunFolderError, no flag);
+    experiments.train says the same in its flags; config.check_resume names fields, parse_train adds the flags."""
+    from experiments import train
+    from pcmgn_jax.train.pipeline import RunFolderError, claim
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text("{}")
+    cases = [(dict(resume=True, overwrite=True), "resume_and_overwrite", "resume=True and overwrite=True",
+              "--resume and --overwrite"),
+             (dict(resume=False, overwrite=False), "holds_run", "continue it (resume=True)", "--resume, or start over")]
+    for kw, reason, says, flags in cases:
+        with pytest.raises(RunFolderError) as err:
+            claim(run, **kw)
+        assert err.value.reason == reason and says in str(err.value) and "--" not in str(err.value)
+        assert flags in train.flag_message(err.value)
+    with pytest.raises(RunFolderError, match="exists and is not a folder") as err:
+        claim(run / "config.json", resume=False, overwrite=False)
+    assert train.flag_message(err.value).startswith("--workdir ")
+    TrainConfig.from_preset("tiny").save_json(run / "config.json")
+    from pcmgn_jax.config import check_resume
+    with pytest.raises(ValueError, match=r"differs .*\['latent_size'\]") as err:
+        check_resume(TrainConfig.from_preset("tiny", latent_size=8), run)
+    assert "--" not in str(err.value)
+
+
+def test_generate_and_study_say_their_flags_where_the_library_names_values(tmp_path, capsys):
+    """--shard with --merge, an unknown --name / --formulations: the command names its flags before the library
+    (which names the values: shard=..., merge=True; study name=...)."""
+    from experiments import generate, study
+    from pcmgn_jax.data.dataset import DatasetError, ensure_dataset
+    assert cli.run(generate.main, ["--out", str(tmp_path / "d"), "--shard", "0/2", "--merge"]) == 2
+    assert "--shard and --merge exclude each other" in capsys.readouterr().err and not (tmp_path / "d").exists()
+    with pytest.raises(DatasetError, match=r"shard=\(0, 2\) and merge=True exclude each other") as err:
+        ensure_dataset(tmp_path / "d", preset="tiny", shard=(0, 2), merge=True)
+    assert "--" not in str(err.value)
+    from pcmgn_jax.studies import paper
+    with pytest.raises(ValueError, match="--formulations: unknown"):
+        study.main(["--name", "lambda", "--formulations", "paper,nope"])
+    with pytest.raises(ValueError, match="study name='nope' must be one of"):
+        paper.run("nope", formulations=["paper"], seeds=[0], num_steps=1, runs=str(tmp_path), out=str(tmp_path),
+                  data="", command="")

@@ -7,7 +7,7 @@ import typing
 import pytest
 
 from pcmgn_jax import cli
-from pcmgn_jax.config import FORMULATION_FIELDS, RESIDUAL_BALLS, RESIDUAL_BASES, TrainConfig
+from pcmgn_jax.config import FORMULATION_FIELDS, RESIDUAL_BALLS, RESIDUAL_BASES, DataConfig, LossConfig, TrainConfig
 from pcmgn_jax.data.designs import FAMILIES, SceneFamily
 from pcmgn_jax.data.stack import STACK_FAMILIES, StackFamily
 from pcmgn_jax.mgn import formulation as fm
@@ -36,7 +36,7 @@ def test_every_view_of_a_preset_comes_from_its_one_entry(name):
 
 def test_the_preset_names_are_one_literal_type():
     assert tuple(PRESETS) == PRESET_NAMES == typing.get_args(PresetName)
-    assert typing.get_type_hints(TrainConfig)["preset"] == PresetName
+    assert typing.get_type_hints(DataConfig)["preset"] == PresetName
     with pytest.raises(ValueError, match="unknown preset 'huge'"):
         cli.parse_config(["--preset", "huge"])
 
@@ -51,7 +51,7 @@ def test_string_options_are_literal_types_with_their_allowed_values():
                            ("processor", fm.PROCESSORS), ("part_identity", fm.PART_IDENTITIES),
                            ("origin", fm.ORIGINS), ("reach", fm.REACHES)):
         assert typing.get_args(hints[field]) == allowed, field
-    hints = typing.get_type_hints(TrainConfig)
+    hints = typing.get_type_hints(LossConfig)
     for field, allowed in (("noise_parts", fm.NOISE_PARTS), ("residual_of", RESIDUAL_BASES),
                            ("residual_ball", RESIDUAL_BALLS)):
         assert typing.get_args(hints[field]) == allowed, field

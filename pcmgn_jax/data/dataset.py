@@ -159,7 +159,8 @@ def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: 
     root = Path(out_dir)
     scene = scene if scene is not None else default_scene()
     if shard is not None and merge:
-        raise DatasetError("--shard and --merge exclude each other: run the shards, then --merge once")
+        raise DatasetError(f"{root}: shard={shard!r} and merge=True exclude each other: solve the shards, then "
+                           "merge once")
     if shard is not None and not (isinstance(shard, tuple) and len(shard) == 2 and 0 <= shard[0] < shard[1]):
         raise DatasetError(f"shard must be (K, N) with 0 <= K < N, got {shard!r}")
     if root.is_dir() and load_manifest(root) is None and not has_shard_parts(root) and has_trajectory_files(root):

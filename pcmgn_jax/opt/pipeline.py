@@ -10,6 +10,7 @@ flags and calls :func:`run`; the caller picks the matplotlib backend.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 from pcmgn_jax.lock import hold
@@ -20,15 +21,16 @@ from pcmgn_jax.surrogates.kinds import AUTO, KINDS, choices
 SURROGATES = choices("optimise")
 
 
-def result_tag(surrogate: str, method: str, objective: str, stack: str = "", params: str = "") -> str:
+def result_tag(surrogate: str, method: str, objective: str, stack: Sequence[str] = (),
+               params: Sequence[str] = ()) -> str:
     """The result's file stem under RUN/optimize, named by its search: ``<surrogate>_<method>[_<objective>]``
     (no suffix for the default ``area_mean``), on a panel-stack run ``[_<layer-list>]`` (a layer list other than
     the paper's six, its names joined by '-') and ``[_p<hash>]`` (the ``params`` searched, when named)."""
     import hashlib
 
     from pcmgn_jax.data.stack import variant_layers
-    layers = [n.strip() for n in stack.split(",") if n.strip()]
-    names = ",".join(n.strip() for n in params.split(",") if n.strip())
+    layers = [n.strip() for n in stack if n.strip()]
+    names = ",".join(n.strip() for n in params if n.strip())
     return (f"{surrogate}_{method}" + ("" if objective == "area_mean" else f"_{objective}")
             + ("" if not layers or tuple(layers) == variant_layers(True, None) else "_" + "-".join(layers))
             + (f"_p{hashlib.sha256(names.encode()).hexdigest()[:8]}" if names else ""))
@@ -48,7 +50,11 @@ def replacing(path: Path, record: dict) -> str | None:
             + (f" (this search differs in {', '.join(diff)})" if diff else " (the same search again)"))
 
 
-def run(workdir: str | Path, *, surrogate: str = "mgn", **kw) -> dict:
+def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", objective: str = "area_mean",
+        pop: int = 100, gens: int = 50, starts: int = 4, iters: int = 20, screen: int = 0, seed: int = 0,
+        grid: int = -1, which: str = "best", check: bool = True, progress: bool = True,
+        ensemble: Sequence[str | Path] = (), stack: Sequence[str] = (), params: Sequence[str] = (),
+        command: str = "") -> dict:
     """Optimise the OCA thicknesses of the run in ``workdir`` on ``surrogate`` (:data:`SURROGATES`: mgn | nearest |
     poly2 | rbf | kriging | mop | auto, auto = mop with its CoP table in the result)
     with ``method`` (ga | gradient | slsqp) for the OLED objective ``objective`` (area_mean | node_mean |
@@ -57,11 +63,11 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", **kw) -> dict:
     ``pop`` / ``gens``: GA budget; ``starts`` / ``iters``: gradient and SLSQP starts and evaluations
     (iterations) per start; ``screen``: SLSQP only, seeded designs screened for the start; ``seed``: GA /
     starts seed; ``grid``: n x n objective map (-1: 21, mgn 7; 0 or 1: none); ``which``: mgn checkpoint;
-    ``check``: re-run the solver at the optimum; ``ensemble``: comma-separated runs whose MGNs join the
+    ``check``: re-run the solver at the optimum; ``ensemble``: run folders whose MGNs join the
     run's for the spread of an mgn optimum (:mod:`pcmgn_jax.opt.spread`; without: a residual GP's);
     ``command``: recorded in the result. A panel-stack run is searched over its scene parameters
-    instead (:mod:`pcmgn_jax.opt.stack_search`, GA only): ``stack`` (comma-separated layer list, '' the
-    paper's six) and ``params`` (comma-separated names to search, '' every layer's thickness and modulus);
+    instead (:mod:`pcmgn_jax.opt.stack_search`, GA only): ``stack`` (the layer names, top to bottom; () the
+    paper's six) and ``params`` (the parameter names to search; () every layer's thickness and modulus);
     both are refused on other runs. Designs in the result
     in µm, objectives in MPa. Raises ``ValueError`` for ``screen`` without slsqp or data without a solver
     preset; :class:`pcmgn_jax.mgn.checkpoint.MissingRun` (one line, nothing written) when ``workdir`` is no run
@@ -70,17 +76,23 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", **kw) -> dict:
     from pcmgn_jax.mgn.checkpoint import require_run  # here, not at the top: `import pcmgn_jax.opt` stays light
     if surrogate not in SURROGATES:
         raise ValueError(f"surrogate must be one of {SURROGATES}, got {surrogate!r}")
+    for name, value in (("ensemble", ensemble), ("stack", stack), ("params", params)):
+        if isinstance(value, str):
+            raise TypeError(f"{name}={value!r}: give a sequence of names, not a string (a command line splits "
+                            "its comma list)")
     require_run(workdir, checkpoint=surrogate == "mgn")
-    for member in (m for m in str(kw.get("ensemble") or "").split(",") if m):
+    for member in ensemble:
         require_run(member, checkpoint=True)      # an ensemble member is checked before the search, not after
     with hold(Path(workdir) / "optimize", "optimize"):
-        return _optimize(workdir, surrogate=surrogate, **kw)
+        return _optimize(workdir, surrogate=surrogate, method=method, objective=objective, pop=pop, gens=gens,
+                         starts=starts, iters=iters, screen=screen, seed=seed, grid=grid, which=which, check=check,
+                         progress=progress, ensemble=tuple(str(m) for m in ensemble), stack=tuple(stack),
+                         params=tuple(params), command=command)
 
 
-def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", objective: str = "area_mean",
-        pop: int = 100, gens: int = 50, starts: int = 4, iters: int = 20, screen: int = 0, seed: int = 0,
-        grid: int = -1, which: str = "best", check: bool = True, progress: bool = True,
-        ensemble: str = "", stack: str = "", params: str = "", command: str = "") -> dict:
+def _optimize(workdir: str | Path, *, surrogate: str, method: str, objective: str, pop: int, gens: int, starts: int,
+              iters: int, screen: int, seed: int, grid: int, which: str, check: bool, progress: bool,
+              ensemble: tuple[str, ...], stack: tuple[str, ...], params: tuple[str, ...], command: str) -> dict:
     """:func:`run` once the run is checked and RUN/optimize locked."""
     import numpy as np
 
@@ -91,7 +103,7 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
     from pcmgn_jax.opt.check import solver_objectives, solver_preset
     from pcmgn_jax.opt.objectives import FieldObjective, MGNObjective, SurfaceObjective
     from pcmgn_jax.opt.problem import DesignBox
-    from pcmgn_jax.opt.scenes import PAPER_STACK, family_of, is_stack, parse_names
+    from pcmgn_jax.opt.scenes import PAPER_STACK, family_of, is_stack
     from pcmgn_jax.opt.spread import optimum_spread
     from pcmgn_jax.opt.stack_search import optimize_stack
     from pcmgn_jax.scene import Scene
@@ -102,9 +114,9 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
 
     record = {"workdir": str(workdir), "surrogate": surrogate, "method": method, "objective": objective,
               "pop": pop, "gens": gens, "starts": starts, "iters": iters, "screen": screen, "seed": seed,
-              "grid": grid, "which": which, "check": check, "progress": progress, "ensemble": ensemble}
+              "grid": grid, "which": which, "check": check, "progress": progress, "ensemble": ",".join(ensemble)}
     if screen and method != "slsqp":
-        raise ValueError(f"--screen {screen}: only for --method slsqp (got --method {method})")
+        raise ValueError(f"screen={screen}: only for method='slsqp' (got method={method!r})")
     run_dir = Path(workdir)
     cfg, train, val, test = run_splits(run_dir)
     ref = train[0]
@@ -113,19 +125,19 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
     tag = result_tag(surrogate, method, objective, stack, params)
     if is_stack(family_of(ref)):
         dest = plots.ensure_dir(run_dir / "optimize")
-        record.update(stack=stack, params=params)
+        record.update(stack=",".join(stack), params=",".join(params))   # the result's record: as the flags were
         if note := replacing(dest / f"{tag}.json", record):
             print(note)
         out = optimize_stack(run_dir, cfg, train, surrogate=surrogate, method=method, objective=objective, pop=pop,
                              gens=gens, seed=seed, which=which, check=check, progress=progress,
-                             layers=parse_names(stack) or PAPER_STACK, search_names=parse_names(params) or None,
+                             layers=stack or PAPER_STACK, search_names=params or None,
                              preset=preset, resume=dest / f"{tag}.resume.json", record=record, command=command)
         atomic_write_json(dest / f"{tag}.json", out)
         (dest / f"{tag}.resume.json").unlink(missing_ok=True)
         return out
     if stack or params:
-        raise ValueError(f"--stack / --params: only for a panel-stack run; {run_dir} is not one (its data's "
-                         f"meta.family is {ref.meta.get('family')!r})")
+        raise ValueError(f"stack={stack} / params={params}: only for a panel-stack run; {run_dir} is not one (its "
+                         f"data's meta.family is {ref.meta.get('family')!r})")
     part = scene.part_names.index("OLED")
     box = DesignBox(dim=len(scene.design_layers))
     dmap = DesignMap.build(scene, preset)
@@ -175,7 +187,7 @@ def _optimize(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga"
            "dataset_best": None if best_d is None else {"design_um": (best_d * 1e6).tolist(), "mpa": best_f},
            "command": command, "args": record, **({"resumed": {"evals_loaded": loaded}} if loaded else {})}
     spread = optimum_spread(surrogate, obj, x, train, part=part, reading=objective,
-                            members=[m for m in ensemble.split(",") if m])
+                            members=list(ensemble))
     out.update(predicted_std_mpa=spread["std_mpa"], spread=spread)
     if surrogate in ("mop", "auto"):   # why MOP chose its model: every candidate's CoP
         out["cop"] = obj.surrogate.model.report()

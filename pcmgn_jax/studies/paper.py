@@ -87,10 +87,10 @@ def _slug(s: str) -> str:
 
 def _check(name: str, forms) -> None:
     if name not in STUDIES:
-        raise ValueError(f"--name must be one of {list(STUDIES)}, got {name!r}")
+        raise ValueError(f"study name={name!r} must be one of {list(STUDIES)}")
     bad = sorted(set(forms) - set(BASE))
     if bad:
-        raise ValueError(f"--formulations: unknown {bad}; choose from {list(BASE)}")
+        raise ValueError(f"study formulations: unknown {bad}; choose from {list(BASE)}")
 
 
 def cell_settings(name: str, form: str, settings: dict, *, data: str, steps: int, seed: int) -> dict:

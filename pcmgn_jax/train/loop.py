@@ -148,7 +148,7 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
         mode = "a"
     else:
         if resume:
-            print(f"--resume: no checkpoint in {periodic_dir}; starting fresh")
+            print(f"resume: no checkpoint in {periodic_dir}; starting fresh")
         setup = prepare(cfg, train_trajs)
         state = init_state(setup.spec, init_params(setup, train_trajs[0], cfg.seed))
         best_val = float("inf")

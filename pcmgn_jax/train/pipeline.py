@@ -42,21 +42,33 @@ def run(cfg: TrainConfig, workdir: str | Path, *, resume: bool = False, overwrit
 RUN_FILES = ("config.json", "metrics.jsonl", "checkpoints")   # what makes a folder hold a run worth keeping
 
 
+class RunFolderError(ValueError):
+    """A folder training may not write into, named with the values that refuse it; ``reason`` says which rule
+    (``resume_and_overwrite`` | ``not_a_folder`` | ``holds_run``), ``workdir`` the folder and ``found`` the run
+    files it holds, so an entry point can say it in its own flags (``experiments/train.py``)."""
+
+    def __init__(self, message: str, *, reason: str, workdir: Path, found: tuple[str, ...] = ()):
+        super().__init__(message)
+        self.reason, self.workdir, self.found = reason, workdir, found
+
+
 def claim(workdir: Path, *, resume: bool, overwrite: bool, dry: bool = False) -> None:
-    """Check that training may write into ``workdir``: ValueError naming the folder and the flags when it
+    """Check that training may write into ``workdir``: :class:`RunFolderError` naming the folder when it
     holds a run (:data:`RUN_FILES`) and neither ``resume`` nor ``overwrite`` is given, or when both are;
     with ``overwrite`` (and not ``dry``) the earlier run's files are moved to ``WORKDIR.old-<UTC time>``
     (said on stdout); nothing is deleted. A file where the folder should be is refused."""
     if resume and overwrite:
-        raise ValueError("--resume and --overwrite exclude each other: continue the run, or start it over")
+        raise RunFolderError(f"{workdir}: resume=True and overwrite=True exclude each other: continue the run, or "
+                             "start it over", reason="resume_and_overwrite", workdir=workdir)
     if workdir.exists() and not workdir.is_dir():
-        raise ValueError(f"--workdir {workdir}: exists and is not a folder")
-    found = [n for n in RUN_FILES if (workdir / n).exists()]
+        raise RunFolderError(f"{workdir}: exists and is not a folder", reason="not_a_folder", workdir=workdir)
+    found = tuple(n for n in RUN_FILES if (workdir / n).exists())
     if not found or resume:
         return
     if not overwrite:
-        raise ValueError(f"{workdir}: holds a run ({', '.join(found)}); continue it with --resume, or start over "
-                         "with --overwrite (moves it aside to WORKDIR.old-<time>)")
+        raise RunFolderError(f"{workdir}: holds a run ({', '.join(found)}); continue it (resume=True), or start it "
+                             f"over (overwrite=True: moves it aside to {workdir.name}.old-<time>)",
+                             reason="holds_run", workdir=workdir, found=found)
     if dry:
         return
     old = workdir.with_name(f"{workdir.name}.old-{time.strftime('%Y%m%d-%H%M%S', time.gmtime())}")
@@ -66,7 +78,7 @@ def claim(workdir: Path, *, resume: bool, overwrite: bool, dry: bool = False) ->
     for p in sorted(workdir.iterdir()):
         if p.name != ".lock":                  # the lock stays with the folder it guards
             os.replace(p, old / p.name)
-    print(f"--overwrite: moved the earlier run in {workdir} to {old}")
+    print(f"overwrite: moved the earlier run in {workdir} to {old}")
 
 
 def _data(cfg: TrainConfig) -> tuple:
@@ -111,7 +123,7 @@ def _run_locked(cfg: TrainConfig, workdir: Path, data: tuple, *, resume: bool) -
         unused = have - len(train) - len(val)
         print(f"data: {root} (imported, no manifest): training on the first {len(train)} and validating on the "
               f"last {len(val)} of {have} trajectories in {root / 'train'} by name"
-              + (f"; {unused} in between unused (raise --n_train to use them)" if unused else ""))
+              + (f"; {unused} in between unused (raise n_train to use them)" if unused else ""))
     write_data_record(workdir, root, source, train, val)
     if cfg.residual_of:  # the network learns the baseline's error (pcmgn_jax/surrogates/residual.py)
         from pcmgn_jax.surrogates.residual import residual_splits

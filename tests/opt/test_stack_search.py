@@ -141,16 +141,16 @@ def test_the_stack_search_finds_a_known_optimum():
 
 def test_optimize_searches_a_stack_run(stack_run):
     from pcmgn_jax.opt import run
-    layers = "CG,OCA1,OCA2,OLED,PLATE"                       # a 5-layer stack: training has its layer list
+    layers = ("CG", "OCA1", "OCA2", "OLED", "PLATE")          # a 5-layer stack: training has its layer list
     out = run(stack_run, surrogate="kriging", method="ga", pop=6, gens=2, check=False, progress=False,
-              stack=layers, params="OCA1.thickness,ball.velocity")
+              stack=layers, params=("OCA1.thickness", "ball.velocity"))
     from pcmgn_jax.opt.pipeline import result_tag
-    tag = result_tag("kriging", "ga", "area_mean", layers, "OCA1.thickness,ball.velocity")   # named by its search
+    tag = result_tag("kriging", "ga", "area_mean", layers, ("OCA1.thickness", "ball.velocity"))   # named by its search
     assert tag.startswith("kriging_ga_CG-OCA1-OCA2-OLED-PLATE_p")
     saved = json.loads((stack_run / "optimize" / f"{tag}.json").read_text())
-    assert saved["optimum"] == pytest.approx(out["optimum"]) and saved["stack"] == layers.split(",")
+    assert saved["optimum"] == pytest.approx(out["optimum"]) and saved["stack"] == list(layers)
     assert list(saved["searched"]) == ["OCA1.thickness", "ball.velocity"]
-    base = nominal(layers.split(","))
+    base = nominal(list(layers))
     held = {n: v for n, v in saved["optimum"].items() if n not in saved["searched"] and n.endswith("thickness")
             and saved["optimum"][n.replace("thickness", "present")]}
     assert held == pytest.approx({n: base[n] for n in held})
@@ -160,7 +160,7 @@ def test_optimize_searches_a_stack_run(stack_run):
 
 def test_optimize_refuses_what_cannot_answer_a_stack_by_name(stack_run):
     from pcmgn_jax.opt import run
-    layers = "CG,OCA1,OCA2,OLED,PLATE"
+    layers = ("CG", "OCA1", "OCA2", "OLED", "PLATE")
     assert run(stack_run, surrogate="nearest", method="ga", pop=4, gens=1, check=False, progress=False,
                stack=layers)["n_evals"] >= 1
     with pytest.raises(ValueError, match=r"nearest cannot answer a stack of \['CG', 'OCA1', 'POL', 'OCA2', 'OLED', "
@@ -171,7 +171,7 @@ def test_optimize_refuses_what_cannot_answer_a_stack_by_name(stack_run):
     with pytest.raises(ValueError, match="--method gradient: a stack search has no gradient"):
         run(stack_run, surrogate="kriging", method="gradient", check=False, progress=False)
     with pytest.raises(ValueError, match=r"'OLED.thikness' \(unknown\)"):
-        run(stack_run, surrogate="kriging", method="ga", check=False, progress=False, params="OLED.thikness")
+        run(stack_run, surrogate="kriging", method="ga", check=False, progress=False, params=("OLED.thikness",))
 
 
 @pytest.mark.slow   # ~40 s: a 20-step stack_tiny model, its rollouts, one stack_tiny solver run
@@ -195,7 +195,7 @@ def test_the_stack_runs_mgn_in_the_explorer_and_the_optimiser(stack_run, tmp_pat
     truth = ex.check(ex.start)                                  # the solver on the stack of the sliders
     assert np.isfinite(truth.objective_mpa) and truth.traj.meta["part_names"] == ex.query(ex.start).meta["part_names"]
     out = run(run_dir, surrogate="mgn", method="ga", pop=4, gens=1, check=True, progress=False,
-              params="OCA1.thickness")
+              params=("OCA1.thickness",))
     assert np.isfinite(out["predicted_mpa"]) and np.isfinite(out["solver_mpa"]) and "proxy" in out["spread"]["source"]
 
 
@@ -219,7 +219,8 @@ def test_a_stack_search_outside_the_family_is_refused_before_the_search(stack_ru
     from pcmgn_jax.opt import run
     before = sorted(p.name for p in (stack_run / "optimize").glob("*")) if (stack_run / "optimize").exists() else []
     with pytest.raises(ValueError, match=f"are no stack of the family \\({why}"):
-        run(stack_run, surrogate="kriging", method="ga", pop=4, gens=1, check=False, progress=False, stack=layers)
+        run(stack_run, surrogate="kriging", method="ga", pop=4, gens=1, check=False, progress=False,
+            stack=layers.split(","))
     after = sorted(p.name for p in (stack_run / "optimize").glob("*")) if (stack_run / "optimize").exists() else []
     assert after == before
 
@@ -230,10 +231,30 @@ def test_stack_searches_are_named_by_their_search_and_a_replacement_is_said(stac
     kw = dict(surrogate="kriging", method="ga", pop=4, gens=1, check=False, progress=False)
     six = run(stack_run, **kw)                     # the paper's six: a layer list no training stack has
     assert "no training stack of this run has the layers CG,OCA1,POL,OCA2,OLED,PLATE" in six["warnings"][0]
-    run(stack_run, **kw, stack="CG,OCA1,OCA2,OLED,PLATE")
+    five = ("CG", "OCA1", "OCA2", "OLED", "PLATE")
+    run(stack_run, **kw, stack=five)
     names = {p.name for p in (stack_run / "optimize").glob("kriging_ga*.json")}
-    assert {"kriging_ga.json", f"{result_tag('kriging', 'ga', 'area_mean', 'CG,OCA1,OCA2,OLED,PLATE')}.json"} <= names
+    assert {"kriging_ga.json", f"{result_tag('kriging', 'ga', 'area_mean', five)}.json"} <= names
     capsys.readouterr()
     run(stack_run, **{**kw, "seed": 1})
     out = capsys.readouterr().out
     assert "note: replacing" in out and "kriging_ga.json" in out and "differs in seed" in out, out
+
+
+def test_optimize_takes_typed_lists_and_the_command_line_splits_its_comma_strings(tmp_path, monkeypatch):
+    """pcmgn_jax.opt.run takes sequences of names (a comma string is a TypeError naming the argument);
+    experiments.optimize parses --stack / --params / --ensemble into them."""
+    from experiments import optimize
+    from pcmgn_jax.opt import pipeline, run
+    with pytest.raises(TypeError, match="stack='CG,OLED': give a sequence of names"):
+        run(tmp_path, surrogate="kriging", stack="CG,OLED")
+    seen = {}
+    monkeypatch.setattr(pipeline, "_optimize", lambda workdir, **kw: seen.update(kw) or {})
+    monkeypatch.setattr(pipeline, "hold", lambda *a: __import__("contextlib").nullcontext())
+    import pcmgn_jax.mgn.checkpoint as checkpoint
+    monkeypatch.setattr(checkpoint, "require_run", lambda *a, **k: None)
+    with pytest.raises(KeyError):   # the fake result has no optimum to print: the call itself is what is checked
+        optimize.main([f"--workdir={tmp_path}", "--surrogate=mgn", "--stack= CG,OLED ", "--params=a.b",
+                       "--ensemble=r1,r2"])
+    assert seen["stack"] == ("CG", "OLED") and seen["params"] == ("a.b",) and seen["ensemble"] == ("r1", "r2")
+    assert pipeline.result_tag("kriging", "ga", "area_mean", ("CG", "OLED")) == "kriging_ga_CG-OLED"

@@ -96,9 +96,10 @@ def test_nonzero_lambda_pen_is_wired_or_refused(tiny_trajs, tmp_path):
 
 
 def test_a_retired_toggle_loads_when_off_and_is_refused_by_name_when_on():
-    """An older config.json holding a removed research toggle (config.RETIRED_FIELDS) at its off value loads
+    """An older config.json holding a removed research toggle (config_files.RETIRED_FIELDS) at its off value loads
     as before; one that switched it on is a ValueError naming the toggle and where its result is kept."""
-    from pcmgn_jax.config import RETIRED_FIELDS, TrainConfig
+    from pcmgn_jax.config import TrainConfig
+    from pcmgn_jax.config_files import RETIRED_FIELDS
     base = tiny_config().to_dict()
     for key, (off, where) in RETIRED_FIELDS.items():
         assert TrainConfig.from_json({**base, key: off}) == TrainConfig.from_json(base)
