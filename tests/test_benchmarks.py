@@ -205,6 +205,7 @@ def test_surrogate_speed_untrained_tiny(tmp_path):
     assert j["position_mae_um"] is None and not r["trained"]
 
 
+@pytest.mark.slow   # 40 s on this CPU: the GPU script's CPU smoke (the default suite stays under 10 minutes)
 def test_gpu_check_smoke(tmp_path):
     """`python -m benchmarks.gpu_check --smoke`: the GPU check's code at tiny sizes on the CPU, in a process of
     its own (so its quick XLA compile flags apply); every figure it reports is there, finite and positive

@@ -64,6 +64,7 @@ def test_target_statistics_match_numpy_reference(tiny_trajs, name):
     np.testing.assert_allclose(np.asarray(back), tgt[3], rtol=1e-5, atol=1e-12 + 1e-5 * np.abs(tgt[3]).max())
 
 
+@pytest.mark.slow   # 19 s: trains a tiny run (the default suite stays under 10 minutes)
 def test_a_parts_own_material_is_normalised_across_parts(tiny_trajs, tmp_path):
     """``material`` is one number per part: with ``per_part`` normalisation it still takes the all-node
     statistics (a per-part normaliser would send it to 0 on every training node), so the normalised

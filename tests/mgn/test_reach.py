@@ -161,9 +161,11 @@ def union_graph(form, ds, **kw):
 
 
 _input_graph = jax.jit(rl.input_graph, static_argnums=0)
+# multiscale's two checks below take ~16 s each: slow, so the default suite stays under 10 minutes
+REACHES_DEFAULT_SUITE = [pytest.param(r, marks=pytest.mark.slow) if r == "multiscale" else r for r in REACHES]
 
 
-@pytest.mark.parametrize("reach", REACHES)
+@pytest.mark.parametrize("reach", REACHES_DEFAULT_SUITE)
 def test_padding_never_changes_a_real_node(reach):
     form, model = model_of(reach)
     ds = [design(make_synthetic_trajectory(0.9), form.hierarchy_levels),
@@ -190,7 +192,7 @@ def test_padding_never_changes_a_real_node(reach):
     np.testing.assert_allclose(np.asarray(apply(params, g0))[:n0], out[:n0], rtol=1e-5, atol=1e-5)
 
 
-@pytest.mark.parametrize("reach", REACHES)
+@pytest.mark.parametrize("reach", REACHES_DEFAULT_SUITE)
 def test_gradients_finite_and_no_recompilation_across_designs(reach):
     form, model = model_of(reach, "realtime")
     mk = lambda d: design(make_synthetic_trajectory(d), form.hierarchy_levels)  # noqa: E731

@@ -166,6 +166,7 @@ def _assert_same_run(workdir: Path, res: dict, reference) -> None:
     assert res["best_val_position_mae_um"] == ref["best_val_position_mae_um"]
 
 
+@pytest.mark.slow   # 22 s; the other kill and resume tests here run by default
 def test_a_kill_between_the_best_and_the_periodic_checkpoint_resumes(tiny_trajs, tmp_path, reference, capsys):
     """Killed at step 40 after best/40 was written, before periodic/40: resume from 20 writes best/40 again."""
     trajs = dict(train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:])
