@@ -18,3 +18,21 @@ def test_import_contracts():
         cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     report = re.sub(r"\x1b\[[0-9;]*m", "", run.stdout + run.stderr)
     assert run.returncode == 0, f"import contracts broken (pyproject.toml [tool.importlinter]):\n{report}"
+
+
+def test_module_constants_have_one_meaning():
+    """No two library modules define a public module-level constant of one name (issue 51: one name, one
+    meaning; the same name twice is a second meaning or a second home)."""
+    import ast
+    from collections import defaultdict
+
+    homes = defaultdict(list)
+    for path in sorted((ROOT / "pcmgn_jax").rglob("*.py")):
+        for node in ast.parse(path.read_text()).body:
+            targets = (node.targets if isinstance(node, ast.Assign)
+                       else [node.target] if isinstance(node, ast.AnnAssign) else [])
+            for t in targets:
+                if isinstance(t, ast.Name) and t.id.isupper() and not t.id.startswith("_"):
+                    homes[t.id].append(str(path.relative_to(ROOT)))
+    twice = {name: where for name, where in homes.items() if len(set(where)) > 1}
+    assert not twice, f"constants defined in more than one module: {twice}"

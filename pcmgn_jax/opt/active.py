@@ -48,7 +48,7 @@ from pcmgn_jax.surrogates.response_surfaces import MOP, ExtrapolationWarning, Kr
 # the loop's surrogates: the kinds with ``active`` (pcmgn_jax/surrogates/kinds.py), fitted here over parameter
 # rows (the solver's answers), and ``auto`` (MOP's mean, kriging's spread)
 ACTIVE_SURROGATES = choices("active")
-FORMAT = "pcmgn_jax.active"
+ACTIVE_FORMAT = "pcmgn_jax.active"
 GRID_N = 41          # candidate grid per axis for two design variables (2.5 µm steps over 50-150 µm)
 N_CANDIDATES = 4000  # seeded LHS candidates for more variables
 CANDIDATE_SEED = 12345
@@ -216,7 +216,7 @@ def _load(path: Path, header: dict) -> list[dict]:
         got = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as e:
         raise ActiveLearningError(f"{path}: unreadable active-learning log ({e}); move it away to start afresh") from e
-    if got.get("format") != FORMAT:
+    if got.get("format") != ACTIVE_FORMAT:
         raise ActiveLearningError(f"{path}: not an active-learning log (format {got.get('format')!r})")
     # a larger budget goes on where the log stopped; anything else must match
     diff = {k: (got["config"].get(k), v) for k, v in header["config"].items()
@@ -237,7 +237,7 @@ def _key(d) -> tuple:
 
 
 def _header(problem: Problem, cfg: LoopConfig, meta) -> dict:
-    return {"format": FORMAT, "format_version": 1, "config": dataclasses.asdict(cfg),
+    return {"format": ACTIVE_FORMAT, "format_version": 1, "config": dataclasses.asdict(cfg),
             "problem": {"names": list(problem.names), "low": problem.low.tolist(), "high": problem.high.tolist(),
                         "cases": list(problem.cases), "row_names": list(problem.row_names),
                         "n_prior": 0 if problem.prior is None else len(problem.prior[1]),

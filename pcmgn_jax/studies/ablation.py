@@ -46,7 +46,7 @@ CELLS = {
 # average unless a cell asks for it (v1 and v2 were made without one)
 COMMON = {"lambda_pen": 0.0, "lambda_start": 0.0, "noise_std": 0.0, "noise_rel": 1.0, "noise_parts": "panel",
           "ema_decay": 0.0}
-KEYS = ("position_mae_um", "stress_mae_mpa", "oled_objective_rel_error_pct_mean", "penetration_max_um")
+ABLATION_METRICS = ("position_mae_um", "stress_mae_mpa", "oled_objective_rel_error_pct_mean", "penetration_max_um")
 
 
 def cell_settings(name: str, seed: int, num_steps: int) -> dict:
@@ -59,9 +59,10 @@ def table(results: dict, baselines: dict) -> str:
     """The markdown table of ``results`` ({cell: {seed: metrics}}) and the ``baselines`` ({name: metrics})."""
     head = ("cell", "what changes", "position MAE [µm]", "stress MAE [MPa]", "OLED objective error [%]",
             "max penetration [µm]", "training time [s]")
-    rows = [(name, CELLS[name][0], *(cells.mean_pm(m[k] for m in per_seed.values()) for k in (*KEYS, "train_seconds")))
+    rows = [(name, CELLS[name][0],
+             *(cells.mean_pm(m[k] for m in per_seed.values()) for k in (*ABLATION_METRICS, "train_seconds")))
             for name, per_seed in results.items()]
-    rows += [(f"baseline: {name}", "fitted on the 12 training designs", *(f"{b[k]:.3g}" for k in KEYS), "–")
+    rows += [(f"baseline: {name}", "fitted on the 12 training designs", *(f"{b[k]:.3g}" for k in ABLATION_METRICS), "–")
              for name, b in baselines.items()]
     return "\n".join(markdown.table(head, rows))
 
@@ -80,9 +81,9 @@ def run(names=(), *, seeds=(0, 1), num_steps: int = 1000, runs: str | Path = "ru
         results[name] = {}
         for seed in seeds:
             m = cells.run_cell(Path(runs) / f"{name}_s{seed}", cell_settings(name, seed, num_steps))
-            results[name][str(seed)] = {k: m[k] for k in (*KEYS, "train_seconds")}
+            results[name][str(seed)] = {k: m[k] for k in (*ABLATION_METRICS, "train_seconds")}
             baselines = m.get("baselines", baselines)
-            print(f"{name} seed {seed}: " + ", ".join(f"{k}={m[k]:.4g}" for k in KEYS), flush=True)
+            print(f"{name} seed {seed}: " + ", ".join(f"{k}={m[k]:.4g}" for k in ABLATION_METRICS), flush=True)
     from pcmgn_jax.atomic import atomic_write_json, atomic_write_text
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -90,7 +91,7 @@ def run(names=(), *, seeds=(0, 1), num_steps: int = 1000, runs: str | Path = "ru
     fitted = {k: v for k, v in baselines.items() if "not_applicable" not in v}
     atomic_write_json(out.with_suffix(".json"), {
         "command": command, "common_flags": common, "cells": results,
-        "baselines": {k: {kk: v[kk] for kk in KEYS} for k, v in fitted.items()}})
+        "baselines": {k: {kk: v[kk] for kk in ABLATION_METRICS} for k, v in fitted.items()}})
     md = table(results, fitted)
     atomic_write_text(out.with_suffix(".md"),
                       f"`{command}` (flags common to every cell: `{' '.join(common)}`)\n\n{md}\n")

@@ -78,7 +78,7 @@ FORM_SETTINGS = {("degree", "default"): {"lambda_pen": 10.0}, ("lambda", "paper"
 SAME_AS = {("noise_parts", "default"): ({"panel": "none", "all": "ball"}, "the quasi-static panel's own state is "
                                          "not an input, so panel noise changes neither the inputs nor the loss")}
 EXTRAP_DESIGNS_UM = "40,40;40,160;160,40;160,160"   # the paper's §4.6
-KEYS = ("position_mae_um", "stress_mae_mpa", "oled_objective_area_rel_error_pct_mean", "penetration_max_um")
+STUDY_METRICS = ("position_mae_um", "stress_mae_mpa", "oled_objective_area_rel_error_pct_mean", "penetration_max_um")
 
 
 def _slug(s: str) -> str:
@@ -150,12 +150,12 @@ def run(name: str, *, formulations=("paper", "default"), seeds=(0, 1), num_steps
                                    extra_data=extra)
                 src = m["eval_extrap"] if extra else m
                 results.setdefault(form, {}).setdefault(label, {})[str(seed)] = {
-                    **{k: src.get(k) for k in KEYS}, "train_seconds": m["train_seconds"],
+                    **{k: src.get(k) for k in STUDY_METRICS}, "train_seconds": m["train_seconds"],
                     "checkpoint_step": m.get("checkpoint_step"),
                     "per_frame_position_mae_um_mean": src["per_frame_position_mae_um_mean"],
                     "baselines": src.get("baselines", {})}
                 print(f"{name} {form} {label} seed {seed}: "
-                      + ", ".join(f"{k}={src.get(k, float('nan')):.4g}" for k in KEYS), flush=True)
+                      + ", ".join(f"{k}={src.get(k, float('nan')):.4g}" for k in STUDY_METRICS), flush=True)
                 # the table after every cell: a study cut short still leaves what it has measured
                 _write_all(**report, quiet=True)
     _write_all(**report)
@@ -268,13 +268,13 @@ def write(name, out, table_ref, steps, study_cells, forms, seeds, results, *, co
             same_as, why = SAME_AS.get((name, form), ({}, ""))
             if label in same_as:
                 tag += f" (= {same_as[label]}, not retrained: {why})"
-            rows.append((form, f"{label}{tag}", *(cells.mean_pm(m[k] for m in per) for k in KEYS),
+            rows.append((form, f"{label}{tag}", *(cells.mean_pm(m[k] for m in per) for k in STUDY_METRICS),
                          cells.mean_pm(m["train_seconds"] for m in per), paper))
     first = next(iter(next(iter(results.values())).values()))
     base = next(iter(first.values()))["baselines"]
     for kind, b in base.items():
         if "not_applicable" not in b:
-            rows.append(("baseline", kind, *(f"{b.get(k, float('nan')):.3g}" for k in KEYS), "–", "–"))
+            rows.append(("baseline", kind, *(f"{b.get(k, float('nan')):.3g}" for k in STUDY_METRICS), "–", "–"))
     lines += markdown.table(("formulation", "cell", "position MAE", "stress MAE", "objective error [%]",
                              "max penetration [µm]", "train [s]", "paper: position / stress"), rows)
     # the orderings: the best cell per formulation and the paper's, and how far the cells' ranking agrees

@@ -44,14 +44,14 @@ def sample(form: Formulation, traj, t: int, dt: float) -> dict:
     return dict(out, points=np.asarray(traj.points, np.float64))
 
 
-FIELDS = (("points", (2,)), ("u", (2,)), ("v", (2,)), ("target", (3,)))
+SAMPLE_ARRAYS = (("points", (2,)), ("u", (2,)), ("v", (2,)), ("target", (3,)))
 
 
 def gather(form: Formulation, trajs, table, ids: np.ndarray, *, dt: float) -> dict[str, np.ndarray]:
     """Host batch (K, B, ...) float32: points, u, v (N, 2) inputs, target (N, 3), ball (2,) targets."""
     K, B = ids.shape
     n = trajs[0].n_nodes
-    out = {k: np.empty((K, B, n) + d, np.float32) for k, d in FIELDS}
+    out = {k: np.empty((K, B, n) + d, np.float32) for k, d in SAMPLE_ARRAYS}
     out["ball"] = np.empty((K, B, 2), np.float32)
     for a in range(K):
         for b in range(B):

@@ -39,7 +39,7 @@ from pcmgn_jax import compile_cache
 from pcmgn_jax.atomic import atomic_dir, atomic_write_text
 from pcmgn_jax.mgn.normalization import Stats
 
-CACHE_VERSION = 1   # the entries' layout: a change makes every older entry a miss
+STARTUP_CACHE_VERSION = 1   # the entries' layout: a change makes every older entry a miss
 _PACKAGE = Path(__file__).resolve().parents[1]
 _code: list[str] = []
 
@@ -59,7 +59,8 @@ def key(what: str, cfg, trajs: Sequence, extra: dict) -> str | None:
     hashes = [t.meta.get("source_sha256") for t in trajs]
     if not hashes or not all(hashes):
         return None
-    parts = {"format": CACHE_VERSION, "what": what, "extra": extra, "trajectories": hashes, "config": cfg.to_dict(),
+    parts = {"format": STARTUP_CACHE_VERSION, "what": what, "extra": extra, "trajectories": hashes,
+             "config": cfg.to_dict(),
              "code": code_hash(), "versions": [jax.__version__, jaxlib.__version__, flax.__version__, np.__version__],
              "backend": jax.default_backend()}
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()
