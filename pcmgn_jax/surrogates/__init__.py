@@ -2,8 +2,8 @@
 
 - :mod:`kinds`: the one list of predictor kinds (:data:`~kinds.KINDS`) and the :class:`~kinds.Surrogate` interface
 - :mod:`registry`: ``fit(kind, train, ...)``, the one way to fit any kind
-- the families: :mod:`regression` (none, nearest, poly2, rbf), :mod:`surfaces` (kriging, mop; the fits in
-  :mod:`response_surfaces`), :mod:`rom` (rom, rom_contact, the stack rom), :mod:`mgn` (a trained run)
+- the families: :mod:`regression` (none, nearest, poly2, rbf), :mod:`surface_kind` (kriging, mop; the fits in
+  :mod:`surface_fit`), :mod:`rom` (rom, rom_contact, the stack rom), :mod:`mgn` (a trained run)
 - helpers: :mod:`inputs` (designs, scene parameters), :mod:`transfer` (fields between meshes),
   :mod:`correction` (a baseline-corrected rollout's arithmetic), :mod:`residual` (a residual run's targets)
 

@@ -25,12 +25,12 @@ from __future__ import annotations
 
 from typing import Sequence
 
-from pcmgn_jax.surrogates import mgn, onepass, regression, rom, surfaces
+from pcmgn_jax.surrogates import mgn, onepass, regression, rom, surface_kind
 from pcmgn_jax.surrogates.kinds import KINDS, Kind, Surrogate, kind, names
 
 __all__ = ["FITTERS", "KINDS", "Kind", "Surrogate", "fit", "kind", "names"]
 
-FITTERS = {"regression": regression.fit, "surface": surfaces.fit, "rom": rom.fit, "mgn": mgn.fit,
+FITTERS = {"regression": regression.fit, "surface": surface_kind.fit, "rom": rom.fit, "mgn": mgn.fit,
            "time_fields": onepass.fit}  # by Kind.family
 
 

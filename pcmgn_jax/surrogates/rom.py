@@ -11,9 +11,9 @@ mesh), its stack form (:class:`StackRom`) and ``rom_contact`` (:class:`RomContac
 2. Snapshots: per scene the row [u / s_u, vm / s_vm] of every frame and reference node (T·N·3 values);
    s_u [m] and s_vm [Pa] are the RMS of the centred u and vm snapshots (1 where a field never varies),
    so the two fields are each O(1).
-3. POD + GP (:class:`response_surfaces.PodGP`): SVD of the centred snapshots, the fewest modes holding
+3. POD + GP (:class:`surface_fit.PodGP`): SVD of the centred snapshots, the fewest modes holding
    :data:`POD_ENERGY` of sum S², one GP with the kriging kernel on their coefficients over the scene
-   parameters scaled to [-1, 1] (:class:`response_surfaces.ParameterBox`).
+   parameters scaled to [-1, 1] (:class:`surface_fit.ParameterBox`).
 4. Prediction: the GP mean at a query's scene parameters, unscaled, carried from the reference mesh to
    the query's mesh by :func:`transfer.transfer_fields` (the identity when it is the reference mesh).
 """
@@ -27,7 +27,7 @@ import numpy as np
 
 from pcmgn_jax.surrogates.correction import rigid_contact
 from pcmgn_jax.surrogates.inputs import TrainingScenes, part_names_of, trajectory_labels
-from pcmgn_jax.surrogates.response_surfaces import ParameterBox, PodGP, not_applicable
+from pcmgn_jax.surrogates.surface_fit import ParameterBox, PodGP, not_applicable
 from pcmgn_jax.surrogates.transfer import transfer_fields
 
 POD_ENERGY = 0.9999   # fraction of the centred snapshots' energy (sum of squared singular values) kept

@@ -1,4 +1,4 @@
-"""The surface family: ``kriging`` and ``mop`` over trajectories (:mod:`response_surfaces` has the fits).
+"""The surface family: ``kriging`` and ``mop`` over trajectories (:mod:`surface_fit` has the fits).
 
     s = fit("mop", train_trajs)                  # registry.fit("mop", train_trajs) does the same
     s.objectives(test_trajs)                     # {reading: (B,) [MPa]}: the objective surface
@@ -19,7 +19,7 @@ import numpy as np
 from pcmgn_jax.metrics import OBJECTIVES
 from pcmgn_jax.surrogates.inputs import TrainingScenes, design_of, shared_mesh, trajectory_labels
 from pcmgn_jax.surrogates.regression import FieldRegression
-from pcmgn_jax.surrogates.response_surfaces import fit_surface, objective_table
+from pcmgn_jax.surrogates.surface_fit import fit_surface, objective_table
 
 
 class ObjectiveSurface:
