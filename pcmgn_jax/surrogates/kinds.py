@@ -28,8 +28,10 @@ class Kind:
     and where it is used.
 
     ``fields``: where it predicts fields: 'any' (each query on its own mesh), 'shared' (one shared mesh
-    of training and queries), '' (no fields: objective readings only). ``objective_surface``: it predicts
-    the objective readings directly (a response surface), not through fields. ``std``: its objective comes
+    of training and queries), '' (no fields: objective readings only). ``objective_surface``: it reads
+    the objective off a response surface over the parameters, not off its fields (every kind answers
+    ``predict_objective``; this says how: the optimiser reads such a kind at parameter rows without meshing, and
+    evaluation reports its objective and field surfaces apart). ``std``: its objective comes
     with a posterior std. ``rank``: the explorer's preference (lower first: its default predictor and the
     order of the field figures). ``floor``: a reference floor (zero fields), never a default."""
 

@@ -19,7 +19,10 @@ take are refused (TypeError):
 
 To add a predictor: a :class:`~pcmgn_jax.surrogates.kinds.Kind` row in :data:`KINDS` (its name, label, family
 and where it is used) and, for a new family, a module with ``fit(kind, train, **options)`` returning an
-object with the :class:`~pcmgn_jax.surrogates.kinds.Surrogate` methods, named in :data:`FITTERS`.
+object with the :class:`~pcmgn_jax.surrogates.kinds.Surrogate` methods, named in :data:`FITTERS`: a fields kind
+subclasses :class:`~pcmgn_jax.surrogates.objective.FromFields` for ``predict_objective``; what it cannot answer
+it refuses with :class:`~pcmgn_jax.surrogates.kinds.CannotAnswer` (``tests/surrogates/test_interface.py`` fits a
+toy kind so, and checks every kind of :data:`KINDS` answers or refuses).
 """
 from __future__ import annotations
 
