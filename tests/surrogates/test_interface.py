@@ -119,3 +119,21 @@ def test_an_objective_surface_asked_for_fields_refuses_by_name(tiny_trajs, queri
         s.predict_objective(queries, reading="peak", part=PART)
     with pytest.raises(CannotAnswer, match="mop: cannot answer the objective of part 0"):
         s.predict_objective(queries, reading="area_mean", part=0)
+
+
+def test_no_response_surface_is_built_outside_the_surrogates():
+    """Kriging / MOP / PodGP are constructed in pcmgn_jax/surrogates only; elsewhere a GP of other data is
+    surface_fit.fit_gp (or fit_surface), a kind's surface registry.fit."""
+    import ast
+
+    from fixtures.helpers import ROOT
+    found = []
+    for folder in ("pcmgn_jax", "experiments", "benchmarks"):
+        for f in sorted((ROOT / folder).rglob("*.py")):
+            if f.parent == ROOT / "pcmgn_jax" / "surrogates":
+                continue
+            for node in ast.walk(ast.parse(f.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.ImportFrom) and (node.module or "").endswith("surface_fit"):
+                    found += [f"{f.relative_to(ROOT)}:{node.lineno} {a.name}" for a in node.names
+                              if a.name in ("Kriging", "MOP", "PodGP", "SURFACES")]
+    assert not found, f"response surfaces built outside pcmgn_jax/surrogates (use surface_fit.fit_gp): {found}"
