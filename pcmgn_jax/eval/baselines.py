@@ -12,8 +12,8 @@ MGN), so every predictor is measured by one definition (:mod:`pcmgn_jax.metrics`
   (any meshes; :class:`~pcmgn_jax.surrogates.regression.NearestScene` when the meshes differ)
 - ``poly2``, ``rbf``: per-node regressions of the fields over the design (one shared mesh only)
 - ``kriging``, ``mop``: response surfaces of the OLED objective readings over the scene parameters
-  (:class:`~pcmgn_jax.surrogates.surfaces.ObjectiveSurface`; any meshes), scored directly on the objective; on
-  one shared mesh also of the fields (:class:`~pcmgn_jax.surrogates.surfaces.FieldSurface`), whose objective is kept
+  (:class:`~pcmgn_jax.surrogates.surface_kind.ObjectiveSurface`; any meshes), scored directly on the objective; on
+  one shared mesh also of the fields (:class:`~pcmgn_jax.surrogates.surface_kind.FieldSurface`), whose objective is kept
   under ``fields_oled_objective*``; ``mop`` adds ``mop`` (the chosen candidate and every candidate's CoP per reading)
 - ``rom``: POD of the fields on a reference mesh + a GP on the coefficients (:mod:`pcmgn_jax.surrogates.rom`;
   any meshes of one layer list; training stacks of several: one rom per layer list, refusing a query whose
@@ -36,7 +36,7 @@ from pcmgn_jax import metrics
 from pcmgn_jax.surrogates.inputs import shared_mesh
 from pcmgn_jax.surrogates.kinds import KINDS, names
 from pcmgn_jax.surrogates.registry import fit
-from pcmgn_jax.surrogates.response_surfaces import ExtrapolationWarning
+from pcmgn_jax.surrogates.surface_fit import ExtrapolationWarning
 
 BASELINES = names(baseline=True)   # what evaluate scores beside the model, in the registry's order
 SUMMARY_KEYS = ("position_mae_um", "position_rmse_um", "stress_mae_mpa", "stress_rmse_mpa", "penetration_max_um",

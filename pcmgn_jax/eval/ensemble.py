@@ -29,7 +29,7 @@ from scipy.stats import spearmanr
 from pcmgn_jax import markdown, metrics
 from pcmgn_jax.surrogates.inputs import TrainingScenes
 from pcmgn_jax.surrogates.registry import fit
-from pcmgn_jax.surrogates.response_surfaces import Kriging, objective_table
+from pcmgn_jax.surrogates.surface_fit import fit_gp, objective_table
 
 
 def spearman(spread, error) -> dict:
@@ -63,7 +63,7 @@ class ResidualSpread:
         self.scenes = TrainingScenes(train)
         truth = objective_table(train, (reading,), part=part)[reading]
         self.residual_mpa = truth - np.asarray(f_train, float)
-        self.gp = Kriging(self.scenes.x, {"r": self.residual_mpa}, names=self.scenes.names)
+        self.gp = fit_gp(self.scenes.x, {"r": self.residual_mpa}, names=self.scenes.names)
 
     @property
     def warnings(self) -> list:

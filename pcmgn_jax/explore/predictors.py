@@ -16,9 +16,9 @@ import warnings
 
 import numpy as np
 
-from pcmgn_jax import metrics
 from pcmgn_jax.explore.types import Prediction
 from pcmgn_jax.surrogates.kinds import KINDS
+from pcmgn_jax.surrogates.objective import objective_of_fields
 from pcmgn_jax.surrogates.registry import fit
 
 
@@ -50,16 +50,12 @@ def predict_one(kind: str, model, q, *, reading: str, part: int, lock=None, spre
     note = ""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        if spec.objective_surface:
-            if spec.std:
-                mean, sd = model.objectives([q], return_std=True)
-                std = float(sd[reading][0])
-                note = "± GP posterior std"
-            else:
-                mean = model.objectives([q])
-                note = f"objective surface ({model.objective.model.choice[reading]})" + \
-                    ("; no fields" if model.fields is None else "")
-            obj = float(mean[reading][0])
+        if spec.objective_surface:   # its own objective, not its fields' (the same call answers every kind)
+            got = model.predict_objective([q], reading=reading, part=part, return_std=spec.std)
+            obj, std = (float(got[0][0]), float(got[1][0])) if spec.std else (float(got[0]), None)
+            note = "± GP posterior std" if spec.std else \
+                f"objective surface ({model.objective.model.choice[reading]})" + \
+                ("; no fields" if model.fields is None else "")
         if has_fields(kind, model):
             with lock if lock is not None else contextlib.nullcontext():
                 pu, pv = model.predict_trajectories([q])
@@ -70,5 +66,5 @@ def predict_one(kind: str, model, q, *, reading: str, part: int, lock=None, spre
     if u is not None:
         u, vm = np.asarray(u, np.float64), np.asarray(vm, np.float64)
     if obj is None and vm is not None:
-        obj = float(metrics.oled_objective_of(q, vm, part=part, reading=reading))
+        obj = float(objective_of_fields([q], [vm], part=part, reading=reading)[0])
     return Prediction(kind, obj, std, u, vm, time.perf_counter() - t0, note)

@@ -19,8 +19,8 @@ before it stay in the log.
 Surrogates over the parameter rows (design variables, then the case's parameters), each giving a mean
 and a spread per row [MPa]:
 
-- ``kriging``  the GP response surface (:class:`~pcmgn_jax.surrogates.response_surfaces.Kriging`), its posterior std
-- ``auto``     MOP's choice by leave-one-out CoP (:class:`~pcmgn_jax.surrogates.response_surfaces.MOP`) for the mean,
+- ``kriging``  the GP response surface (:class:`~pcmgn_jax.surrogates.surface_fit.Kriging`), its posterior std
+- ``auto``     MOP's choice by leave-one-out CoP (:class:`~pcmgn_jax.surrogates.surface_fit.MOP`) for the mean,
                the kriging std for the spread; the CoP table goes to the round's log
 - ``mgn``      a trained model's prediction (``base``) plus a GP on the solver's residuals from it: the
                model corrected where the solver has answered, its spread the residual GP's std
@@ -32,7 +32,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
@@ -43,7 +42,7 @@ from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.opt import acquisition as acq
 from pcmgn_jax.opt.problem import DesignBox
 from pcmgn_jax.surrogates.kinds import choices
-from pcmgn_jax.surrogates.response_surfaces import MOP, ExtrapolationWarning, Kriging
+from pcmgn_jax.surrogates.surface_fit import fit_gp, fit_surface
 
 # the loop's surrogates: the kinds with ``active`` (pcmgn_jax/surrogates/kinds.py), fitted here over parameter
 # rows (the solver's answers), and ``auto`` (MOP's mean, kriging's spread)
@@ -159,17 +158,6 @@ class Problem:
 
 
 # ---- surrogates over parameter rows --------------------------------------------------------------------
-def _quiet(fn, *a, **kw):
-    """Fit a response surface that does not record queries outside its samples' span: the candidates leave
-    the span of a few samples all the time here, by design (the acquisition's std accounts for it)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", ExtrapolationWarning)
-        out = fn(*a, **kw)
-    if hasattr(out, "box"):
-        out.box.checking = False
-    return out
-
-
 def fit_surrogate(kind: str, rows, values, names: Sequence[str], base: Callable | None = None):
     """(predict(rows) -> (mean (Q,), std (Q,)) [MPa], info dict) of surrogate ``kind`` fitted on
     rows (n, P) [SI] and solver values (n,) [MPa] (module docstring); ``base``: rows -> (n,) for ``mgn``."""
@@ -179,14 +167,14 @@ def fit_surrogate(kind: str, rows, values, names: Sequence[str], base: Callable 
         if base is None:
             raise ValueError("surrogate 'mgn': needs a trained model's prediction (base)")
         b = np.asarray(base(X), float)
-        k = _quiet(Kriging, X, {"f": y - b}, names=names)
+        k = fit_gp(X, {"f": y - b}, names=names, checking=False)
         info["residual_rms_mpa"] = float(np.sqrt(np.mean((y - b) ** 2)))
 
         def predict(q):
             m, s = k.predict(q, return_std=True)
             return np.asarray(base(q), float) + m["f"], s["f"]
         return predict, info
-    k = _quiet(Kriging, X, {"f": y}, names=names)
+    k = fit_gp(X, {"f": y}, names=names, checking=False)
     if kind == "kriging":
         def predict(q):
             m, s = k.predict(q, return_std=True)
@@ -194,11 +182,11 @@ def fit_surrogate(kind: str, rows, values, names: Sequence[str], base: Callable 
         return predict, info
     if kind != "auto":
         raise ValueError(f"surrogate must be one of {ACTIVE_SURROGATES}, got {kind!r}")
-    mop = _quiet(MOP, X, {"f": y}, names=names)
+    mop = fit_surface("mop", X, {"f": y}, names=names, checking=False)
     info["mop"] = mop.report()["f"]
 
     def predict(q):
-        return _quiet(mop.predict, q)["f"], k.predict(q, return_std=True)[1]["f"]
+        return mop.predict(q)["f"], k.predict(q, return_std=True)[1]["f"]
     return predict, info
 
 

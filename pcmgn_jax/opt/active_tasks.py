@@ -39,7 +39,7 @@ from pcmgn_jax.sim.design_map import DesignMap
 from pcmgn_jax.surrogates.inputs import TrainingScenes, design_of
 from pcmgn_jax.surrogates.mgn import run_splits
 from pcmgn_jax.surrogates.registry import fit
-from pcmgn_jax.surrogates.response_surfaces import objective_table
+from pcmgn_jax.surrogates.surface_fit import objective_table
 
 # the best solver-checked design known in the paper's box on the cpu mesh, re-solved by box_problem
 REFERENCE_UM = (150.0, 100.0)

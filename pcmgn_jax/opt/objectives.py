@@ -142,7 +142,7 @@ class FieldObjective:
 
 class SurfaceObjective(FieldObjective):
     """The objective read straight off a response surface of it (``kriging`` | ``mop``,
-    :class:`pcmgn_jax.surrogates.surfaces.ObjectiveSurface` fitted for this reading over the design):
+    :class:`pcmgn_jax.surrogates.surface_kind.ObjectiveSurface` fitted for this reading over the design):
     what a DOE tool optimises. Cache, resume and finite-difference gradient as :class:`FieldObjective`."""
 
     def __init__(self, surface, design_map: DesignMap, **kw):

@@ -25,7 +25,7 @@ from pcmgn_jax.opt.objectives import MGNObjective
 from pcmgn_jax.surrogates.inputs import design_of
 from pcmgn_jax.surrogates.kinds import KINDS, names
 from pcmgn_jax.surrogates.registry import fit
-from pcmgn_jax.surrogates.response_surfaces import ExtrapolationWarning, Kriging, objective_table
+from pcmgn_jax.surrogates.surface_fit import ExtrapolationWarning, fit_gp, objective_table
 
 SPREAD_OF = names(std=True)[0]   # the kind whose posterior std stands in for those without a spread (kriging)
 
@@ -55,7 +55,7 @@ def optimum_spread(surrogate: str, obj, x, train: Sequence, *, part: int, readin
         d = np.stack([design_of(t) for t in train])
         truth = objective_table(train, (reading,), part=part)[reading]
         resid = truth - np.asarray(obj(d), float)
-        gp = Kriging(d, {"r": resid}, names=[f"design[{i}]" for i in range(d.shape[1])])
+        gp = fit_gp(d, {"r": resid}, names=[f"design[{i}]" for i in range(d.shape[1])])
         m, sd = gp.predict(x, return_std=True)
     return {"std_mpa": float(sd["r"][0]), "source": "GP of the model's residuals on the training designs",
             "residual_mean_mpa": float(m["r"][0]), "train_residual_rms_mpa": float(np.sqrt(np.mean(resid ** 2)))}

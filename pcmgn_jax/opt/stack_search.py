@@ -69,9 +69,7 @@ class StackObjective(FieldObjective):
             if KINDS[self.kind].objective_surface:
                 surface = self.surrogate.objective
                 return np.asarray(surface.predict(_surface_inputs(surface, self.box, d))[self.reading], float)
-            qs = self.queries(d)
-            _, vms = self.surrogate.predict_trajectories(qs)
-        return np.array([float(metrics.oled_objective_of(q, vm, reading=self.reading)) for q, vm in zip(qs, vms)])
+            return np.asarray(self.surrogate.predict_objective(self.queries(d), reading=self.reading), float)
 
     def value_and_grad(self, designs):
         raise ValueError("a stack search has no gradient (every candidate has its own mesh): use --method ga")

@@ -3,7 +3,12 @@
     from pcmgn_jax.surrogates.registry import fit
     s = fit("rom", train)                      # any kind of KINDS (registry.fit: which family fits it)
     us, vms = s.predict_trajectories(test)     # fields on each query's own mesh: lists (T, N, 2) [m], (T, N) [Pa]
+    f = s.predict_objective(test, reading="area_mean")   # (B,) [MPa]: every kind, fields kinds by their fields
     s.fit_seconds, s.warnings
+
+What a kind cannot answer (an objective surface asked for fields, the one-pass model for per-frame fields, a
+kind without a posterior std for one) it refuses through the same call with :class:`CannotAnswer`, naming
+the kind and what it cannot answer.
 
 Every list of predictors in the project is a subset of :data:`KINDS` chosen by one of its fields
 (:func:`names`): evaluate's baselines (``baseline``), the explorer's predictors (``explore``), the
@@ -23,8 +28,10 @@ class Kind:
     and where it is used.
 
     ``fields``: where it predicts fields: 'any' (each query on its own mesh), 'shared' (one shared mesh
-    of training and queries), '' (no fields: objective readings only). ``objective_surface``: it predicts
-    the objective readings directly (a response surface), not through fields. ``std``: its objective comes
+    of training and queries), '' (no fields: objective readings only). ``objective_surface``: it reads
+    the objective off a response surface over the parameters, not off its fields (every kind answers
+    ``predict_objective``; this says how: the optimiser reads such a kind at parameter rows without meshing, and
+    evaluation reports its objective and field surfaces apart). ``std``: its objective comes
     with a posterior std. ``rank``: the explorer's preference (lower first: its default predictor and the
     order of the field figures). ``floor``: a reference floor (zero fields), never a default."""
 
@@ -94,17 +101,33 @@ def kind(name: str) -> Kind:
     return KINDS[name]
 
 
+class CannotAnswer(ValueError):
+    """A fitted kind asked for what it does not predict (fields of an objective surface, per-frame fields of the
+    one-pass model, a std of a kind without one): the one refusal of the :class:`Surrogate` calls. ``kind``:
+    the kind's name; ``what``: what it cannot answer; ``why``: the reason (and what it answers instead)."""
+
+    def __init__(self, kind: str, what: str, why: str = ""):
+        self.kind, self.what, self.why = kind, what, why
+        super().__init__(f"{kind}: cannot answer {what}" + (f": {why}" if why else ""))
+
+
 @runtime_checkable
 class Surrogate(Protocol):
-    """What a fitted kind offers (a method that does not apply raises ValueError saying why).
+    """What a fitted kind offers; a call it cannot answer raises :class:`CannotAnswer` (a ValueError) naming
+    the kind and what it cannot answer.
 
     - ``predict_trajectories(trajs)`` -> (u list of (T, N_b, 2) [m], vm list of (T, N_b) [Pa]), each on the
       query trajectory's own mesh, at its design / scene parameters
     - ``predict(designs_m)`` -> (u (B, T, N, 2) [m], vm (B, T, N) [Pa]) at designs (B, D) [m] (the
       thicknesses of the scene's design layers) on the training mesh (or each design's own mesh: mgn)
-    - ``objectives(trajs, return_std=False)`` -> {reading: (B,) [MPa]} (and stds): the OLED objective
-      readings at the trajectories' scenes (response surfaces; field kinds score their fields instead)
+    - ``predict_objective(trajs, *, reading, part=None, return_std=False)`` -> (B,) [MPa] (with ``return_std``:
+      (mean, std) (B,) each [MPa]): the OLED objective ``reading`` at the trajectories' scenes, read off the
+      kind's objective surface or scored on its fields on each query's mesh (:mod:`objective`); ``part``: the
+      OLED part id (None: found by name)
     - ``fit_seconds`` [s], ``warnings`` (queries outside the training box so far, strings for metrics.json)
+
+    A new kind: a row of :data:`KINDS` and its family's ``fit`` (:mod:`registry`); a fields kind inherits
+    ``predict_objective`` from :class:`~pcmgn_jax.surrogates.objective.FromFields`.
     """
 
     name: str
@@ -114,3 +137,6 @@ class Surrogate(Protocol):
     def predict_trajectories(self, trajs: Sequence): ...
 
     def predict(self, designs_m): ...
+
+    def predict_objective(self, trajs: Sequence, *, reading: str, part: int | None = None,
+                          return_std: bool = False): ...

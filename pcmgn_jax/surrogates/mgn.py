@@ -26,6 +26,8 @@ from pcmgn_jax.scene import Scene
 from pcmgn_jax.sim.initial import initial_velocity
 from pcmgn_jax.sim.mesh import build_mesh, roi
 from pcmgn_jax.surrogates.correction import ball_path, corrected, rigid_contact
+from pcmgn_jax.surrogates.kinds import CannotAnswer
+from pcmgn_jax.surrogates.objective import FromFields
 
 
 def run_splits(workdir: str | Path):
@@ -39,7 +41,7 @@ def run_splits(workdir: str | Path):
     return (cfg, *load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train, n_val=cfg.n_val, n_test=cfg.n_test))
 
 
-class MGNSurrogate:
+class MGNSurrogate(FromFields):
     """The trained MGN of a run directory as a surrogate (rollout from each design's initial state).
 
     Many designs roll out ``batch`` at a time as one padded disjoint-union graph
@@ -133,9 +135,10 @@ class MGNSurrogate:
 
     def _whole_fields_only(self, what: str):
         if self.residual_of:
-            raise ValueError(f"MGNSurrogate.{what}: this run predicts the {self.residual_of} baseline's residual "
-                             f"(residual_of={self.residual_of!r}), which needs each query's scene parameters: "
-                             "use rollout_trajectories with trajectories that carry them")
+            raise CannotAnswer(self.name, f"fields without the queries' scenes (MGNSurrogate.{what})",
+                               f"this run predicts the {self.residual_of} baseline's residual (residual_of="
+                               f"{self.residual_of!r}), which needs each query's scene parameters: use "
+                               "rollout_trajectories with trajectories that carry them")
 
     def _baseline_fields(self, trajs):
         """A ``residual_of`` run's baseline fields (u list, vm list) on ``trajs``; the baseline is fitted

@@ -17,8 +17,10 @@ from typing import Sequence
 
 import numpy as np
 
-from pcmgn_jax.metrics import OBJECTIVES, objective_weights, oled_objective
+from pcmgn_jax.metrics import DEFAULT_OBJECTIVE, OBJECTIVES, objective_weights, oled_objective
 from pcmgn_jax.mgn import onepass as op
+from pcmgn_jax.surrogates.kinds import CannotAnswer
+from pcmgn_jax.surrogates.objective import check_reading
 
 PER_FRAME = "the per-frame fields (displacement (T, N, 2) and von_mises (T, N) of every frame)"
 
@@ -55,27 +57,37 @@ class OnePassSurrogate:
         self.predict_seconds = time.perf_counter() - t0
         return {name: [f[:, k] for f in out] for k, name in enumerate(op.TARGETS)}
 
-    def objectives(self, trajs, *, return_std: bool = False) -> dict[str, np.ndarray]:
-        """{reading: (B,) [MPa]} at each trajectory's design, from the predicted time fields."""
+    def objectives(self, trajs, *, return_std: bool = False, readings: Sequence[str] | None = None,
+                   part: int | None = None) -> dict[str, np.ndarray]:
+        """{reading: (B,) [MPa]} at each trajectory's design, from the predicted time fields (``readings``
+        default: the fitted ones; ``part`` default: the fitted part, else the run's found by name)."""
         if return_std:
-            raise ValueError("onepass: no posterior std (kriging has one)")
+            raise CannotAnswer(self.name, "a posterior std of the objective", "kriging has one")
         trajs = list(trajs)
+        readings = self.readings if readings is None else tuple(readings)
         fields = self.time_fields(trajs)
-        out = {r: [] for r in self.readings}
+        out = {r: [] for r in readings}
+        part = self.part if part is None else part
         for t, mean, peak in zip(trajs, fields["mean_von_mises"], fields["peak_von_mises"]):
-            part = op.part_id(t, self.run.cfg.objective_part) if self.part is None else self.part
-            for r in self.readings:
-                w = objective_weights(t.points, t.cells, t.cell_part, t.node_part, part=part, reading=r)
+            pid = op.part_id(t, self.run.cfg.objective_part) if part is None else part
+            for r in readings:
+                w = objective_weights(t.points, t.cells, t.cell_part, t.node_part, part=pid, reading=r)
                 out[r].append(float(oled_objective((peak if r == "peak" else mean)[None], w, reading=r)))
         return {r: np.asarray(v) for r, v in out.items()}
 
+    def predict_objective(self, trajs, *, reading: str = DEFAULT_OBJECTIVE, part: int | None = None,
+                          return_std: bool = False) -> np.ndarray:
+        """(B,) [MPa]: the objective ``reading`` of each trajectory's design from the predicted time fields."""
+        check_reading(self.name, reading)
+        return self.objectives(trajs, return_std=return_std, readings=(reading,), part=part)[reading]
+
     def predict_trajectories(self, trajs):
-        raise ValueError(f"onepass: predicts the time-mean and peak von Mises and the peak deflection of each node "
-                         f"(time_fields) and the objective from them (objectives), not {PER_FRAME}")
+        raise CannotAnswer(self.name, PER_FRAME, "it predicts the time-mean and peak von Mises and the peak "
+                           "deflection of each node (time_fields) and the objective from them (predict_objective)")
 
     def predict(self, designs_m):
-        raise ValueError(f"onepass: predicts no fields at designs alone and not {PER_FRAME}; use objectives(trajs) "
-                         "or time_fields(trajs) with the designs' trajectories (their meshes and initial states)")
+        raise CannotAnswer(self.name, f"fields at designs alone, or {PER_FRAME}", "use predict_objective(trajs) "
+                           "or time_fields(trajs) with the designs' trajectories (their meshes and initial states)")
 
 
 def fit(kind: str, train_trajs=(), *, workdir, which: str = "best", readings: Sequence[str] = OBJECTIVES,

@@ -19,18 +19,21 @@ take are refused (TypeError):
 
 To add a predictor: a :class:`~pcmgn_jax.surrogates.kinds.Kind` row in :data:`KINDS` (its name, label, family
 and where it is used) and, for a new family, a module with ``fit(kind, train, **options)`` returning an
-object with the :class:`~pcmgn_jax.surrogates.kinds.Surrogate` methods, named in :data:`FITTERS`.
+object with the :class:`~pcmgn_jax.surrogates.kinds.Surrogate` methods, named in :data:`FITTERS`: a fields kind
+subclasses :class:`~pcmgn_jax.surrogates.objective.FromFields` for ``predict_objective``; what it cannot answer
+it refuses with :class:`~pcmgn_jax.surrogates.kinds.CannotAnswer` (``tests/surrogates/test_interface.py`` fits a
+toy kind so, and checks every kind of :data:`KINDS` answers or refuses).
 """
 from __future__ import annotations
 
 from typing import Sequence
 
-from pcmgn_jax.surrogates import mgn, onepass, regression, rom, surfaces
+from pcmgn_jax.surrogates import mgn, onepass, regression, rom, surface_kind
 from pcmgn_jax.surrogates.kinds import KINDS, Kind, Surrogate, kind, names
 
 __all__ = ["FITTERS", "KINDS", "Kind", "Surrogate", "fit", "kind", "names"]
 
-FITTERS = {"regression": regression.fit, "surface": surfaces.fit, "rom": rom.fit, "mgn": mgn.fit,
+FITTERS = {"regression": regression.fit, "surface": surface_kind.fit, "rom": rom.fit, "mgn": mgn.fit,
            "time_fields": onepass.fit}  # by Kind.family
 
 

@@ -32,7 +32,8 @@ import numpy as np
 from scipy.interpolate import RBFInterpolator
 
 from pcmgn_jax.surrogates.inputs import design_of, part_names_of, scene_vector, shared_mesh
-from pcmgn_jax.surrogates.kinds import names
+from pcmgn_jax.surrogates.kinds import CannotAnswer, names
+from pcmgn_jax.surrogates.objective import FromFields
 from pcmgn_jax.surrogates.transfer import transfer_fields
 
 REGRESSION_KINDS = names(family="regression")
@@ -53,7 +54,7 @@ def fit(kind: str, train_trajs: Sequence, *, queries: Sequence = (), readings=No
                      f"{n_train[0]}..{n_train[-1]}, test {sorted({t.n_nodes for t in queries})})")
 
 
-class NearestScene:
+class NearestScene(FromFields):
     """Baselines across meshes: the nearest training scene (scene parameters scaled to [-1, 1] over the
     training box, Euclidean) among those with the query's layers (:func:`part_names_of`; fields map part by
     part, so a stack of other layers has none: ValueError naming it), its fields carried over to each test
@@ -77,8 +78,8 @@ class NearestScene:
         return 2 * (np.asarray(d, np.float64) - self.lo) / np.where(self.hi > self.lo, self.hi - self.lo, 1.0) - 1
 
     def predict(self, designs_m):
-        raise ValueError(f"{self.name}: the training meshes differ, so a design alone names no mesh to predict on: "
-                         "use predict_trajectories with trajectories on their own meshes")
+        raise CannotAnswer(self.name, "fields at designs alone", "the training meshes differ, so a design names no "
+                           "mesh to predict on: use predict_trajectories with trajectories on their own meshes")
 
     def nearest(self, traj) -> int:
         names, v = scene_vector(traj)
@@ -114,7 +115,7 @@ def _fields(trajs) -> np.ndarray:
                      for t in trajs])
 
 
-class FieldRegression:
+class FieldRegression(FromFields):
     """A baseline fitted on training trajectories of one topology (see the module docstring)."""
 
     def __init__(self, kind: str, train_trajs: Sequence):

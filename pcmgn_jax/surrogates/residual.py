@@ -40,7 +40,7 @@ from typing import Sequence
 from pcmgn_jax.surrogates.correction import residual_trajectories
 from pcmgn_jax.surrogates.kinds import names
 from pcmgn_jax.surrogates.registry import fit
-from pcmgn_jax.surrogates.response_surfaces import ExtrapolationWarning
+from pcmgn_jax.surrogates.surface_fit import ExtrapolationWarning
 
 
 def fit_baseline(kind: str, train_trajs: Sequence):

@@ -11,9 +11,9 @@ mesh), its stack form (:class:`StackRom`) and ``rom_contact`` (:class:`RomContac
 2. Snapshots: per scene the row [u / s_u, vm / s_vm] of every frame and reference node (T·N·3 values);
    s_u [m] and s_vm [Pa] are the RMS of the centred u and vm snapshots (1 where a field never varies),
    so the two fields are each O(1).
-3. POD + GP (:class:`response_surfaces.PodGP`): SVD of the centred snapshots, the fewest modes holding
+3. POD + GP (:class:`surface_fit.PodGP`): SVD of the centred snapshots, the fewest modes holding
    :data:`POD_ENERGY` of sum S², one GP with the kriging kernel on their coefficients over the scene
-   parameters scaled to [-1, 1] (:class:`response_surfaces.ParameterBox`).
+   parameters scaled to [-1, 1] (:class:`surface_fit.ParameterBox`).
 4. Prediction: the GP mean at a query's scene parameters, unscaled, carried from the reference mesh to
    the query's mesh by :func:`transfer.transfer_fields` (the identity when it is the reference mesh).
 """
@@ -27,7 +27,9 @@ import numpy as np
 
 from pcmgn_jax.surrogates.correction import rigid_contact
 from pcmgn_jax.surrogates.inputs import TrainingScenes, part_names_of, trajectory_labels
-from pcmgn_jax.surrogates.response_surfaces import ParameterBox, PodGP, not_applicable
+from pcmgn_jax.surrogates.kinds import CannotAnswer
+from pcmgn_jax.surrogates.objective import FromFields
+from pcmgn_jax.surrogates.surface_fit import ParameterBox, PodGP, not_applicable
 from pcmgn_jax.surrogates.transfer import transfer_fields
 
 POD_ENERGY = 0.9999   # fraction of the centred snapshots' energy (sum of squared singular values) kept
@@ -39,7 +41,7 @@ def _spread(a: np.ndarray) -> float:
     return s if s > 0 else 1.0
 
 
-class Rom:
+class Rom(FromFields):
     """POD of training fields on a reference mesh + a GP on the coefficients (module docstring).
     Attributes: ``names`` the scene parameters, ``ref`` the reference trajectory, ``pod`` the fitted
     :class:`PodGP` (``n_modes``, ``energy_kept``), ``u_scale`` [m], ``vm_scale`` [Pa], ``fit_seconds``,
@@ -73,7 +75,8 @@ class Rom:
         return int(self.pod.n_modes)
 
     def predict(self, designs_m):
-        raise ValueError(f"{self.name}: predicts trajectories (their scene parameters and meshes), not designs")
+        raise CannotAnswer(self.name, "fields at designs alone",
+                           "it predicts trajectories (their scene parameters and meshes): use predict_trajectories")
 
     def _check_frames(self, trajs):
         for label, t in zip(trajectory_labels(trajs), trajs):
@@ -117,7 +120,7 @@ class Rom:
         return us, vms
 
 
-class StackRom:
+class StackRom(FromFields):
     """The rom where meshes map: one :class:`Rom` per layer list of the training scenes (a stack family),
     each fitted on the training scenes with that list when a query first needs it; a query whose layer list
     no training scene has raises ValueError (``rom: the meshes do not map``). ``fit_seconds`` sums the fits,
@@ -164,7 +167,7 @@ def fit_rom(train_trajs: Sequence, *, energy: float = POD_ENERGY) -> Rom | Stack
         else StackRom(train_trajs, energy=energy)
 
 
-class RomContact:
+class RomContact(FromFields):
     """``rom_contact``: the rom's fields with the MGN rollout's hard contact (a rigid ball, the cover glass
     projected out of it: :func:`correction.rigid_contact`), so a baseline-corrected MGN (``residual_of=rom``)
     is measured against what the constraint alone gives. ``pod_modes``, ``warnings``, ``fit_seconds``: the rom's."""

@@ -126,7 +126,7 @@ def test_role_identity_refuses_per_layer_features():
 
 
 def test_kriging_and_mop_on_the_padded_vector_recover_a_known_function():
-    from pcmgn_jax.surrogates.response_surfaces import fit_surface
+    from pcmgn_jax.surrogates.surface_fit import fit_surface
     fam = STACK_FAMILIES["stack"]
     names = list(fam.names)
     x, q = fam.sample(60, 0), fam.sample(20, 5)

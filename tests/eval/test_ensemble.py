@@ -57,7 +57,7 @@ def test_an_optimum_carries_its_spread(tiny_trajs):
     from pcmgn_jax.metrics import oled_objective_of
     from pcmgn_jax.opt.spread import optimum_spread
     from pcmgn_jax.surrogates.inputs import design_of
-    from pcmgn_jax.surrogates.surfaces import ObjectiveSurface
+    from pcmgn_jax.surrogates.surface_kind import ObjectiveSurface
     train = tiny_trajs[:3]
     truth = {float(design_of(t)[0]): float(oled_objective_of(t, part=1)) for t in train}
 
@@ -84,7 +84,7 @@ def test_residual_spread_corrects_a_smooth_bias_and_reports_each_prediction(tiny
     correction to a held-out design (corrected error ~0), and the record names every design with its
     objective, ± and error. A perfect model has zero residuals."""
     from pcmgn_jax.eval.ensemble import ResidualSpread, residual_spread_record
-    from pcmgn_jax.surrogates.response_surfaces import objective_table
+    from pcmgn_jax.surrogates.surface_fit import objective_table
     train, test = tiny_trajs[:3], tiny_trajs[3:]
     truth_tr = objective_table(train, ("area_mean",), part=1)["area_mean"]
     truth_te = objective_table(test, ("area_mean",), part=1)["area_mean"]

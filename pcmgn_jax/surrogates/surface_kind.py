@@ -1,7 +1,9 @@
-"""The surface family: ``kriging`` and ``mop`` over trajectories (:mod:`response_surfaces` has the fits).
+"""The adapter of the surface family: the ``kriging`` and ``mop`` kinds over trajectories, for the registry and
+the :class:`~pcmgn_jax.surrogates.kinds.Surrogate` calls (the numerical fits are :mod:`surface_fit`).
 
     s = fit("mop", train_trajs)                  # registry.fit("mop", train_trajs) does the same
-    s.objectives(test_trajs)                     # {reading: (B,) [MPa]}: the objective surface
+    s.predict_objective(test_trajs, reading="area_mean")   # (B,) [MPa]: the objective surface
+    s.objectives(test_trajs)                     # {reading: (B,) [MPa]}: every fitted reading
     s.predict_trajectories(test_trajs)           # fields, from the field surface (one shared mesh only)
 
 - :class:`ObjectiveSurface`: the OLED objective readings [MPa] over the training trajectories' scene
@@ -16,10 +18,12 @@ from typing import Sequence
 
 import numpy as np
 
-from pcmgn_jax.metrics import OBJECTIVES
+from pcmgn_jax.metrics import DEFAULT_OBJECTIVE, OBJECTIVES
 from pcmgn_jax.surrogates.inputs import TrainingScenes, design_of, shared_mesh, trajectory_labels
+from pcmgn_jax.surrogates.kinds import CannotAnswer
+from pcmgn_jax.surrogates.objective import check_reading
 from pcmgn_jax.surrogates.regression import FieldRegression
-from pcmgn_jax.surrogates.response_surfaces import fit_surface, objective_table
+from pcmgn_jax.surrogates.surface_fit import fit_surface, objective_table
 
 
 class ObjectiveSurface:
@@ -30,7 +34,7 @@ class ObjectiveSurface:
                  part: int | None = None):
         if not train_trajs:
             raise ValueError(f"{kind}: a response surface needs training trajectories")
-        self.name, self.scenes = kind, TrainingScenes(train_trajs)
+        self.name, self.scenes, self.part = kind, TrainingScenes(train_trajs), part
         self.names = self.scenes.names
         self.model = fit_surface(kind, self.scenes.x, objective_table(train_trajs, readings, part=part),
                                  names=self.names)
@@ -106,12 +110,26 @@ class Surface:
     def objectives(self, trajs, *, return_std: bool = False):
         """{reading: (B,) [MPa]} at each trajectory's scene parameters (``return_std``: (means, stds), kriging)."""
         if self.objective is None:
-            raise ValueError(f"{self.name}: no objective surface: {self.objective_not_applicable}")
+            raise CannotAnswer(self.name, "the objective", f"no objective surface: {self.objective_not_applicable}")
+        if return_std and self.name != "kriging":
+            raise CannotAnswer(self.name, "a posterior std of the objective", "kriging has one")
         return self.objective.predict_trajectories(trajs, **({"return_std": True} if return_std else {}))
+
+    def predict_objective(self, trajs, *, reading: str = DEFAULT_OBJECTIVE, part: int | None = None,
+                          return_std: bool = False):
+        """(B,) [MPa] of the objective ``reading`` at each trajectory's scene parameters, read off the objective
+        surface (``return_std``: (mean, std), kriging); CannotAnswer for a reading or ``part`` it was not fitted for."""
+        got = self.objectives(trajs, return_std=return_std)
+        check_reading(self.name, reading, tuple(got[0] if return_std else got))
+        if part is not None and self.objective.part is not None and part != self.objective.part:
+            raise CannotAnswer(self.name, f"the objective of part {part}",
+                               f"its surface was fitted for part {self.objective.part}")
+        return tuple(g[reading] for g in got) if return_std else got[reading]
 
     def _field_surface(self) -> FieldSurface:
         if self.fields is None:
-            raise ValueError(f"{self.name}: no field surface (fitted on one shared mesh only, when asked for)")
+            raise CannotAnswer(self.name, "fields", "it is an objective surface; its field surface is fitted on one "
+                               "shared mesh only, when asked for (fields=True)")
         return self.fields
 
     def predict(self, designs_m):

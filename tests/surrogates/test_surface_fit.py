@@ -1,4 +1,4 @@
-"""pcmgn_jax.surrogates.response_surfaces (kriging, MOP with CoP) and pcmgn_jax.surrogates.rom against known answers."""
+"""pcmgn_jax.surrogates.surface_fit (kriging, MOP with CoP) and pcmgn_jax.surrogates.rom against known answers."""
 import dataclasses
 import warnings
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fixtures.helpers import drop_last_column, make_synthetic_trajectory
-from pcmgn_jax.surrogates import response_surfaces as rs, surfaces
+from pcmgn_jax.surrogates import surface_fit as rs, surface_kind
 from pcmgn_jax.surrogates.regression import FieldRegression
 from pcmgn_jax.surrogates.rom import POD_ENERGY, Rom
 
@@ -70,18 +70,18 @@ def test_field_surfaces_on_a_shared_mesh(tiny_trajs):
     """The synthetic fields are linear in the design: MOP picks linear and predicts a new design exactly."""
     truth = make_synthetic_trajectory(1.0)
     d = FieldRegression("none", [truth]).x
-    mop = surfaces.FieldSurface("mop", tiny_trajs)
+    mop = surface_kind.FieldSurface("mop", tiny_trajs)
     assert mop.model.choice == {"u": "linear", "vm": "linear"}
     u, vm = mop.predict(d)
     assert u.shape == (1,) + truth.displacement.shape and vm.shape == (1,) + truth.von_mises.shape
     np.testing.assert_allclose(u[0], truth.displacement, atol=1e-9 * np.abs(truth.displacement).max())
     np.testing.assert_allclose(vm[0], truth.von_mises, atol=1e-9 * truth.von_mises.max())
-    k = surfaces.FieldSurface("kriging", tiny_trajs)
+    k = surface_kind.FieldSurface("kriging", tiny_trajs)
     u, vm = k.predict(d)
     assert np.abs(u[0] - truth.displacement).max() < 0.02 * np.abs(truth.displacement).max()
     assert np.abs(vm[0] - truth.von_mises).max() < 0.02 * truth.von_mises.max()
     assert k.predict_std(d)[0].shape == u.shape and not k.warnings
-    s = surfaces.ObjectiveSurface("mop", tiny_trajs, readings=("area_mean",), part=1)
+    s = surface_kind.ObjectiveSurface("mop", tiny_trajs, readings=("area_mean",), part=1)
     got = s.predict_trajectories([truth])["area_mean"]
     assert got == pytest.approx(rs.objective_table([truth], ("area_mean",), part=1)["area_mean"], rel=1e-9)
 
@@ -125,7 +125,7 @@ def test_rom_missing_parameter_and_out_of_range(family):
     with pytest.raises(ValueError, match=r"no_speed.*'ball\.velocity' missing"):
         rom.predict_trajectories([bad])
     with pytest.raises(ValueError, match="'ball.velocity' missing"):
-        surfaces.ObjectiveSurface("kriging", train, readings=("area_mean",), part=1).predict_trajectories([bad])
+        surface_kind.ObjectiveSurface("kriging", train, readings=("area_mean",), part=1).predict_trajectories([bad])
     fast = _scene(1.0, 6.0, name="too_fast")
     with pytest.warns(rs.ExtrapolationWarning, match="too_fast"):
         us, _ = rom.predict_trajectories([fast])

@@ -1,12 +1,14 @@
-"""Response surfaces of the kind a CAE engineer builds from the same solver runs: kriging and MOP.
+"""The fits: response surfaces of the kind a CAE engineer builds from the same solver runs (kriging, MOP)
+over any parameters x and named quantities; no trajectories, no kinds (the adapter is :mod:`surface_kind`).
 
     k = Kriging(x, {"area_mean": y}, names=names)      # x (B, P) parameters [SI]; y (B,) or (B, M)
     mean, std = k.predict(xq, return_std=True)         # {quantity: (Q,) or (Q, M)} each, y's units
     m = MOP(x, {"area_mean": y}, names=names)          # best of linear / quadratic / rbf / kriging
     m.report()                                         # the CoP of every candidate and the choice
 
-The surfaces over trajectories (the ``kriging`` and ``mop`` kinds: the objective readings over the scene
-parameters, the fields over the design) are :mod:`pcmgn_jax.surrogates.surfaces`. Inputs are scaled to
+The kinds over trajectories (the ``kriging`` and ``mop`` kinds: the objective readings over the scene
+parameters, the fields over the design) are adapted to the registry in :mod:`pcmgn_jax.surrogates.surface_kind`;
+a GP of any other data (a model's residuals, an active loop's samples) is :func:`fit_gp`. Inputs are scaled to
 [-1, 1] over the training box; a parameter constant over the training samples is left out of the inputs
 (:class:`ParameterBox`). Every fit is float64. A query outside the training range of a parameter is
 answered, and recorded: an :class:`ExtrapolationWarning` and a line in the surface's ``warnings`` (a list
@@ -318,8 +320,27 @@ class MOP(_Surface):
 SURFACES = {"kriging": Kriging, "mop": MOP}
 
 
-def fit_surface(kind: str, x, quantities: Mapping[str, np.ndarray], *, names: Sequence[str]) -> _Surface:
-    """A :class:`Kriging` or :class:`MOP` (``kind`` 'kriging' | 'mop') of ``quantities`` over x (B, P) [SI]."""
+def fit_surface(kind: str, x, quantities: Mapping[str, np.ndarray], *, names: Sequence[str] | None = None,
+                checking: bool = True) -> _Surface:
+    """A :class:`Kriging` or :class:`MOP` (``kind`` 'kriging' | 'mop') of ``quantities`` {name: (B,) or (B, M)}
+    over x (B, P) [SI], named ``names`` (default ``x[0]``, ``x[1]``, ...: the names its warnings use).
+    ``checking`` False: queries outside the samples' span are neither warned about nor recorded (where leaving
+    the span is the point, e.g. an active loop's candidates). ValueError naming ``kind`` when it is neither."""
     if kind not in SURFACES:
         raise ValueError(f"response surface must be one of {tuple(SURFACES)}, got {kind!r}")
-    return SURFACES[kind](x, quantities, names=names)
+    if names is None:
+        names = [f"x[{i}]" for i in range(np.shape(x)[1] if np.ndim(x) == 2 else 0)]
+    with _warnings.catch_warnings():
+        if not checking:
+            _warnings.simplefilter("ignore", ExtrapolationWarning)
+        out = SURFACES[kind](x, quantities, names=names)
+    out.box.checking = checking
+    return out
+
+
+def fit_gp(x, quantities: Mapping[str, np.ndarray], *, names: Sequence[str] | None = None,
+           checking: bool = True) -> Kriging:
+    """A kriging GP of arbitrary data: ``quantities`` {name: (B,) or (B, M), any units} over x (B, P) [SI];
+    ``predict(xq, return_std=True)`` gives {name: mean}, {name: std} in the quantities' units. The one way
+    to build a GP outside the kinds (a model's residual GP, an active loop's samples): :func:`fit_surface`."""
+    return fit_surface("kriging", x, quantities, names=names, checking=checking)

@@ -1,0 +1,139 @@
+"""The one surrogate interface: every kind answers the objective (and fields where it has them) through the same
+calls, or refuses with kinds.CannotAnswer naming itself; a new kind is one Kind row and one fit function."""
+import types
+import warnings
+
+import numpy as np
+import pytest
+
+from fixtures.helpers import make_synthetic_trajectory
+from pcmgn_jax.metrics import oled_objective_of
+from pcmgn_jax.surrogates import registry
+from pcmgn_jax.surrogates.kinds import KINDS, CannotAnswer, Kind, Surrogate
+from pcmgn_jax.surrogates.objective import FromFields
+
+PART = 1   # the synthetic set's part that stands in for the OLED
+
+
+@pytest.fixture(scope="module")
+def queries():
+    return [make_synthetic_trajectory(1.0), make_synthetic_trajectory(1.1)]
+
+
+def _truth(queries, reading="area_mean"):
+    return np.array([float(oled_objective_of(q, part=PART, reading=reading)) for q in queries])
+
+
+class _Echo(FromFields):
+    """A toy fields kind: each query's own fields (a perfect predictor), refusing designs alone."""
+
+    def __init__(self, name):
+        self.name, self.fit_seconds, self.warnings = name, 0.0, []
+
+    def predict_trajectories(self, trajs):
+        return [t.displacement for t in trajs], [t.von_mises for t in trajs]
+
+    def predict(self, designs_m):
+        raise CannotAnswer(self.name, "fields at designs alone", "a toy")
+
+
+def test_a_new_kind_is_one_row_and_one_fit(monkeypatch, tiny_trajs, queries):
+    """A newcomer's kind: a Kind row and a fit function (a family of FITTERS); fields and objective come through
+    the protocol (the objective by the shared metric of its fields), what it lacks is refused by name."""
+    monkeypatch.setitem(KINDS, "echo", Kind("echo", "toy echo", "toy", baseline=False, explore=False))
+    monkeypatch.setitem(registry.FITTERS, "toy", lambda name, train, **_: _Echo(name))
+    s = registry.fit("echo", tiny_trajs)
+    assert isinstance(s, Surrogate)
+    us, vms = s.predict_trajectories(queries)
+    assert np.array_equal(vms[1], queries[1].von_mises)
+    np.testing.assert_allclose(s.predict_objective(queries, reading="area_mean", part=PART), _truth(queries))
+    with pytest.raises(CannotAnswer, match=r"echo: cannot answer a posterior std"):
+        s.predict_objective(queries, reading="area_mean", part=PART, return_std=True)
+    with pytest.raises(CannotAnswer, match=r"echo: cannot answer the objective reading 'median'"):
+        s.predict_objective(queries, reading="median", part=PART)
+
+
+def _mgn(queries):
+    """The mgn kind without a run: its class, its rollout replaced by the queries' own fields."""
+    from pcmgn_jax.surrogates.mgn import MGNSurrogate
+    s = object.__new__(MGNSurrogate)
+    s.fit_seconds, s.warnings, s.residual_of = 0.0, [], ""
+    s.rollout_trajectories = lambda trajs: _Echo("mgn").predict_trajectories(trajs)
+    return s
+
+
+def _onepass(queries):
+    """The onepass kind without a run: its class, its run's prediction the queries' own time fields."""
+    from pcmgn_jax.surrogates.onepass import OnePassSurrogate
+    s = object.__new__(OnePassSurrogate)
+    s.readings, s.part, s.fit_seconds, s.warnings = ("area_mean", "peak"), PART, 0.0, []
+
+    def predict(designs):
+        return [np.stack([d["von_mises"].mean(0), d["von_mises"].max(0),
+                          np.linalg.norm(d["displacement"], axis=-1).max(0)], axis=-1) for d in designs]
+    s.run = types.SimpleNamespace(inputs=lambda t: {"von_mises": t.von_mises, "displacement": t.displacement},
+                                  predict=predict, cfg=types.SimpleNamespace(objective_part="OLED"))
+    return s
+
+
+RUNS = {"mgn": _mgn, "time_fields": _onepass}   # the families of trained runs, built here without one
+
+
+@pytest.mark.parametrize("name", list(KINDS))
+def test_every_kind_answers_the_objective_or_refuses_by_name(name, tiny_trajs, queries):
+    """Every registered kind, fitted on the tiny set (a trained run's kind: its class without the run), answers
+    predict_objective (B,) [MPa] finite, its std only where the Kind says so, and fields or CannotAnswer."""
+    spec = KINDS[name]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        s = RUNS[spec.family](queries) if spec.family in RUNS else \
+            registry.fit(name, tiny_trajs, queries=queries, readings=("area_mean",), part=PART)
+        assert isinstance(s, Surrogate)
+        f = s.predict_objective(queries, reading="area_mean", part=PART)
+        assert f.shape == (2,) and np.all(np.isfinite(f))
+        if spec.std:
+            mean, std = s.predict_objective(queries, reading="area_mean", part=PART, return_std=True)
+            np.testing.assert_allclose(mean, f)
+            assert np.all(std >= 0)
+        else:
+            with pytest.raises(CannotAnswer, match=rf"^{name}: cannot answer a posterior std"):
+                s.predict_objective(queries, reading="area_mean", part=PART, return_std=True)
+        if spec.fields:
+            us, vms = s.predict_trajectories(queries)
+            assert [np.shape(v) for v in vms] == [q.von_mises.shape for q in queries]
+        else:
+            with pytest.raises(CannotAnswer, match=rf"^{name}: cannot answer"):
+                s.predict_trajectories(queries)
+    if name == "mgn":   # its (echoed) fields scored by the shared metric: the queries' own objective
+        np.testing.assert_allclose(f, _truth(queries), rtol=1e-6)
+
+
+def test_an_objective_surface_asked_for_fields_refuses_by_name(tiny_trajs, queries):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        s = registry.fit("mop", tiny_trajs, readings=("area_mean",), part=PART, fields=False)
+    assert s.predict_objective(queries, reading="area_mean", part=PART).shape == (2,)
+    with pytest.raises(CannotAnswer, match="mop: cannot answer fields: it is an objective surface"):
+        s.predict_trajectories(queries)
+    with pytest.raises(CannotAnswer, match="mop: cannot answer the objective reading 'peak'"):
+        s.predict_objective(queries, reading="peak", part=PART)
+    with pytest.raises(CannotAnswer, match="mop: cannot answer the objective of part 0"):
+        s.predict_objective(queries, reading="area_mean", part=0)
+
+
+def test_no_response_surface_is_built_outside_the_surrogates():
+    """Kriging / MOP / PodGP are constructed in pcmgn_jax/surrogates only; elsewhere a GP of other data is
+    surface_fit.fit_gp (or fit_surface), a kind's surface registry.fit."""
+    import ast
+
+    from fixtures.helpers import ROOT
+    found = []
+    for folder in ("pcmgn_jax", "experiments", "benchmarks"):
+        for f in sorted((ROOT / folder).rglob("*.py")):
+            if f.parent == ROOT / "pcmgn_jax" / "surrogates":
+                continue
+            for node in ast.walk(ast.parse(f.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.ImportFrom) and (node.module or "").endswith("surface_fit"):
+                    found += [f"{f.relative_to(ROOT)}:{node.lineno} {a.name}" for a in node.names
+                              if a.name in ("Kriging", "MOP", "PodGP", "SURFACES")]
+    assert not found, f"response surfaces built outside pcmgn_jax/surrogates (use surface_fit.fit_gp): {found}"
