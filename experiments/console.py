@@ -7,7 +7,9 @@
 Installed as the ``pcmgn`` script (pyproject.toml ``[project.scripts]``); ``python -m experiments.console``
 is the same command. A subcommand's module is imported only when it runs, so ``pcmgn --help`` reads each
 description (the first sentence of the module's docstring) from the file and imports no jax. Names take
-hyphens or underscores (``optimize-table`` = ``optimize_table``). An unknown name exits with status 2.
+hyphens or underscores (``optimize-table`` = ``optimize_table``). Related commands are grouped where a user
+looks for them (:data:`GROUPS`): ``pcmgn calculix check`` = ``pcmgn calculix_check``, ``pcmgn calculix run``
+= ``pcmgn calculix``. An unknown name exits with status 2.
 """
 from __future__ import annotations
 
@@ -26,6 +28,10 @@ COMMANDS = ("generate", "train", "evaluate", "report", "explore", "optimize", "o
             "panel_report", "hertz_check", "reach", "calculix", "calculix_check", "mesh_series", "calculix_locking",
             "gradient")
 PACKAGE = "experiments"
+# ``pcmgn GROUP SUB`` runs COMMANDS' ``GROUPS[GROUP][SUB]``; ``pcmgn GROUP`` followed by anything else runs
+# the command of the group's own name (``pcmgn calculix --preset tiny``, as before the groups)
+GROUPS = {"calculix": {"run": "calculix", "check": "calculix_check", "locking": "calculix_locking"},
+          "optimize": {"run": "optimize", "table": "optimize_table"}}
 
 
 def _spec(name: str):
@@ -60,7 +66,20 @@ def usage() -> str:
         text = describe(name)
         lines.append(f"  {name:<{width}}  " + (text if text is not None else
                                                 f"(not in this checkout: experiments/{name}.py is missing)"))
+    lines += ["", "groups (the same commands where a user looks for them):"]
+    pairs = [(f"{group} {sub}", name) for group, subs in GROUPS.items() for sub, name in subs.items()]
+    lines += [f"  pcmgn {pair:<{width}}  = pcmgn {name}" for pair, name in pairs]
     return "\n".join(lines)
+
+
+def resolve(argv: Sequence[str]) -> tuple[str, list[str]]:
+    """(command name, its flags) of ``pcmgn ARGV``: a group's subcommand (:data:`GROUPS`) or a command's name,
+    hyphens read as underscores."""
+    name, rest = argv[0].replace("-", "_"), list(argv[1:])
+    subs = GROUPS.get(name, {})
+    if rest and rest[0].replace("-", "_") in subs:
+        return subs[rest[0].replace("-", "_")], rest[1:]
+    return name, rest
 
 
 def _error(message: str) -> int:
@@ -77,7 +96,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not argv or argv[0].startswith("-"):
         print(usage(), file=sys.stderr)
         return _error("no command given" if not argv else f"{argv[0]}: give a command first")
-    name, rest = argv[0].replace("-", "_"), argv[1:]
+    name, rest = resolve(argv)
     if name not in COMMANDS:
         close = difflib.get_close_matches(name, COMMANDS, n=1)
         return _error(f"unknown command {argv[0]!r}" + (f" (did you mean {close[0]!r}?)" if close else "")

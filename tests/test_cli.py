@@ -206,6 +206,23 @@ def test_console_runs_the_entry_points_main(tmp_path, capsys, monkeypatch):
     assert "not_built" in capsys.readouterr().out
 
 
+def test_console_groups_name_their_commands(capsys):
+    """``pcmgn calculix check`` is ``pcmgn calculix_check``; ``pcmgn calculix --flags`` still runs calculix."""
+    from experiments import console
+    assert console.resolve(["calculix", "check", "--x"]) == ("calculix_check", ["--x"])
+    assert console.resolve(["calculix", "run", "--x"]) == ("calculix", ["--x"])
+    assert console.resolve(["calculix", "--preset", "tiny"]) == ("calculix", ["--preset", "tiny"])
+    assert console.resolve(["optimize", "table"]) == ("optimize_table", [])
+    assert console.resolve(["optimize-table"]) == ("optimize_table", [])
+    for subs in console.GROUPS.values():
+        assert set(subs.values()) <= set(console.COMMANDS)
+    with pytest.raises(SystemExit) as exit_:
+        console.main(["optimize", "table", "--help"])
+    assert exit_.value.code == 0 and "--files" in capsys.readouterr().out
+    console.main(["--help"])
+    assert "pcmgn calculix check" in capsys.readouterr().out
+
+
 def test_console_script_entry_point(tmp_path):
     """pyproject names the console script; once installed, it works from any directory."""
     import shutil
