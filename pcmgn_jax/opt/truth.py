@@ -68,10 +68,12 @@ class TruthSolver:
         self.scene, self.preset, self.box, self.reading = scene, preset, box, reading
         self.names = tuple(f"{layer}.thickness" for layer in scene.design_layers)
         self.extremes = extreme_designs(box)
+        t0 = time.perf_counter()
         with jax.enable_x64(True):
             self.gs = dsim.setup([scene.with_design(*x) for x in self.extremes], preset, names=self.names,
                                  reading=reading)
         self._value, self._both = dsim.value_fn(self.gs), dsim.value_and_grad_fn(self.gs)
+        self.setup_seconds = time.perf_counter() - t0   # [s] the host's preparation of the extreme designs
 
     def _call(self, fn, design):
         import jax
@@ -171,8 +173,10 @@ class SolverObjective(FieldObjective):
 
     def check(self, design) -> dict:
         """Whether the search's value at ``design`` [m] is the host solver's run: its fixed dt [s] and
-        substeps per frame against the host's own substeps there (one ``prepare``, no solver run)."""
+        substeps per frame against the host's own substeps there (one ``prepare``, no solver run); the setup's
+        designs [µm] and its wall time [s] (before the search's clock: compilation is the search's)."""
         host = self.surrogate.host_substeps(design)
         gs = self.surrogate.gs
         return {"dt_s": gs.dt, "n_substeps_per_frame": gs.n_sub, "host_substeps_per_frame": host,
-                "same_run": host == gs.n_sub, "setup_designs_um": (self.surrogate.extremes * 1e6).tolist()}
+                "same_run": host == gs.n_sub, "setup_designs_um": (self.surrogate.extremes * 1e6).tolist(),
+                "setup_seconds": self.surrogate.setup_seconds}

@@ -107,3 +107,25 @@ def test_the_command_refuses_the_ga_and_no_check_for_the_solver(truth_run):
         optimize.main(["--workdir", str(run), "--surrogate", "solver", "--method", "ga", "--no_progress"])
     with pytest.raises(ValueError, match="--check does not apply: --surrogate solver"):
         optimize.main(["--workdir", str(run), "--surrogate", "solver", "--method", "slsqp", "--no_check"])
+
+
+def test_optimize_trace_draws_the_trace_against_the_ga_results(tmp_path):
+    """A solver trace and a GA result: the best-so-far curve, the GA's line and point, the table with the
+    evaluations and time after which the trace is within 0.5 % of the GA's solver-checked optimum."""
+    from experiments import optimize_trace
+    trace = [{"design_um": [100, 100], "mpa": 1.12, "seconds": 80.0}, {"design_um": [150, 50], "mpa": 1.09,
+              "seconds": 160.0}, {"design_um": [150, 99], "mpa": 1.0712, "seconds": 250.0}]
+    base = {"method": "slsqp", "optimum_um": [150.0, 99.0], "predicted_mpa": 1.0712, "solver_mpa": 1.0712,
+            "n_evals": 3, "search_seconds": 250.0}
+    (tmp_path / "solver_slsqp.json").write_text(json.dumps({**base, "surrogate": "solver", "trace": trace}))
+    (tmp_path / "mgn_ga.json").write_text(json.dumps({**base, "surrogate": "mgn", "method": "ga", "solver_mpa": 1.0709,
+                                                      "n_evals": 5000, "search_seconds": 900.0}))
+    out = tmp_path / "trace"
+    assert optimize_trace.main(["--files", str(tmp_path / "*.json"), "--train_seconds", "mgn_ga=3600",
+                                "--out", str(out)]) == 0
+    md = out.with_suffix(".md").read_text()
+    assert "| `mgn_ga` | mgn | ga | 1.0709 | 150.0 / 99.0 | 5,000 | 900 | 3600 | 4500 |" in md
+    assert "| `solver_slsqp` | `mgn_ga` 1.0709 | 3 | 250 |" in md
+    assert out.with_suffix(".png").stat().st_size > 1000
+    with pytest.raises(ValueError, match="--train_seconds 'kriging_ga=5': give NAME=S with NAME one of"):
+        optimize_trace.main(["--files", str(tmp_path / "*.json"), "--train_seconds", "kriging_ga=5", "--out", str(out)])
