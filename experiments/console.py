@@ -22,8 +22,8 @@ import sys
 from typing import Sequence
 
 # every module in experiments/ with a main(argv), in the order a user meets them
-COMMANDS = ("generate", "train", "evaluate", "report", "explore", "optimize", "optimize_table", "active", "ensemble",
-            "tasks_table", "learning_curve", "error_budget", "compute_curve", "onepass",
+COMMANDS = ("generate", "train", "evaluate", "report", "explore", "optimize", "optimize_table", "optimize_trace",
+            "active", "ensemble", "tasks_table", "learning_curve", "error_budget", "compute_curve", "onepass",
             "export", "import_ansys", "export_ansys", "study", "ablation", "objective_convergence",
             "panel_report", "hertz_check", "reach", "calculix", "calculix_check", "mesh_series", "calculix_locking",
             "gradient")

@@ -4,6 +4,7 @@
   python -m experiments.optimize --workdir runs/cpu --surrogate poly2 --method gradient
   python -m experiments.optimize --workdir runs/cpu --surrogate mgn --method slsqp --starts 2
   python -m experiments.optimize --workdir runs/cpu --surrogate rbf --method ga --objective node_mean
+  python -m experiments.optimize --workdir runs/cpu --surrogate solver --method slsqp --starts 1 --iters 20
   python -m experiments.optimize --workdir runs/stack_e2 --surrogate kriging --pop 20 --gens 10 \
       --stack CG,OCA1,POL,TSP,OCA2,OLED,PLATE --params OCA1.thickness,OCA2.thickness,TSP.log10_youngs
 
@@ -23,6 +24,13 @@ Writes RUN/optimize/<surrogate>_<method>[_<objective>].json and .png (a stack ru
 not the paper's six, and a hash of --params: one file per search; a file replaced is said). The GA is
 resumable: its values go to RUN/optimize/<tag>.resume.json as they come (one surrogate batch at a time), and
 the same command after a kill replays them and carries on; the file is removed when the result is written.
+
+--surrogate solver searches on the truth: every evaluation is a run of the built-in solver with its exact design
+gradient (float64, one time step for the whole box; pcmgn_jax/opt/truth.py), for --method slsqp or gradient (the
+GA is refused: each candidate would be a solver run). It needs no checkpoint, only the run folder's config.json
+and its dataset (the box, the scene and the mesh preset). Resumable like the GA; the result holds the trace
+(every evaluation's design, value, gradient and wall time) and its check at the optimum is the search's own
+value (no second solver run); no objective map unless --grid N (each point a solver run).
 """
 from __future__ import annotations
 
@@ -73,8 +81,9 @@ def check_args(args: OptimizeArgs, given: set[str]) -> None:
     ga = None if args.method == "ga" else f"--method {args.method} (only the GA has a population)"
     starts = None if args.method != "ga" else "--method ga (only gradient and slsqp have starts)"
     mgn = None if args.surrogate == "mgn" else f"--surrogate {args.surrogate} (only mgn has a checkpoint and members)"
+    truth = None if args.surrogate != "solver" else "--surrogate solver (its optimum is a solver run: its own check)"
     cli.refuse_inapplicable(given, {"pop": ga, "gens": ga, "starts": starts, "iters": starts, "which": mgn,
-                                    "ensemble": mgn})
+                                    "ensemble": mgn, "check": truth})
 
 
 def main(argv: list[str] | None = None) -> int:

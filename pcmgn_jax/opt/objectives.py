@@ -77,6 +77,7 @@ class FieldObjective:
             for key, v in values:
                 self.cache[tuple(key)] = float("nan") if v is None else float(v)
             self.n_evals, self.prior_seconds, loaded = int(d["n_evals"]), float(d["seconds"]), len(values)
+            self._restore(d)
         self._store, self._meta = path, meta
         self._t0, self.timing = time.perf_counter(), True
         return loaded
@@ -89,11 +90,18 @@ class FieldObjective:
         """The search has ended: later evaluations (the objective map) are not search time."""
         self.prior_seconds, self.timing = self.search_seconds(), False
 
+    def _restore(self, saved: dict) -> None:
+        """Hook of :meth:`persist`: what a subclass keeps in the resume file beyond the values (:meth:`_extra`)."""
+
+    def _extra(self) -> dict:
+        """Hook of :meth:`_flush`: more fields of the resume file (a subclass's; read back by :meth:`_restore`)."""
+        return {}
+
     def _flush(self) -> None:
         if self._store is not None:
             atomic_write_json(self._store, {
                 "meta": self._meta, "n_evals": self.n_evals, "seconds": self.search_seconds(),
-                "values": [[list(k), None if np.isnan(v) else v] for k, v in self.cache.items()]})
+                "values": [[list(k), None if np.isnan(v) else v] for k, v in self.cache.items()], **self._extra()})
 
     def weights(self, design) -> np.ndarray:
         m = self.map.mesh

@@ -14,10 +14,10 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pcmgn_jax.lock import hold
-from pcmgn_jax.surrogates.kinds import AUTO, KINDS, choices
+from pcmgn_jax.surrogates.kinds import AUTO, KINDS, TRUTH, choices
 
-# what the optimiser can search on: the kinds with ``optimise`` (pcmgn_jax/surrogates/kinds.py), and
-# ``auto`` (mop, its CoP table in the result)
+# what the optimiser can search on: the kinds with ``optimise`` (pcmgn_jax/surrogates/kinds.py), ``solver`` (the
+# solver itself with its exact gradient, pcmgn_jax/opt/truth.py) and ``auto`` (mop, its CoP table in the result)
 SURROGATES = choices("optimise")
 
 
@@ -56,15 +56,17 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", obje
         ensemble: Sequence[str | Path] = (), stack: Sequence[str] = (), params: Sequence[str] = (),
         command: str = "") -> dict:
     """Optimise the OCA thicknesses of the run in ``workdir`` on ``surrogate`` (:data:`SURROGATES`: mgn | nearest |
-    poly2 | rbf | kriging | mop | auto, auto = mop with its CoP table in the result)
+    poly2 | rbf | kriging | mop | solver | auto, auto = mop with its CoP table in the result; solver = every value a
+    solver run with its exact gradient on the run's data's mesh preset, :mod:`pcmgn_jax.opt.truth`: gradient or
+    slsqp only, resumable like the GA, its trace in the result, its check the search's own value)
     with ``method`` (ga | gradient | slsqp) for the OLED objective ``objective`` (area_mean | node_mean |
     disc_mean | peak, docs/design.md §8) and return the result dict written to RUN/optimize/<tag>.json.
 
     ``pop`` / ``gens``: GA budget; ``starts`` / ``iters``: gradient and SLSQP starts and evaluations
     (iterations) per start; ``screen``: SLSQP only, seeded designs screened for the start; ``seed``: GA /
-    starts seed; ``grid``: n x n objective map (-1: 21, mgn 7; 0 or 1: none); ``which``: mgn checkpoint;
-    ``check``: re-run the solver at the optimum; ``ensemble``: run folders whose MGNs join the
-    run's for the spread of an mgn optimum (:mod:`pcmgn_jax.opt.spread`; without: a residual GP's);
+    starts seed; ``grid``: n x n objective map (-1: 21, mgn 7, solver none: each point a solver run; 0 or 1:
+    none); ``which``: mgn checkpoint; ``check``: re-run the solver at the optimum; ``ensemble``: run folders
+    whose MGNs join the run's for the spread of an mgn optimum (:mod:`pcmgn_jax.opt.spread`; without: a residual GP's);
     ``command``: recorded in the result. A panel-stack run is searched over its scene parameters
     instead (:mod:`pcmgn_jax.opt.stack_search`, GA only): ``stack`` (the layer names, top to bottom; () the
     paper's six) and ``params`` (the parameter names to search; () every layer's thickness and modulus);
@@ -80,6 +82,9 @@ def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", obje
         if isinstance(value, str):
             raise TypeError(f"{name}={value!r}: give a sequence of names, not a string (a command line splits "
                             "its comma list)")
+    if surrogate == TRUTH and method == "ga":
+        raise ValueError("surrogate='solver' with method='ga': every GA candidate would be a solver run (5,000 at the "
+                         "paper's 100 x 50); use method='slsqp' (or 'gradient') with the solver's exact gradient")
     require_run(workdir, checkpoint=surrogate == "mgn")
     for member in ensemble:
         require_run(member, checkpoint=True)      # an ensemble member is checked before the search, not after
@@ -124,6 +129,8 @@ def _optimize(workdir: str | Path, *, surrogate: str, method: str, objective: st
     preset = solver_preset(ref, cfg.resolved_dataset_dir)
     tag = result_tag(surrogate, method, objective, stack, params)
     if is_stack(family_of(ref)):
+        if surrogate == TRUTH:
+            raise ValueError(f"surrogate='solver': the design-layer box only; {run_dir} is a panel-stack run")
         dest = plots.ensure_dir(run_dir / "optimize")
         record.update(stack=",".join(stack), params=",".join(params))   # the result's record: as the flags were
         if note := replacing(dest / f"{tag}.json", record):
@@ -143,7 +150,10 @@ def _optimize(workdir: str | Path, *, surrogate: str, method: str, objective: st
     dmap = DesignMap.build(scene, preset)
     kw = {"part": part, "reading": objective}
     kind = "mop" if surrogate == AUTO else surrogate   # auto: MOP's choice by leave-one-out CoP
-    if KINDS[kind].family == "mgn":
+    if surrogate == TRUTH:
+        from pcmgn_jax.opt.truth import SolverObjective
+        obj = SolverObjective(scene, preset, box, **kw)
+    elif KINDS[kind].family == "mgn":
         obj = MGNObjective(fit(kind, train, workdir=run_dir, ref=ref, which=which), dmap, **kw)
     elif KINDS[kind].objective_surface:
         obj = SurfaceObjective(fit(kind, train, readings=(objective,), part=part, fields=False).objective, dmap, **kw)
@@ -155,23 +165,28 @@ def _optimize(workdir: str | Path, *, surrogate: str, method: str, objective: st
         print(note)
     resume = dest / f"{tag}.resume.json"
     loaded = 0
-    if method == "ga":
-        # the GA's values go to a resume file as they come: a killed GA run again replays them and goes on
-        loaded = obj.persist(resume, {"surrogate": surrogate, "method": "ga", "pop": pop,
-                                      "gens": gens, "seed": seed, "preset": preset, "which": which})
+    budget = {"pop": pop, "gens": gens} if method == "ga" else {"starts": starts, "iters": iters,
+                                                                **({"screen": screen} if screen else {})}
+    resumable = method == "ga" or surrogate == TRUTH
+    if resumable:
+        # the values go to a resume file as they come: a killed search run again replays them and goes on
+        loaded = obj.persist(resume, {"surrogate": surrogate, "method": method, "seed": seed, "preset": preset,
+                                      **({"pop": pop, "gens": gens, "which": which} if method == "ga" else
+                                         {"starts": starts, "iters": iters, "screen": screen})})
         if loaded:
             print(f"{resume}: resuming with {loaded} evaluations done ({obj.prior_seconds:.0f} s of search)")
+    if method == "ga":
         res = search.ga(obj, box, pop=pop, gens=gens, seed=seed, progress=progress)
-        obj.stop_timing()
-        res["seconds"] = obj.search_seconds()   # this run's and the killed runs' before it
-        budget = {"pop": pop, "gens": gens}
     else:
         kw = {"starts": starts, "iters": iters, "seed": seed, "progress": progress}
         if method == "gradient":
             res = search.gradient(obj, box, **kw)
         else:
             res = search.slsqp(obj, box, screen=screen, **kw)
-        budget = {"starts": starts, "iters": iters, **({"screen": screen} if screen else {})}
+    if resumable:
+        obj.stop_timing()
+        res["seconds"] = obj.search_seconds()   # this run's and the killed runs' before it
+        res["n_evals"] = obj.n_evals            # the killed runs' evaluations too
     x = res["x"]
 
     # the dataset's own solver-evaluated designs (every split the run sees), for the "beats the data" check
@@ -191,7 +206,14 @@ def _optimize(workdir: str | Path, *, surrogate: str, method: str, objective: st
     out.update(predicted_std_mpa=spread["std_mpa"], spread=spread)
     if surrogate in ("mop", "auto"):   # why MOP chose its model: every candidate's CoP
         out["cop"] = obj.surrogate.model.report()
-    if not check:
+    if surrogate == TRUTH:   # the search's value at the optimum is a solver run: no second one
+        out.update(solver_mpa=res["f"], rel_error_pct=0.0, beats_dataset_best=None if best_f is None else
+                   bool(res["f"] <= best_f), solver_check={
+                       **obj.check(x), "how": "the search's own value at the optimum: every evaluation is a run of "
+                       "the solver (float64, at the fixed dt); no second solver run (same_run: the host solver's "
+                       "own stable step there gives the same substeps)"},
+                   solver_runs=obj.n_solver_runs, trace=obj.trace)
+    elif not check:
         out.update(solver_mpa=None, unchecked="the solver was not run at the optimum (--no_check): a prediction, "
                                               "not a solver-checked design")
     else:
@@ -204,7 +226,7 @@ def _optimize(workdir: str | Path, *, surrogate: str, method: str, objective: st
     if res.get("screened"):
         out["screened"] = res["screened"]
 
-    n = grid if grid >= 0 else (7 if surrogate == "mgn" else 21)
+    n = grid if grid >= 0 else (0 if surrogate == TRUTH else 7 if surrogate == "mgn" else 21)
     if n > 1:
         designs, ok = box.grid(n)
         f = np.full(len(designs), np.nan)

@@ -12,6 +12,7 @@ Sources, by surrogate:
                                 designs (the model's own predictions there cost one rollout per design)
 - ``mop``, ``poly2``, ``rbf``, ``nearest``   the kriging std of the same training data: these have no
                                 spread of their own, so the figure is a proxy and says so
+- ``solver``                    0: its values are the solver's runs (pcmgn_jax/opt/truth.py), no prediction
 """
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ import numpy as np
 
 from pcmgn_jax.opt.objectives import MGNObjective
 from pcmgn_jax.surrogates.inputs import design_of
-from pcmgn_jax.surrogates.kinds import KINDS, names
+from pcmgn_jax.surrogates.kinds import KINDS, TRUTH, names
 from pcmgn_jax.surrogates.registry import fit
 from pcmgn_jax.surrogates.surface_fit import ExtrapolationWarning, fit_gp, objective_table
 
@@ -34,6 +35,8 @@ def optimum_spread(surrogate: str, obj, x, train: Sequence, *, part: int, readin
                    members: Sequence[str | Path] = ()) -> dict:
     """{'std_mpa', 'source', ...} at the optimum x (D,) [m] of objective ``obj`` (the module docstring)."""
     x = np.asarray(x, float).reshape(1, -1)
+    if surrogate == TRUTH:
+        return {"std_mpa": 0.0, "source": "none: the solver's own run at the optimum (no surrogate)"}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtrapolationWarning)
         if surrogate in KINDS and KINDS[surrogate].std:

@@ -68,3 +68,44 @@ def rows(paths) -> list[str]:
                              "solver [MPa]", "error [%]", "search [s]", "evaluations", "beats dataset best"), body)
     lines += ["", "Commands:", ""] + [f"- `{name[p]}`: `{d['command']}`" for p, d in results]
     return lines
+
+
+def best_so_far(trace) -> list[dict]:
+    """Per evaluation of a solver search's trace (:mod:`pcmgn_jax.opt.truth`), in order: its number (1-based),
+    the search's wall time at its end [s] and the best value so far [MPa] (each value a solver run)."""
+    best, out = float("inf"), []
+    for i, e in enumerate(trace, 1):
+        best = min(best, float(e["mpa"]))
+        out.append({"evals": i, "seconds": float(e["seconds"]), "best_mpa": best})
+    return out
+
+
+def trace_rows(results: dict, train_seconds: dict, tol_pct: float = 0.5) -> list[str]:
+    """Markdown lines: per result (``{name: optimize JSON}``) its solver-checked optimum [MPa], evaluations, search,
+    training (``train_seconds`` [s] by name, else –) and total wall time [s]; then, per solver trace and per
+    other result, the evaluations and wall time [s] after which the trace's best is within ``tol_pct`` % of that
+    result's solver-checked optimum (– when it never is)."""
+    body = []
+    for name, d in results.items():
+        train = train_seconds.get(name)
+        solver = d.get("solver_mpa")
+        body.append((f"`{name}`", d["surrogate"], d["method"], "–" if solver is None else f"{solver:.4f}",
+                     " / ".join(f"{v:.1f}" for v in d["optimum_um"]), f"{d['n_evals']:,}", f"{d['search_seconds']:.0f}",
+                     "–" if train is None else f"{train:.0f}", f"{d['search_seconds'] + (train or 0.0):.0f}"))
+    lines = markdown.table(("result", "surrogate", "method", "solver-checked optimum [MPa]", "optimum T1 / T2 [µm]",
+                            "evaluations", "search [s]", "training [s]", "total [s]"), body)
+    reach = []
+    for name, d in results.items():
+        if "trace" not in d:
+            continue
+        curve = best_so_far(d["trace"])
+        for other, o in results.items():
+            if other == name or o.get("solver_mpa") is None:
+                continue
+            hit = next((c for c in curve if c["best_mpa"] <= o["solver_mpa"] * (1 + tol_pct / 100)), None)
+            reach.append((f"`{name}`", f"`{other}` {o['solver_mpa']:.4f}",
+                          "–" if hit is None else f"{hit['evals']}", "–" if hit is None else f"{hit['seconds']:.0f}"))
+    if reach:
+        lines += ["", *markdown.table(("solver trace", f"within {tol_pct:g} % of [MPa]", "after evaluations",
+                                       "after [s]"), reach)]
+    return lines

@@ -84,13 +84,17 @@ def by_rank(kinds) -> list[str]:
 
 
 AUTO = "auto"   # the optimiser's and the active loop's extra choice: MOP's pick by CoP (the loop: with kriging's std)
+# the optimiser's choice that predicts nothing: the solver itself, every value a solver run with its exact gradient
+# (pcmgn_jax/opt/truth.py); no predictor kind (nothing is fitted), so not in KINDS
+TRUTH = "solver"
 
 
 def choices(use: str) -> tuple[str, ...]:
-    """What a user may name for ``use`` ('optimise' | 'active'): its kinds, then :data:`AUTO`."""
+    """What a user may name for ``use`` ('optimise' | 'active'): its kinds, then (optimise) :data:`TRUTH`, then
+    :data:`AUTO`."""
     if use not in ("optimise", "active"):
         raise ValueError(f"choices: use must be 'optimise' or 'active', got {use!r}")
-    return names(**{use: True}) + (AUTO,)
+    return names(**{use: True}) + ((TRUTH,) if use == "optimise" else ()) + (AUTO,)
 
 
 def kind(name: str) -> Kind:
