@@ -31,7 +31,7 @@ PACKAGE = "experiments"
 # ``pcmgn GROUP SUB`` runs COMMANDS' ``GROUPS[GROUP][SUB]``; ``pcmgn GROUP`` followed by anything else runs
 # the command of the group's own name (``pcmgn calculix --preset tiny``, as before the groups)
 GROUPS = {"calculix": {"run": "calculix", "check": "calculix_check", "locking": "calculix_locking"},
-          "optimize": {"run": "optimize", "table": "optimize_table"}}
+          "optimize": {"run": "optimize", "table": "optimize_table", "trace": "optimize_trace"}}
 
 
 def _spec(name: str):
