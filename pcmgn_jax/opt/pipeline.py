@@ -50,7 +50,7 @@ def replacing(path: Path, record: dict) -> str | None:
             + (f" (this search differs in {', '.join(diff)})" if diff else " (the same search again)"))
 
 
-def run(workdir: str | Path, *, surrogate: str = "mgn", method: str = "ga", objective: str = "area_mean",
+def run(workdir: str | Path, *, surrogate: str = "kriging", method: str = "ga", objective: str = "area_mean",
         pop: int = 100, gens: int = 50, starts: int = 4, iters: int = 20, screen: int = 0, seed: int = 0,
         grid: int = -1, which: str = "best", check: bool = True, progress: bool = True,
         ensemble: Sequence[str | Path] = (), stack: Sequence[str] = (), params: Sequence[str] = (),
