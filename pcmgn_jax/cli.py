@@ -208,8 +208,12 @@ def run(main_fn, argv: Sequence[str] | None = None) -> int:
     """Call ``main_fn(argv)``, turning a ``ValueError`` into ``error: ...`` on stderr and status 2, and an
     ``OSError`` of a path (a folder where a file goes, a file where a folder goes, no permission, ...) into
     ``error: PATH: what`` (status 2), never a traceback."""
+    from pcmgn_jax.errors import SettingError
     try:
         return main_fn(argv)
+    except SettingError as err:                 # a setting the library refused, said as its flag
+        print(f"error: {err.as_flag()}", file=sys.stderr)
+        return 2
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -323,3 +323,15 @@ def test_generate_and_study_say_their_flags_where_the_library_names_values(tmp_p
     with pytest.raises(ValueError, match="study name='nope' must be one of"):
         paper.run("nope", formulations=["paper"], seeds=[0], num_steps=1, runs=str(tmp_path), out=str(tmp_path),
                   data="", command="")
+
+
+def test_a_setting_the_library_refuses_is_said_as_its_flag_on_the_command_line(capsys):
+    """The library names the setting (``name: why``); ``cli.run`` says it as the flag (``--name: why``)."""
+    from pcmgn_jax import cli
+    from pcmgn_jax.data.importers.parts import parse_parts
+    from pcmgn_jax.errors import SettingError
+    with pytest.raises(SettingError, match=r"^parts: 'ball' is not NAME=GROUP$"):
+        parse_parts("ball")
+    assert cli.run(lambda argv: parse_parts("ball"), []) == 2
+    assert "error: --parts: 'ball' is not NAME=GROUP" in capsys.readouterr().err
+

@@ -21,6 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from pcmgn_jax import metrics
+from pcmgn_jax.errors import SettingError
 from pcmgn_jax.opt import search
 from pcmgn_jax.opt.objectives import FieldObjective
 from pcmgn_jax.opt.scenes import PAPER_STACK, ParameterBox, family_of, query, scene_at, solve_scene, stack_box
@@ -72,7 +73,7 @@ class StackObjective(FieldObjective):
             return np.asarray(self.surrogate.predict_objective(self.queries(d), reading=self.reading), float)
 
     def value_and_grad(self, designs):
-        raise ValueError("a stack search has no gradient (every candidate has its own mesh): use --method ga")
+        raise SettingError("method", "a stack search has no gradient (every candidate has its own mesh): use 'ga'")
 
 
 def _surface_inputs(surface, box: ParameterBox, designs) -> np.ndarray:
@@ -103,8 +104,8 @@ def optimize_stack(run_dir: Path, cfg, train: Sequence, *, surrogate: str, metho
     row, ``searched``, ``predicted_mpa`` and its spread, the solver's check). ValueError naming a method
     other than ga, a surrogate that cannot answer, or a bad parameter name (:func:`stack_box`)."""
     if method != "ga":
-        raise ValueError(f"--method {method}: a stack search has no gradient (every candidate has its own mesh); "
-                         "use --method ga")
+        raise SettingError("method", f"{method!r}: a stack search has no gradient (every candidate has its own "
+                                     "mesh); use 'ga'")
     family = family_of(train[0])
     box = stack_box(layers, search_names)
     notes = _unseen(layers, train)

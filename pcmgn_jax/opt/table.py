@@ -12,6 +12,7 @@ import os
 from pathlib import Path
 
 from pcmgn_jax import markdown
+from pcmgn_jax.errors import SettingError
 
 
 def budget_of(d: dict) -> str:
@@ -40,7 +41,7 @@ def rows(paths) -> list[str]:
             raise ValueError(f"{p}: not a result of experiments.optimize (no {', '.join(map(repr, missing))})")
         results.append((Path(p), d))
     if not results:
-        raise ValueError("no optimize results given (--files)")
+        raise SettingError("files", "no optimize results given")
     results.sort(key=lambda r: (r[1].get("solver_mpa") is None, r[1].get("solver_mpa") or 0.0))
     root = Path(os.path.commonpath([p.resolve().parent for p, _ in results]))
     name = {p: p.resolve().relative_to(root).as_posix() for p, _ in results}

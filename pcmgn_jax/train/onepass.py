@@ -28,6 +28,7 @@ import numpy as np
 import optax
 
 from pcmgn_jax.atomic import atomic_write_json
+from pcmgn_jax.errors import SettingError
 from pcmgn_jax.metrics import objective_weights, relative_error_pct
 from pcmgn_jax.mgn import checkpoint, onepass as op
 from pcmgn_jax.train.resume import resume_point
@@ -51,9 +52,10 @@ def _check_config(cfg: op.OnePassConfig, workdir: Path, resume: bool) -> None:
         old = op.OnePassConfig.load(workdir)
         if old != cfg:
             diff = {k: (v, cfg.to_dict()[k]) for k, v in old.to_dict().items() if cfg.to_dict()[k] != v}
-            raise ValueError(f"{path}: --resume with other settings {diff} (saved, given); resume with the saved ones")
+            raise SettingError("resume", f"{path} was saved with other settings {diff} (saved, given); resume with the "
+                               "saved ones")
     elif not resume and (path.exists() or checkpoint.steps(workdir / "checkpoints" / "periodic")):
-        raise ValueError(f"{workdir}: holds a run already; pass --resume to continue it, or another --workdir")
+        raise SettingError("workdir", f"{workdir} holds a run already: resume it, or give another folder")
     atomic_write_json(path, cfg.to_dict(), parents=True)
 
 

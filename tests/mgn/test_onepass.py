@@ -77,7 +77,7 @@ def test_resume_after_a_kill_equals_an_uninterrupted_run(tiny_trajs, run40, tmp_
     kw = dict(train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:], progress=None)
     stopped = training.train(_cfg(), tmp_path, stop_after=25, **kw)
     assert stopped == {"step": 25, "stopped": True}
-    with pytest.raises(ValueError, match="--resume"):
+    with pytest.raises(ValueError, match="workdir: .* holds a run already: resume it"):
         training.train(_cfg(), tmp_path, **kw)
     with pytest.raises(ValueError, match="other settings"):
         training.train(_cfg(lambda_obj=1.0), tmp_path, resume=True, **kw)

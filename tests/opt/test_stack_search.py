@@ -168,7 +168,7 @@ def test_optimize_refuses_what_cannot_answer_a_stack_by_name(stack_run):
         run(stack_run, surrogate="nearest", method="ga", pop=4, gens=1, check=False, progress=False)
     with pytest.raises(ValueError, match="rbf cannot answer .* per-node regression needs one shared mesh"):
         run(stack_run, surrogate="rbf", method="ga", pop=4, gens=1, check=False, progress=False)
-    with pytest.raises(ValueError, match="--method gradient: a stack search has no gradient"):
+    with pytest.raises(ValueError, match="method: 'gradient': a stack search has no gradient"):
         run(stack_run, surrogate="kriging", method="gradient", check=False, progress=False)
     with pytest.raises(ValueError, match=r"'OLED.thikness' \(unknown\)"):
         run(stack_run, surrogate="kriging", method="ga", check=False, progress=False, params=("OLED.thikness",))

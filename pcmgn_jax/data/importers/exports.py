@@ -17,6 +17,7 @@ from pcmgn_jax.data.importers.ansys_text import import_ansys_text
 from pcmgn_jax.data.importers.meshes import read_mesh
 from pcmgn_jax.data.importers.runs import ImportReport, apply_roi, import_ansys_dataset
 from pcmgn_jax.data.trajectory_io import write_trajectory
+from pcmgn_jax.errors import SettingError
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.trajectory import Trajectory
 
@@ -51,7 +52,7 @@ def import_exports(exports: str, out: str, *, scene: Scene | None = None, part_n
     (:func:`pcmgn_jax.data.importers.runs.import_ansys_dataset`); the settings are the defaults of the
     runs that set nothing in their own files. Raises ``ValueError`` without ``out``."""
     if not out:
-        raise ValueError("--exports needs --out DIR (writes DIR/<split>/<run>.xdmf/.h5/.json)")
+        raise SettingError("out", "exports need an output folder (writes OUT/<split>/<run>.xdmf/.h5/.json)")
     defaults = {"parts": parts, "part_names": part_names, "length_unit": length_unit, "fixed": fixed,
                 "output_dt": output_dt, "location_tol": location_tol, "ignore_unmapped": ignore_unmapped or None}
     return import_ansys_dataset(exports, out, defaults=defaults, scene=scene, roi=roi, progress=progress)

@@ -17,6 +17,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from pcmgn_jax.data.importers.errors import InputFileError
+from pcmgn_jax.errors import SettingError
 from pcmgn_jax.scene import Scene
 
 
@@ -97,7 +98,7 @@ def parse_parts(text: str) -> dict[str, list]:
     out: dict[str, list] = {}
     for item in filter(None, (s.strip() for s in text.split(","))):
         if "=" not in item:
-            raise ValueError(f"--parts: {item!r} is not NAME=GROUP")
+            raise SettingError("parts", f"{item!r} is not NAME=GROUP")
         name, groups = (s.strip() for s in item.split("=", 1))
         out[name] = [int(g) if re.fullmatch(r"-?\d+", g) else g for g in groups.split("+")]
     return out

@@ -41,6 +41,7 @@ from pcmgn_jax.data.importers.errors import InputFileError
 from pcmgn_jax.data.importers.meshes import read_mesh
 from pcmgn_jax.data.importers.parts import parse_parts
 from pcmgn_jax.data.trajectory_io import TrajectoryFileError, read_sidecar, read_trajectory, write_trajectory
+from pcmgn_jax.errors import SettingError
 from pcmgn_jax.geometry import RoiCropError
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.trajectory import Trajectory, crop_trajectory
@@ -70,7 +71,7 @@ def apply_roi(traj: Trajectory, roi: Mapping[str, float | None] | None) -> tuple
     try:
         traj, _ = crop_trajectory(traj, **{k: float("inf") if v is None else v for k, v in limits.items()})
     except RoiCropError as err:
-        raise ValueError(f"--roi_{err.param}={limits[err.param]}: {err}") from None
+        raise SettingError(f"roi_{err.param}", f"{limits[err.param]}: {err}") from None
     return traj, f"region of interest: kept {traj.n_nodes} of {full} nodes"
 
 
