@@ -33,7 +33,6 @@ from pcmgn_jax import cli
 from pcmgn_jax.data.dataset import DatasetError, ensure_dataset
 from pcmgn_jax.data.designs import DESIGN_HIGH, DESIGN_LOW, FAMILIES, parse_designs, parse_scene_params
 from pcmgn_jax.data.shards import parse_shard
-from pcmgn_jax.data.stack import StackFamily
 from pcmgn_jax.presets import PRESETS, PresetName
 from pcmgn_jax.scene import Scene, default_scene
 
@@ -118,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.preset not in FAMILIES or designs is not None:
                 raise ValueError(f"--scene_params needs a scene-family preset ({', '.join(FAMILIES)}) and no --designs")
             designs = parse_scene_params(args.scene_params, FAMILIES[args.preset].names,
-                                         zero_ok=isinstance(FAMILIES[args.preset], StackFamily))
+                                         zero_ok=FAMILIES[args.preset].padded)
         if args.split and designs is None:
             raise ValueError("--split needs --designs or --scene_params")
         n_train, n_val, n_test = preset_sizes(args.preset)

@@ -9,11 +9,11 @@ Designs are thicknesses of ``scene.design_layers`` in metres (the manifest also 
 [low, high]^dim (the rows are in random order, so the first ``n_train`` rows are a random subset);
 explicit designs (``--designs``) go into a named split (default ``extrap``).
 
-Scene families (presets ``family`` and ``family_tiny``, :data:`FAMILIES`): the Latin hypercube runs over
-the family's scene parameters (ball radius, drop speed, and the OCA1, OCA2 and polarizer thicknesses),
-each scaled to its own range; every scene has its own mesh (the mesh preset of the same name sizes the
-layers from their thickness) and is solved on its own. Each manifest entry and trajectory meta records
-``scene_params`` ({parameter: SI value}); ``design_m`` holds the design-layer thicknesses as before.
+Scene families (:class:`pcmgn_jax.data.family.Family`; presets ``family``, ``family_tiny``, ``stack``,
+``stack_tiny``, :data:`FAMILIES`): the family samples its rows of scene parameters (SI); every scene has its
+own mesh (the mesh preset of the same name sizes the layers from their thickness) and is solved on its own.
+Each manifest entry and trajectory meta records ``scene_params`` ({parameter: SI value}); ``design_m``
+holds the design-layer thicknesses as before. What each split holds: :func:`pcmgn_jax.data.designs.sampled_splits`.
 
 Resuming: a trajectory is skipped when its files read back with a matching content hash
 (``read_trajectory(verify=True)``) and its recorded design equals the requested one; anything else is
@@ -31,8 +31,9 @@ import importlib
 import os
 import re
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import ExitStack
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -45,11 +46,15 @@ from pcmgn_jax.data.designs import (
     DESIGN_LOW,
     FAMILIES,
     SceneFamily,
+    SplitPlan,
+    explicit_split,
     lhs_designs,
     origin_mismatch,
     parse_designs,
     parse_scene_params,
+    sampled_splits,
 )
+from pcmgn_jax.data.family import Design, Family
 from pcmgn_jax.data.layout import (
     DATASET_FORMAT,
     GENERATE,
@@ -66,35 +71,237 @@ from pcmgn_jax.data.layout import (
     manifest_element,
     split_stems,
 )
-from pcmgn_jax.data.stack import StackFamily
 from pcmgn_jax.data.trajectory_io import TrajectoryFileError, content_hash, read_trajectory, write_trajectory
 from pcmgn_jax.lock import hold
 from pcmgn_jax.presets import PRESET_NAMES
 from pcmgn_jax.scene import Scene, default_scene
 from pcmgn_jax.trajectory import Trajectory
 
-__all__ = ["FAMILIES", "GENERATE", "IMPORTED", "MANIFEST", "DatasetError", "SceneFamily", "dataset_source",
-           "ensure_dataset", "lhs_designs", "load_manifest", "parse_designs", "parse_scene_params", "split_stems"]
+__all__ = ["FAMILIES", "GENERATE", "IMPORTED", "MANIFEST", "DatasetError", "Design", "Family", "SceneFamily",
+           "SplitPlan", "dataset_source", "ensure_dataset", "lhs_designs", "load_manifest", "parse_designs",
+           "parse_scene_params", "split_stems"]
 
 _SPLIT_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*$")
 
 
-def _entry(split: str, i: int, design: np.ndarray, family: SceneFamily | None = None,
-           base: Scene | None = None) -> dict[str, Any]:
-    """A manifest entry; for a family, ``design`` is the scene-parameter vector (family order, SI) and
-    the entry records it as ``scene_params`` beside the design-layer thicknesses."""
+@dataclass(frozen=True)
+class _Job:
+    """How :func:`ensure_dataset` generates, once its arguments are checked (see there)."""
+
+    root: Path
+    scene: Scene                   # the family's base scene, or the scene whose design layers vary
+    family: Family | None
+    preset: str
+    batch: int
+    progress: bool
+    solve_fn: Callable[..., list[Trajectory]] | None
+    shard: tuple[int, int] | None
+    merge: bool
+
+    @property
+    def tag(self) -> str:
+        return "" if self.shard is None else f" shard {self.shard[0]}/{self.shard[1]}"
+
+
+# ---- top to bottom: check, plan the splits, lock, open the manifest, record, pick the work, solve --
+def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: int = 100,
+                   n_test: int = 50, seed: int = 0, designs: np.ndarray | None = None,
+                   split: str | None = None, scene: Scene | None = None, batch: int = 0,
+                   progress: bool = True, low: float = DESIGN_LOW, high: float = DESIGN_HIGH,
+                   solve_fn: Callable[..., list[Trajectory]] | None = None, shard: tuple[int, int] | None = None,
+                   merge: bool = False, stack_split: str | None = None, family: Family | None = None) -> Path:
+    """Generate the missing trajectories of a dataset with the solver; return ``Path(out_dir)``.
+
+    designs=None: splits ``train``/``test`` from one seeded LHS of n_train + n_test designs [m] in [low, high].
+    designs=(B, n_design) [m]: only the split ``split`` (default ``'extrap'``) with these designs; for a
+    scene family (B, n_parameters): scene-parameter rows in the family's order (SI), which may lie outside
+    its box (:func:`parse_scene_params`).
+    ``family``: a :class:`pcmgn_jax.data.family.Family` (default the preset's, :data:`FAMILIES`, if any):
+    its :meth:`~pcmgn_jax.data.family.Family.sample_splits` draws train and test, each scene is meshed
+    (``preset``) and solved on its own, and each trajectory records its row (meta['scene_params']).
+    Resumable: valid trajectories (hash-verified, same design) are skipped. The solver is called as
+    ``solve_fn(scene, designs (b, n_design) [m], preset=preset) -> list[Trajectory]`` in batches of
+    ``batch`` designs (default ``pcmgn_jax.sim.solver.solve_designs``; ``batch`` 0: :func:`default_batch`,
+    8 on CPU, the solver's designs per call on an accelerator; give it explicitly when shards run on
+    different devices, since the shards' plan depends on it). Designs that raise ``SolverError`` are
+    retried one by one, recorded in the manifest with their error, and reported in a DatasetError
+    raised after everything else has been written.
+
+    ``shard=(K, N)`` (0-based): solve only the batches ``j % N == K`` of the design list cut into batches
+    of ``batch`` (:func:`pcmgn_jax.data.shards.owner`) and write the part ``OUT/.shards/...-shard-K-of-N.json``
+    instead of the manifest, so N shards can run at once into one directory. ``merge=True``: solve nothing;
+    verify every trajectory, write the manifest and delete the parts, or raise a DatasetError naming each
+    missing design and its shard (nothing written). An unsharded run also deletes the parts once complete.
+    ``stack_split``: a family's split plan (its ``plans``; the stack's e1 | e2 | e3,
+    :data:`pcmgn_jax.data.stack.PLANS`): how its train and test scenes are drawn (a family of one plan
+    ignores it); None: the plan in OUT's manifest (so training, which generates what is missing, resumes a
+    dataset of any plan), else the family's first.
+    """
+    root = Path(out_dir)
+    _check_request(root, preset=preset, batch=batch, shard=shard, merge=merge)
+    family = family if family is not None else FAMILIES.get(preset)
+    scene = scene if scene is not None else default_scene()
+    job = _Job(root, scene if family is None else family.base(scene), family, preset, batch or default_batch(),
+               progress, solve_fn, shard, merge)
+    if designs is None:
+        if split is not None:
+            raise DatasetError("split is only used with explicit designs")
+        if family is not None and family.plans and stack_split is None:     # the plan OUT records
+            train = (load_manifest(root) or {}).get("splits", {}).get("train") or {}
+            stack_split = (train.get("origin") or {}).get("plan")
+        plan = sampled_splits(job.scene, family, n_train=n_train, n_test=n_test, seed=seed, low=low, high=high,
+                              plan=stack_split)
+    else:
+        plan = [explicit_split(job.scene, family, designs, split or "extrap", preset=preset)]
+    for sp in plan:
+        if not _SPLIT_RE.match(sp.name):
+            raise DatasetError(f"split name {sp.name!r} must match {_SPLIT_RE.pattern}")
+    with _dataset_lock(root, shard):
+        return _generate(job, plan)
+
+
+def _check_request(root: Path, *, preset: str, batch: int, shard, merge: bool) -> None:
+    """DatasetError for a request that cannot run, before anything is planned or written."""
+    if shard is not None and merge:
+        raise DatasetError(f"{root}: shard={shard!r} and merge=True exclude each other: solve the shards, then "
+                           "merge once")
+    if shard is not None and not (isinstance(shard, tuple) and len(shard) == 2 and 0 <= shard[0] < shard[1]):
+        raise DatasetError(f"shard must be (K, N) with 0 <= K < N, got {shard!r}")
+    if root.is_dir() and load_manifest(root) is None and not has_shard_parts(root) and has_trajectory_files(root):
+        raise DatasetError(f"{root}: holds trajectory files in train/ or test/ but no {MANIFEST} (an imported "
+                           "dataset?); the solver does not write into it: use another --out")
+    if preset not in PRESET_NAMES:
+        raise DatasetError(f"preset must be one of {PRESET_NAMES}, got {preset!r}")
+    if not isinstance(batch, int) or batch < 0:
+        raise DatasetError(f"batch must be an integer >= 0 (0: the device's default), got {batch!r}")
+
+
+def _dataset_lock(root: Path, shard: tuple[int, int] | None) -> ExitStack:
+    """One writer per dataset (:mod:`pcmgn_jax.lock`): a shard holds the dataset's lock shared and its part's
+    exclusively."""
+    locks = ExitStack()
+    if shard is None:
+        locks.enter_context(hold(root, "generate"))
+    else:
+        locks.enter_context(hold(root, "generate --shard", shared=True))
+        locks.enter_context(hold(root / SHARD_PARTS, f"generate --shard {shard[0]}/{shard[1]}",
+                                 name=f".lock-shard-{shard[0]}-of-{shard[1]}"))
+    return locks
+
+
+def _generate(job: _Job, plan: Sequence[SplitPlan]) -> Path:
+    """:func:`ensure_dataset` once its arguments are checked and the dataset's lock is held."""
+    man = _open_manifest(job)
+    designs = _record_splits(job, man, plan)
+    names = tuple(sp.name for sp in plan)
+    digest = shards.plan_digest(man, names)
+    parts = shards.check_parts(job.root, digest=digest, splits=names, batch=job.batch, shard=job.shard)
+    planned = [e for sp in plan for e in man["splits"][sp.name]["trajectories"]]
+    shards.adopt(planned, parts)
+    own, batches, missing = _pick_work(job, man, planned)
+    if job.merge and missing:
+        raise DatasetError(shards.missing_report(job.root, missing, len(planned), parts, batch=job.batch))
+    for name in names:
+        (job.root / name).mkdir(parents=True, exist_ok=True)
+
+    def save(complete: bool = False) -> None:
+        if job.shard is None:
+            atomic_write_json(job.root / MANIFEST, man)
+        else:
+            shards.write_part(job.root, man, names, own, digest=digest, shard=job.shard, batch=job.batch,
+                              complete=complete)
+
+    save(complete=not batches)
+    if batches:
+        _solve_batches(job, batches, designs, save)
+    if job.shard is None:
+        shards.remove_parts(parts)
+    elif batches:
+        save(complete=True)
+    return job.root
+
+
+def _open_manifest(job: _Job) -> dict[str, Any]:
+    """OUT's manifest, or a new one; DatasetError when it was written for another preset, scene or element."""
+    man = load_manifest(job.root)
+    if man is None:
+        from pcmgn_jax.sim.fem import DEFAULT_ELEMENT
+
+        family = job.family
+        return {"format": DATASET_FORMAT, "format_version": 1, "preset": job.preset, "element": DEFAULT_ELEMENT,
+                "scene": job.scene.to_dict(),
+                "family": None if family is None else {"parameters": [list(p) for p in family.parameters]},
+                "design_layers": list(job.scene.design_layers),
+                "units": {"design_m": "m", "design_um": "µm", "wall_time_s": "s"}, "splits": {}}
+    where = job.root / MANIFEST
+    if man.get("preset") != job.preset:
+        raise DatasetError(f"{where}: dataset was generated with preset {man.get('preset')!r}, "
+                           f"not {job.preset!r}; use another folder")
+    if man.get("scene") != job.scene.to_dict():
+        raise DatasetError(f"{where}: dataset was generated for a different scene; use another folder")
+    check_element(job.root, man)
+    return man
+
+
+def _record_splits(job: _Job, man: dict[str, Any], plan: Sequence[SplitPlan]) -> dict[str, Design]:
+    """Write the planned splits' entries into ``man`` (a recorded split must hold the same designs: its
+    hashes and wall times carry over); {entry name: its design}."""
+    out = {}
+    for sp in plan:
+        old = man["splits"].get(sp.name)
+        entries = [_entry(sp.name, i, d, job.scene) for i, d in enumerate(sp.designs)]
+        if old is not None:
+            olds = old["trajectories"]
+            old_d = np.asarray([e["design_m"] if job.family is None else list(e["scene_params"].values())
+                                for e in olds], dtype=np.float64).reshape(len(olds), -1)
+            rows = sp.rows
+            if old_d.shape != rows.shape or not np.allclose(old_d, rows, rtol=1e-12, atol=0):
+                why = origin_mismatch(old.get("origin") or {}, len(old_d), sp.origin, len(rows))
+                raise DatasetError(f"{job.root / MANIFEST}: split {sp.name!r} {why}; use another dataset folder "
+                                   "(or split name)")
+            for e, o in zip(entries, olds):
+                e["sha256"], e["wall_time_s"] = o.get("sha256"), o.get("wall_time_s")
+        man["splits"][sp.name] = {"origin": sp.origin, "trajectories": entries}
+        out.update({e["name"]: d for e, d in zip(entries, sp.designs)})
+    return out
+
+
+def _entry(split: str, i: int, design: Design, base: Scene) -> dict[str, Any]:
+    """A manifest entry; a family's design records its row as ``scene_params`` beside the design-layer
+    thicknesses of its scene (and, for a padded row, the scene's layer list, top to bottom)."""
     name = f"{split}_{i:04d}"
     out: dict[str, Any] = {"name": name, "path": f"{split}/{name}"}
-    if family is not None:
-        params = {k: float(v) for k, v in zip(family.names, design)}
-        out["scene_params"] = params
-        one = family.scene(base, params)
-        design = np.asarray(one.design)
-        if isinstance(family, StackFamily):
-            out["layers"] = [layer.name for layer in one.layers]     # the stack's layer list, top to bottom
-    out.update({"design_m": [float(v) for v in design], "design_um": [round(float(v) * 1e6, 6) for v in design],
+    values = design.values
+    if design.family is not None:
+        out["scene_params"] = design.row
+        one = design.scene(base)
+        values = one.design
+        if design.family.padded:
+            out["layers"] = [layer.name for layer in one.layers]
+    out.update({"design_m": [float(v) for v in values], "design_um": [round(float(v) * 1e6, 6) for v in values],
                 "sha256": None, "wall_time_s": None})
     return out
+
+
+def _pick_work(job: _Job, man: dict[str, Any], planned: Sequence[dict[str, Any]]):
+    """(this run's entries, its batches of entries still to solve, [(position, entry)] of those): an
+    unsharded run cuts what is missing into batches of ``batch``; a shard keeps the unsharded run's batches
+    of the whole design list and solves those it owns (:func:`pcmgn_jax.data.shards.owner`)."""
+    own: list[dict[str, Any]] = []
+    chunks: dict[int, list[dict[str, Any]]] = {}        # a shard's batches, by batch index
+    missing: list[tuple[int, dict[str, Any]]] = []
+    for pos, e in enumerate(planned):
+        if job.shard is not None and shards.owner(pos, batch=job.batch, n=job.shard[1]) != job.shard[0]:
+            continue
+        own.append(e)
+        if not _is_done(job.root, e, job.scene.design_layers, manifest_element(man)):
+            e["sha256"], e["wall_time_s"] = None, None
+            chunks.setdefault(pos // job.batch, []).append(e)
+            missing.append((pos, e))
+    todo = [e for _, e in missing]
+    batches = ([todo[i:i + job.batch] for i in range(0, len(todo), job.batch)] if job.shard is None
+               else list(chunks.values()))
+    return own, batches, missing
 
 
 def _is_done(root: Path, entry: dict[str, Any], layers: Sequence[str], element: str) -> bool:
@@ -119,228 +326,41 @@ def default_batch() -> int:
     return max(8, importlib.import_module("pcmgn_jax.sim.solver").designs_per_call())
 
 
-def _solver(solve_fn):
-    """(solve_designs or ``solve_fn`` if given, (SolverError,)); the solver (JAX) is imported lazily,
-    through ``sys.modules`` (``import_module``), so a test can substitute the module."""
-    solver = importlib.import_module("pcmgn_jax.sim.solver")
-    return (solve_fn or solver.solve_designs), (solver.SolverError,)
-
-
-# ---- generation ---------------------------------------------------------------------------------
-def ensure_dataset(out_dir: str | os.PathLike, *, preset: str = "cpu", n_train: int = 100,
-                   n_test: int = 50, seed: int = 0, designs: np.ndarray | None = None,
-                   split: str | None = None, scene: Scene | None = None, batch: int = 0,
-                   progress: bool = True, low: float = DESIGN_LOW, high: float = DESIGN_HIGH,
-                   solve_fn: Callable[..., list[Trajectory]] | None = None, shard: tuple[int, int] | None = None,
-                   merge: bool = False, stack_split: str | None = None) -> Path:
-    """Generate the missing trajectories of a dataset with the solver; return ``Path(out_dir)``.
-
-    designs=None: splits ``train``/``test`` from one seeded LHS of n_train + n_test designs [m].
-    designs=(B, n_design) [m]: only the split ``split`` (default ``'extrap'``) with these designs; for a
-    scene family (B, n_parameters): scene-parameter rows in the family's order (SI), which may lie outside
-    its box (:func:`parse_scene_params`).
-    Resumable: valid trajectories (hash-verified, same design) are skipped. The solver is called as
-    ``solve_fn(scene, designs (b, n_design) [m], preset=preset) -> list[Trajectory]`` in batches of
-    ``batch`` designs (default ``pcmgn_jax.sim.solver.solve_designs``; ``batch`` 0: :func:`default_batch`,
-    8 on CPU, the solver's designs per call on an accelerator; give it explicitly when shards run on
-    different devices, since the shards' plan depends on it). Designs that raise ``SolverError`` are
-    retried one by one, recorded in the manifest with their error, and reported in a DatasetError
-    raised after everything else has been written.
-
-    ``shard=(K, N)`` (0-based): solve only the batches ``j % N == K`` of the design list cut into batches
-    of ``batch`` (:func:`pcmgn_jax.data.shards.owner`) and write the part ``OUT/.shards/...-shard-K-of-N.json``
-    instead of the manifest, so N shards can run at once into one directory. ``merge=True``: solve nothing;
-    verify every trajectory, write the manifest and delete the parts, or raise a DatasetError naming each
-    missing design and its shard (nothing written). An unsharded run also deletes the parts once complete.
-    ``stack_split``: a stack family's split plan (e1 | e2 | e3, :data:`pcmgn_jax.data.stack.PLANS`): how its
-    train and test scenes are drawn (other presets ignore it); None: the plan in OUT's manifest (so training,
-    which generates what is missing, resumes a dataset of any plan), else e1.
-    """
-    root = Path(out_dir)
-    scene = scene if scene is not None else default_scene()
-    if shard is not None and merge:
-        raise DatasetError(f"{root}: shard={shard!r} and merge=True exclude each other: solve the shards, then "
-                           "merge once")
-    if shard is not None and not (isinstance(shard, tuple) and len(shard) == 2 and 0 <= shard[0] < shard[1]):
-        raise DatasetError(f"shard must be (K, N) with 0 <= K < N, got {shard!r}")
-    if root.is_dir() and load_manifest(root) is None and not has_shard_parts(root) and has_trajectory_files(root):
-        raise DatasetError(f"{root}: holds trajectory files in train/ or test/ but no {MANIFEST} (an imported "
-                           "dataset?); the solver does not write into it: use another --out")
-    if preset not in PRESET_NAMES:
-        raise DatasetError(f"preset must be one of {PRESET_NAMES}, got {preset!r}")
-    if not isinstance(batch, int) or batch < 0:
-        raise DatasetError(f"batch must be an integer >= 0 (0: the device's default), got {batch!r}")
-    batch = batch or default_batch()
-    family = FAMILIES.get(preset)
-    if family is not None:
-        scene = family.base(scene)
-    # explicit rows: design-layer thicknesses [m], or for a family its scene parameters (family order, SI:
-    # e.g. scenes outside the family's box, experiments.generate --scene_params)
-    n_design = len(scene.design_layers) if family is None else len(family.names)
-    plan: dict[str, tuple[np.ndarray, dict[str, Any]]] = {}
-    if designs is None:
-        if split is not None:
-            raise DatasetError("split is only used with explicit designs")
-        if n_train < 0 or n_test < 0 or n_train + n_test == 0:
-            raise DatasetError(f"need n_train + n_test > 0, got n_train={n_train}, n_test={n_test}")
-        if family is None:
-            lhs = lhs_designs(n_train + n_test, seed=seed, low=low, high=high, dim=n_design)
-            origin = {"kind": "lhs", "seed": int(seed), "n_total": n_train + n_test, "low_m": low, "high_m": high}
-        elif isinstance(family, StackFamily):
-            if stack_split is None:
-                origin = ((load_manifest(root) or {}).get("splits", {}).get("train") or {}).get("origin") or {}
-                stack_split = origin.get("plan", "e1")
-            try:
-                lhs = np.concatenate(family.sample_splits(n_train, n_test, seed, stack_split))
-            except ValueError as err:
-                raise DatasetError(str(err)) from None
-            origin = {"kind": "stack", "plan": stack_split, "seed": int(seed), "n_total": n_train + n_test,
-                      "parameters": [list(p) for p in family.parameters]}
-        else:
-            lows, highs = (np.array([p[i] for p in family.parameters]) for i in (1, 2))
-            lhs = lhs_designs(n_train + n_test, seed=seed, low=lows, high=highs, dim=len(lows))
-            origin = {"kind": "lhs", "seed": int(seed), "n_total": n_train + n_test,
-                      "parameters": [list(p) for p in family.parameters]}
-        plan["train"] = (lhs[:n_train], {**origin, "rows": [0, n_train]})
-        plan["test"] = (lhs[n_train:], {**origin, "rows": [n_train, n_train + n_test]})
-    else:
-        designs = np.asarray(designs, dtype=np.float64)
-        split = split or "extrap"
-        what = list(scene.design_layers) if family is None else list(family.names)
-        if designs.ndim != 2 or designs.shape[1] != n_design or len(designs) == 0:
-            raise DatasetError(f"designs must have shape (B>0, {n_design}) for {what}, got {designs.shape}"
-                               + ("" if family is None else f" (preset {preset!r} is a scene family: give its "
-                                                            "scene parameters, --scene_params)"))
-        if not np.all(np.isfinite(designs)) or np.any(designs < 0 if isinstance(family, StackFamily) else designs <= 0):
-            raise DatasetError(f"designs must be finite values > 0 (SI; >= 0 in a stack's padded row) for {what}")
-        plan[split] = (designs, {"kind": "explicit"})
-        for i, row in enumerate(designs if family is not None else ()):   # every scene made once, before the lock
-            try:
-                family.scene(scene, dict(zip(family.names, row)))
-            except ValueError as err:
-                raise DatasetError(f"scene {i + 1} of {len(designs)}: {err}") from None
-    for name in plan:
-        if not _SPLIT_RE.match(name):
-            raise DatasetError(f"split name {name!r} must match {_SPLIT_RE.pattern}")
-    # one writer per dataset (pcmgn_jax.lock): a shard holds the dataset's lock shared and its part's exclusively
-    with ExitStack() as locks:
-        if shard is None:
-            locks.enter_context(hold(root, "generate"))
-        else:
-            locks.enter_context(hold(root, "generate --shard", shared=True))
-            locks.enter_context(hold(root / SHARD_PARTS, f"generate --shard {shard[0]}/{shard[1]}",
-                                     name=f".lock-shard-{shard[0]}-of-{shard[1]}"))
-        return _generate(root, plan, scene=scene, family=family, preset=preset, batch=batch, progress=progress,
-                         solve_fn=solve_fn, shard=shard, merge=merge)
-
-
-def _generate(root: Path, plan: dict[str, tuple[np.ndarray, dict[str, Any]]], *, scene: Scene,
-              family: SceneFamily | None, preset: str, batch: int, progress: bool, solve_fn, shard,
-              merge: bool) -> Path:
-    """:func:`ensure_dataset` once its arguments are checked and the dataset's lock is held."""
-    man = load_manifest(root)
-    manifest_path = root / MANIFEST
-    if man is None:
-        from pcmgn_jax.sim.fem import DEFAULT_ELEMENT
-
-        man = {"format": DATASET_FORMAT, "format_version": 1, "preset": preset, "element": DEFAULT_ELEMENT,
-               "scene": scene.to_dict(),
-               "family": None if family is None else {"parameters": [list(p) for p in family.parameters]},
-               "design_layers": list(scene.design_layers),
-               "units": {"design_m": "m", "design_um": "µm", "wall_time_s": "s"}, "splits": {}}
-    else:
-        if man.get("preset") != preset:
-            raise DatasetError(f"{manifest_path}: dataset was generated with preset {man.get('preset')!r}, "
-                               f"not {preset!r}; use another folder")
-        if man.get("scene") != scene.to_dict():
-            raise DatasetError(f"{manifest_path}: dataset was generated for a different scene; use another folder")
-        check_element(root, man)
-    for name, (des, origin) in plan.items():
-        old = man["splits"].get(name)
-        entries = [_entry(name, i, d, family, scene) for i, d in enumerate(des)]
-        if old is not None:
-            key = "design_m" if family is None else "scene_params"
-            old_d = np.asarray([e[key] if family is None else list(e[key].values()) for e in old["trajectories"]],
-                               dtype=np.float64).reshape(len(old["trajectories"]), -1)
-            if old_d.shape != des.shape or not np.allclose(old_d, des, rtol=1e-12, atol=0):
-                why = origin_mismatch(old.get("origin") or {}, len(old_d), origin, len(des))
-                raise DatasetError(f"{manifest_path}: split {name!r} {why}; use another dataset folder (or split name)")
-            for e, o in zip(entries, old["trajectories"]):
-                e["sha256"], e["wall_time_s"] = o.get("sha256"), o.get("wall_time_s")
-        man["splits"][name] = {"origin": origin, "trajectories": entries}
-
-    digest = shards.plan_digest(man, tuple(plan))
-    parts = shards.check_parts(root, digest=digest, splits=tuple(plan), batch=batch, shard=shard)
-    planned = [(name, e) for name in plan for e in man["splits"][name]["trajectories"]]
-    shards.adopt([e for _, e in planned], parts)
-    layers = scene.design_layers
-    todo: list[tuple[str, dict[str, Any]]] = []
-    chunks: dict[int, list[tuple[str, dict[str, Any]]]] = {}      # a shard's batches, by batch index
-    own: list[dict[str, Any]] = []
-    missing: list[tuple[int, dict[str, Any]]] = []
-    for pos, (name, e) in enumerate(planned):
-        if shard is not None and shards.owner(pos, batch=batch, n=shard[1]) != shard[0]:
-            continue
-        own.append(e)
-        if not _is_done(root, e, layers, manifest_element(man)):
-            e["sha256"], e["wall_time_s"] = None, None
-            todo.append((name, e))
-            chunks.setdefault(pos // batch, []).append((name, e))
-            missing.append((pos, e))
-    if merge and missing:
-        raise DatasetError(shards.missing_report(root, missing, len(planned), parts, batch=batch))
-    for name in plan:
-        (root / name).mkdir(parents=True, exist_ok=True)
-
-    def save(complete: bool = False) -> None:
-        if shard is None:
-            atomic_write_json(manifest_path, man)
-        else:
-            shards.write_part(root, man, tuple(plan), own, digest=digest, shard=shard, batch=batch,
-                              complete=complete)
-
-    save(complete=not todo)
-    if not todo:
-        if shard is None:
-            shards.remove_parts(parts)
-        return root
-
-    solve, solver_errors = _solver(solve_fn)
-    call_size = importlib.import_module("pcmgn_jax.sim.solver").call_size
+def _solve_batches(job: _Job, batches: Sequence[Sequence[dict[str, Any]]], designs: Mapping[str, Design],
+                   save: Callable[[], None]) -> None:
+    """Solve and write every batch, saving the manifest (or the shard's part) after each; a batch that raises
+    ``SolverError`` is retried design by design. DatasetError listing the designs that failed, at the end."""
+    solver = importlib.import_module("pcmgn_jax.sim.solver")      # lazily, so a test can substitute it
+    solve, solver_errors = job.solve_fn or solver.solve_designs, (solver.SolverError,)
     from tqdm.auto import tqdm
 
     failures: list[str] = []
-    tag = "" if shard is None else f" shard {shard[0]}/{shard[1]}"
-    bar = tqdm(total=len(todo), unit="design", desc=f"generate {root.name}{tag}", disable=not progress,
-               dynamic_ncols=True)
-    batches = ([todo[i:i + batch] for i in range(0, len(todo), batch)] if shard is None
-               else list(chunks.values()))                    # a shard keeps the unsharded run's batches
+    bar = tqdm(total=sum(map(len, batches)), unit="design", desc=f"generate {job.root.name}{job.tag}",
+               disable=not job.progress, dynamic_ncols=True)
     try:
         for chunk in batches:
             groups = [chunk]
             # a short last batch is padded with copies of its last design (results dropped) where the solver
             # would compile a call of another size for it (an accelerator); one batch alone is not
-            pad = (batch - len(chunk)
-                   if family is None and len(batches) > 1 and call_size(len(chunk)) != call_size(batch) else 0)
+            pad = (job.batch - len(chunk) if job.family is None and len(batches) > 1
+                   and solver.call_size(len(chunk)) != solver.call_size(job.batch) else 0)
             t0 = time.perf_counter()
             try:
-                results = [_solve_checked(solve, scene, chunk, preset, family, pad=pad)]
+                results = [_solve_checked(solve, job, chunk, designs, pad=pad)]
             except solver_errors:
-                groups = [[item] for item in chunk]     # isolate the failing design(s)
+                groups = [[e] for e in chunk]     # isolate the failing design(s)
                 results = []
-                for item in groups:
+                for group in groups:
                     try:
-                        results.append(_solve_checked(solve, scene, item, preset, family))
+                        results.append(_solve_checked(solve, job, group, designs))
                     except solver_errors as err:
                         results.append(None)
-                        item[0][1]["error"] = f"{type(err).__name__}: {err}"
-                        failures.append(f"{item[0][1]['name']} design_um={item[0][1]['design_um']}: {err}")
+                        group[0]["error"] = f"{type(err).__name__}: {err}"
+                        failures.append(f"{group[0]['name']} design_um={group[0]['design_um']}: {err}")
             elapsed = time.perf_counter() - t0
             for group, trajs in zip(groups, results):
-                if trajs is None:
-                    continue
-                for (_, e), traj in zip(group, trajs):
-                    e["sha256"] = write_trajectory(traj, root / e["path"])
+                for e, traj in zip(group, trajs or ()):
+                    e["sha256"] = write_trajectory(traj, job.root / e["path"])
                     wall = traj.meta.get("wall_time_s")
                     e["wall_time_s"] = float(wall) if wall is not None else elapsed / len(chunk)
                     e.pop("error", None)
@@ -349,32 +369,32 @@ def _generate(root: Path, plan: dict[str, tuple[np.ndarray, dict[str, Any]]], *,
     finally:
         bar.close()
     if failures:
-        where = manifest_path if shard is None else f"{root}{tag}"
+        where = job.root / MANIFEST if job.shard is None else f"{job.root}{job.tag}"
         raise DatasetError(f"{where}: {len(failures)} design(s) failed in the solver "
                            "(rerun to retry):\n  " + "\n  ".join(failures))
-    if shard is None:
-        shards.remove_parts(parts)
-    else:
-        save(complete=True)
-    return root
 
 
-def _solve_checked(solve, scene: Scene, items, preset: str, family: SceneFamily | None = None,
-                   pad: int = 0) -> list[Trajectory]:
-    """Solve the entries ``items``: one batched call over the design layers (``pad`` more copies of the last
-    design, whose trajectories are dropped), or for a scene family one call per scene (each scene has its
-    own mesh), its parameters recorded in meta['scene_params']."""
-    if family is not None:
+def _solve_checked(solve, job: _Job, entries, designs: Mapping[str, Design], pad: int = 0) -> list[Trajectory]:
+    """Solve ``entries``: one batched call over the design layers (``pad`` more copies of the last design,
+    whose trajectories are dropped), or for a family one call per scene (each scene has its own mesh), its
+    row recorded in meta['scene_params'] and the family's name in meta['family']."""
+    if job.family is not None:
         trajs = []
-        for _, e in items:
-            one = family.scene(scene, e["scene_params"])
-            (traj,) = _solve_checked(solve, one, [(None, e)], preset)
+        for e in entries:
+            one = designs[e["name"]].scene(job.scene)
+            (traj,) = _solve(solve, one, [e["design_m"]], job.preset)
             traj.meta["scene_params"] = dict(e["scene_params"])
-            traj.meta["family"] = preset
+            traj.meta["family"] = job.family.name
             trajs.append(traj)
         return trajs
-    des = np.asarray([e["design_m"] for _, e in items] + [items[-1][1]["design_m"]] * pad, dtype=np.float64)
+    return _solve(solve, job.scene, [e["design_m"] for e in entries] + [entries[-1]["design_m"]] * pad,
+                  job.preset)[:len(entries)]
+
+
+def _solve(solve, scene: Scene, rows, preset: str) -> list[Trajectory]:
+    """``solve(scene, rows (b, n_design) [m], preset=preset)``; DatasetError when it returns another count."""
+    des = np.asarray(rows, dtype=np.float64)
     trajs = list(solve(scene, des, preset=preset))
     if len(trajs) != len(des):
         raise DatasetError(f"solver returned {len(trajs)} trajectories for {len(des)} designs")
-    return trajs[:len(items)]
+    return trajs

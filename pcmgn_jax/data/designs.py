@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
-from pcmgn_jax.data.stack import STACK_FAMILIES, StackFamily
+from pcmgn_jax.data.family import Design, Family, family_units
+from pcmgn_jax.data.layout import DatasetError
+from pcmgn_jax.data.stack import STACK_FAMILIES
 from pcmgn_jax.presets import PRESETS
 from pcmgn_jax.scene import Scene, with_parameters
 
@@ -25,10 +27,17 @@ class SceneFamily:
 
     parameters: tuple[tuple[str, float, float], ...]
     n_frames: int = 100
+    name: str = "family"
+    padded = False                     # a row holds every parameter, each > 0
+    plans: ClassVar[tuple[str, ...]] = ()    # one plan: train and test from one hypercube
 
     @property
     def names(self) -> tuple[str, ...]:
         return tuple(p[0] for p in self.parameters)
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        return family_units(self.names)
 
     def base(self, scene: Scene) -> Scene:
         """The family's base scene: ``scene`` with the family's window and its layer parameters as the
@@ -37,8 +46,26 @@ class SceneFamily:
         layers = tuple(n for n in self.names if n in scene.part_names)
         return dc.replace(scene, n_frames=self.n_frames, design_layers=layers)
 
-    def scene(self, base: Scene, params: dict[str, float]) -> Scene:
+    def scene(self, base: Scene, params: Mapping[str, float]) -> Scene:
         return with_parameters(base, params)
+
+    def sample(self, n: int, seed: int) -> np.ndarray:
+        """(n, P) rows of one seeded Latin hypercube over the family's box [SI] (:func:`lhs_designs`)."""
+        lows, highs = (np.array([p[i] for p in self.parameters]) for i in (1, 2))
+        return lhs_designs(n, seed=seed, low=lows, high=highs, dim=len(lows))
+
+    def sample_splits(self, n_train: int, n_test: int, seed: int,
+                      plan: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(train rows, test rows): the first ``n_train`` and the next ``n_test`` rows of ONE hypercube of
+        ``n_train + n_test`` (its rows are in random order); ``plan`` is ignored."""
+        rows = self.sample(n_train + n_test, seed)
+        return rows[:n_train], rows[n_train:]
+
+    def split_origin(self, seed: int, n_total: int, plan: str | None = None) -> dict[str, Any]:
+        return {"kind": "lhs", "seed": int(seed), "n_total": n_total, "parameters": [list(p) for p in self.parameters]}
+
+    def canonical(self, params: Mapping[str, float]) -> dict[str, float]:
+        return dict(params)
 
 
 # The scene family. Ranges around the paper's scene (docs/design.md §2), each chosen to stay in the
@@ -54,11 +81,13 @@ class SceneFamily:
 # 400 µs window (evaluation reports the phases each test scene reaches).
 FAMILY_PARAMETERS = (("ball.radius", 4.0e-3, 6.0e-3), ("ball.velocity", 0.5, 0.75),
                      ("OCA1", 50e-6, 150e-6), ("OCA2", 50e-6, 150e-6), ("POL", 30e-6, 70e-6))
-FAMILIES: dict[str, SceneFamily | StackFamily] = {
-    **{name: SceneFamily(FAMILY_PARAMETERS, n_frames=p.n_frames) for name, p in PRESETS.items() if p.family == "scene"},
+FAMILIES: dict[str, Family] = {
+    **{name: SceneFamily(FAMILY_PARAMETERS, n_frames=p.n_frames, name=name)
+       for name, p in PRESETS.items() if p.family == "scene"},
     **STACK_FAMILIES,   # panel stacks of 5-7 layers, a padded parameter vector (pcmgn_jax.data.stack)
 }
-"""The scene family of each family preset (its ``family`` and ``n_frames`` in :data:`pcmgn_jax.presets.PRESETS`)."""
+"""The scene family (a :class:`pcmgn_jax.data.family.Family`) of each family preset (its ``family`` and ``n_frames``
+in :data:`pcmgn_jax.presets.PRESETS`)."""
 
 
 # ---- designs ------------------------------------------------------------------------------------
@@ -127,6 +156,71 @@ def parse_designs(text: str, *, dim: int | None = 2) -> np.ndarray:
             raise ValueError(f"--designs: design {i + 1} has {len(vals)} values, design 1 has {len(rows[0])}")
         rows.append(vals)
     return np.asarray(rows, dtype=np.float64) * 1e-6
+
+
+# ---- the splits of a dataset ---------------------------------------------------------------------
+@dataclass(frozen=True)
+class SplitPlan:
+    """One split of a dataset to generate: its ``name``, its ``designs`` (:class:`Design`, rows of ``width``
+    values [SI]) and ``origin``, how they were drawn (the manifest's record)."""
+
+    name: str
+    designs: tuple[Design, ...]
+    origin: dict[str, Any]
+    width: int
+
+    @property
+    def rows(self) -> np.ndarray:
+        """(n, width) float64 [SI]: the designs' values as given."""
+        return np.asarray([d.values for d in self.designs], np.float64).reshape(len(self.designs), self.width)
+
+
+def sampled_splits(scene: Scene, family: Family | None, *, n_train: int, n_test: int, seed: int,
+                   low: float = DESIGN_LOW, high: float = DESIGN_HIGH, plan: str | None = None) -> list[SplitPlan]:
+    """``train`` and ``test`` of a dataset: the first ``n_train`` and next ``n_test`` rows of one seeded
+    hypercube of ``scene``'s design-layer thicknesses over [low, high] [m], or the family's
+    :meth:`~pcmgn_jax.data.family.Family.sample_splits` of ``plan`` (None: its first). DatasetError for
+    sizes that plan nothing and for an unknown plan."""
+    if n_train < 0 or n_test < 0 or n_train + n_test == 0:
+        raise DatasetError(f"need n_train + n_test > 0, got n_train={n_train}, n_test={n_test}")
+    n_total = n_train + n_test
+    if family is None:
+        names = scene.design_layers
+        rows = lhs_designs(n_total, seed=seed, low=low, high=high, dim=len(names))
+        train, test = rows[:n_train], rows[n_train:]
+        origin = {"kind": "lhs", "seed": int(seed), "n_total": n_total, "low_m": low, "high_m": high}
+    else:
+        names, plan = family.names, plan or (family.plans or (None,))[0]
+        try:
+            train, test = family.sample_splits(n_train, n_test, seed, plan)
+        except ValueError as err:
+            raise DatasetError(str(err)) from None
+        origin = family.split_origin(seed, n_total, plan)
+    return [SplitPlan(name, tuple(Design.of(family, r, names) for r in rows), {**origin, "rows": span},
+                      len(names))
+            for name, rows, span in (("train", train, [0, n_train]), ("test", test, [n_train, n_total]))]
+
+
+def explicit_split(scene: Scene, family: Family | None, designs, name: str, *, preset: str = "") -> SplitPlan:
+    """The split ``name`` of explicit rows ``designs`` (B, P): ``scene``'s design-layer thicknesses [m], or a
+    family's parameters (its order, SI; e.g. scenes outside its box, ``experiments.generate --scene_params``)
+    on its base scene ``scene``, each scene made once. DatasetError naming a bad shape, value or scene."""
+    names = scene.design_layers if family is None else family.names
+    designs = np.asarray(designs, dtype=np.float64)
+    if designs.ndim != 2 or designs.shape[1] != len(names) or len(designs) == 0:
+        raise DatasetError(f"designs must have shape (B>0, {len(names)}) for {list(names)}, got {designs.shape}"
+                           + ("" if family is None else f" (preset {preset!r} is a scene family: give its "
+                                                        "scene parameters, --scene_params)"))
+    padded = family is not None and family.padded
+    if not np.all(np.isfinite(designs)) or np.any(designs < 0 if padded else designs <= 0):
+        raise DatasetError(f"designs must be finite values > 0 (SI; >= 0 in a stack's padded row) for {list(names)}")
+    out = SplitPlan(name, tuple(Design.of(family, r, names) for r in designs), {"kind": "explicit"}, len(names))
+    for i, design in enumerate(out.designs if family is not None else ()):    # before the lock
+        try:
+            design.scene(scene)
+        except ValueError as err:
+            raise DatasetError(f"scene {i + 1} of {len(designs)}: {err}") from None
+    return out
 
 
 def origin_mismatch(old: dict, n_old: int, new: dict, n_new: int) -> str:

@@ -12,13 +12,14 @@ import os
 from pathlib import Path
 
 from pcmgn_jax.data.cache import load_split
-from pcmgn_jax.data.dataset import ensure_dataset
+from pcmgn_jax.data.dataset import FAMILIES, ensure_dataset
+from pcmgn_jax.data.family import Design, Family
 from pcmgn_jax.data.layout import GENERATE, IMPORTED, DatasetError, check_element, dataset_source, load_manifest
 from pcmgn_jax.data.trajectory_io import TrajectoryFileError, read_sidecar, read_trajectory, write_trajectory
 from pcmgn_jax.lock import hold
 from pcmgn_jax.trajectory import Trajectory
 
-__all__ = ["load_directory", "load_splits", "pool_datasets", "prepare_dataset"]
+__all__ = ["load_directory", "load_splits", "pool_datasets", "prepare_dataset", "split_designs"]
 
 
 def load_directory(path: str | os.PathLike) -> list[Trajectory]:
@@ -72,6 +73,29 @@ def _covers(root: Path, *, preset: str, n_train: int, n_test: int, seed: int) ->
         if len(done) < need or len(done) < len(sp["trajectories"]):
             return False
     return True
+
+
+def split_designs(dataset_dir: str | os.PathLike, split: str, *, family: Family | None = None) -> list[Design]:
+    """The designs of the split ``split`` of a generated dataset, in its order (from its manifest; solves and
+    reads no trajectory): a family's rows (``scene_params`` [SI]; ``family`` default the preset's, given for
+    a family passed to :func:`ensure_dataset` ``family=``), else the design-layer thicknesses [m].
+    DatasetError naming the directory when it has no manifest or no such split, or when the rows are not
+    ``family``'s."""
+    root = Path(dataset_dir)
+    man = load_manifest(root)
+    if man is None or split not in man["splits"]:
+        raise DatasetError(f"{root}: no generated split {split!r} (splits: {sorted((man or {}).get('splits', {}))})")
+    family = family if family is not None else FAMILIES.get(man.get("preset") or "")
+    out = []
+    for e in man["splits"][split]["trajectories"]:
+        if man.get("family") is None:
+            out.append(Design.of(None, e["design_m"], man["design_layers"]))
+            continue
+        if family is None or list(e["scene_params"]) != list(family.names):
+            raise DatasetError(f"{root}: split {split!r} holds rows of {list(e['scene_params'])}, not of the "
+                               f"family {getattr(family, 'name', None)!r}: pass its family")
+        out.append(Design.of(family, list(e["scene_params"].values())))
+    return out
 
 
 def load_splits(dataset_dir: str | os.PathLike, *, n_train: int, n_val: int, n_test: int):

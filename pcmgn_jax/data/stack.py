@@ -28,7 +28,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import ClassVar, Mapping, Sequence
 
 import numpy as np
 
@@ -77,11 +77,19 @@ class StackFamily:
     """The stack family: ``n_frames`` frames of the base scene's ``output_dt`` per scene."""
 
     n_frames: int = 100
+    name: str = "stack"
+    padded = True                      # an absent layer is a 0 in the row, and the row decides the layers
+    plans: ClassVar[tuple[str, ...]] = tuple(PLANS)
 
     @property
     def names(self) -> tuple[str, ...]:
         """The padded parameter vector's names (module docstring)."""
         return _names()
+
+    @property
+    def units(self) -> tuple[str, ...]:
+        """'m', 'log10 Pa', '1' (a presence flag) per slot, then 'm', 'm/s' (the ball)."""
+        return tuple(unit for _ in SLOTS for unit in ("m", "log10 Pa", "1")) + ("m", "m/s")
 
     @property
     def parameters(self) -> tuple[tuple[str, float, float], ...]:
@@ -155,13 +163,23 @@ class StackFamily:
             rows.append(self.row(variant, u[i], r0 + (r1 - r0) * u[i, -2], v0 + (v1 - v0) * u[i, -1]))
         return np.stack(rows)
 
-    def sample_splits(self, n_train: int, n_test: int, seed: int, plan: str = "e1") -> tuple[np.ndarray, np.ndarray]:
-        """(train rows, test rows) of the split plan ``plan`` (:data:`PLANS`); train and test come from
-        seeds ``seed`` and ``seed + 1``."""
+    def sample_splits(self, n_train: int, n_test: int, seed: int,
+                      plan: str | None = "e1") -> tuple[np.ndarray, np.ndarray]:
+        """(train rows, test rows) of the split plan ``plan`` (:data:`PLANS`; None: e1); train and test come
+        from seeds ``seed`` and ``seed + 1``."""
+        plan = plan or "e1"
         if plan not in PLANS:
             raise ValueError(f"stack split plan {plan!r} must be one of {sorted(PLANS)}")
         train_kw, test_kw = PLANS[plan]
         return self.sample(n_train, seed, **train_kw), self.sample(n_test, seed + 1, **test_kw)
+
+    def split_origin(self, seed: int, n_total: int, plan: str | None = "e1") -> dict:
+        return {"kind": "stack", "plan": plan or "e1", "seed": int(seed), "n_total": n_total,
+                "parameters": [list(p) for p in self.parameters]}
+
+    def canonical(self, params: Mapping[str, float]) -> dict[str, float]:
+        """:func:`canonical` of a padded row."""
+        return canonical(params)
 
 
 def value_ranges() -> dict[str, tuple[float, float]]:
@@ -239,7 +257,8 @@ def range_warnings(label: str, params: Mapping[str, float]) -> list[str]:
     return out
 
 
-STACK_FAMILIES = {name: StackFamily(n_frames=p.n_frames) for name, p in PRESETS.items() if p.family == "stack"}
+STACK_FAMILIES = {name: StackFamily(n_frames=p.n_frames, name=name)
+                  for name, p in PRESETS.items() if p.family == "stack"}
 
 
 def stack_warnings(trajs: Sequence) -> list[str]:

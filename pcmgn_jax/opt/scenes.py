@@ -45,21 +45,24 @@ def family_of(traj):
 
 
 def is_stack(family) -> bool:
+    """True for the panel-stack family: its search box and page are built from the stack's slots
+    (:func:`stack_box`), which no other family has; everything else goes through the Family protocol."""
     return isinstance(family, StackFamily)
 
 
 def row_of(names: Sequence[str], x, family=None) -> dict[str, float]:
-    """{name: value} of parameter values x (P,) [SI] in ``names``' order; for a stack family the canonical
-    row (:func:`pcmgn_jax.data.stack.canonical`: flags 0/1, an absent layer's thickness 0)."""
+    """{name: value} of parameter values x (P,) [SI] in ``names``' order; for a family its canonical row
+    (:meth:`pcmgn_jax.data.family.Family.canonical`; a stack's: flags 0/1, an absent layer's thickness 0)."""
     row = {n: float(v) for n, v in zip(names, np.asarray(x, float).reshape(-1))}
-    return canonical(row) if is_stack(family) else row
+    return row if family is None else family.canonical(row)
 
 
 def scene_at(scene0: Scene, row: Mapping[str, float], family=None) -> Scene:
-    """The scene of ``row`` ({name: value} [SI]) on ``scene0`` (a training scene of the run): a stack
-    family's scene (its layers from the row), else :func:`pcmgn_jax.scene.with_parameters`. ValueError
-    naming a bad parameter (e.g. a present layer of thickness 0)."""
-    return family.scene(scene0, row) if is_stack(family) else with_parameters(scene0, row)
+    """The scene of ``row`` ({name: value} [SI]) on ``scene0`` (a training scene of the run): the family's
+    scene (:meth:`pcmgn_jax.data.family.Family.scene`; a stack's layers from the row), else
+    :func:`pcmgn_jax.scene.with_parameters`. ValueError naming a bad parameter (e.g. a present layer of
+    thickness 0)."""
+    return with_parameters(scene0, row) if family is None else family.scene(scene0, row)
 
 
 def query(scene: Scene, ref: Trajectory, preset: str | None, *, scene_params: Mapping[str, float] | None = None,
