@@ -335,3 +335,17 @@ def test_a_setting_the_library_refuses_is_said_as_its_flag_on_the_command_line(c
     assert cli.run(lambda argv: parse_parts("ball"), []) == 2
     assert "error: --parts: 'ball' is not NAME=GROUP" in capsys.readouterr().err
 
+
+
+def test_no_library_error_spells_a_flag():
+    """Library errors name settings, values and files, never a ``--flag`` (pcmgn_jax/errors.py); cli.py, the
+    command line's own module, is the one place that does."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1] / "pcmgn_jax"
+    pattern = re.compile(r"raise \w+\(\s*f?[\"']--[a-z]")
+    found = [f"{p.relative_to(root.parent)}:{text.count(chr(10), 0, m.start()) + 1}"
+             for p in sorted(root.rglob("*.py")) if p.name != "cli.py"
+             for text in [p.read_text()] for m in pattern.finditer(text)]
+    assert not found, f"library errors that spell a flag: {found}"

@@ -12,6 +12,7 @@ import numpy as np
 from pcmgn_jax.data.family import Design, Family, family_units
 from pcmgn_jax.data.layout import DatasetError
 from pcmgn_jax.data.stack import STACK_FAMILIES
+from pcmgn_jax.errors import SettingError
 from pcmgn_jax.presets import PRESETS
 from pcmgn_jax.scene import Scene, with_parameters
 
@@ -119,41 +120,41 @@ def parse_scene_params(text: str, names: Sequence[str], *, zero_ok: bool = False
             key, sep, val = (x.strip() for x in item.partition("="))
             if not sep or key not in names or key in got:
                 why = "not NAME=VALUE" if not sep else "unknown" if key not in names else "repeated"
-                raise ValueError(f"--scene_params: scene {i + 1}: {item.strip()!r} is {why} "
+                raise SettingError("scene_params", f"scene {i + 1}: {item.strip()!r} is {why} "
                                  f"(parameters: {', '.join(names)}, SI)")
             try:
                 got[key] = float(val)
             except ValueError:
-                raise ValueError(f"--scene_params: scene {i + 1}: {key}={val!r} is not a number") from None
+                raise SettingError("scene_params", f"scene {i + 1}: {key}={val!r} is not a number") from None
             if not math.isfinite(got[key]) or got[key] < 0 or (got[key] == 0 and not zero_ok):
-                raise ValueError(f"--scene_params: scene {i + 1}: {key} must be finite and > 0, got {val}")
+                raise SettingError("scene_params", f"scene {i + 1}: {key} must be finite and > 0, got {val}")
         if set(got) != set(names):
-            raise ValueError(f"--scene_params: scene {i + 1} misses {sorted(set(names) - set(got))}")
+            raise SettingError("scene_params", f"scene {i + 1} misses {sorted(set(names) - set(got))}")
         rows.append([got[n] for n in names])
     if not rows:
-        raise ValueError("--scene_params: empty; expected NAME=VALUE,...;NAME=VALUE,... (SI)")
+        raise SettingError("scene_params", "empty; expected NAME=VALUE,...;NAME=VALUE,... (SI)")
     return np.asarray(rows, dtype=np.float64)
 
 
 def parse_designs(text: str, *, dim: int | None = 2) -> np.ndarray:
     """Parse ``"40,40;40,160"`` (µm, designs separated by ';', values by ',') into (B, dim) [m]."""
     if not isinstance(text, str) or not text.strip():
-        raise ValueError("--designs: empty; expected e.g. '40,40;40,160' (thicknesses in µm)")
+        raise SettingError("designs", "empty; expected e.g. '40,40;40,160' (thicknesses in µm)")
     rows = []
     for i, chunk in enumerate(text.strip().strip(";").split(";")):
         parts = [p.strip() for p in chunk.split(",")]
         try:
             vals = [float(p) for p in parts]
         except ValueError:
-            raise ValueError(f"--designs: design {i + 1} ({chunk.strip()!r}) is not a list of numbers "
+            raise SettingError("designs", f"design {i + 1} ({chunk.strip()!r}) is not a list of numbers "
                              "in µm, e.g. '40,160'") from None
         if any(not math.isfinite(v) or v <= 0 for v in vals):
-            raise ValueError(f"--designs: design {i + 1} ({chunk.strip()!r}) must be finite thicknesses > 0 µm")
+            raise SettingError("designs", f"design {i + 1} ({chunk.strip()!r}) must be finite thicknesses > 0 µm")
         if dim is not None and len(vals) != dim:
-            raise ValueError(f"--designs: design {i + 1} ({chunk.strip()!r}) has {len(vals)} values, "
+            raise SettingError("designs", f"design {i + 1} ({chunk.strip()!r}) has {len(vals)} values, "
                              f"expected {dim}")
         if rows and len(vals) != len(rows[0]):
-            raise ValueError(f"--designs: design {i + 1} has {len(vals)} values, design 1 has {len(rows[0])}")
+            raise SettingError("designs", f"design {i + 1} has {len(vals)} values, design 1 has {len(rows[0])}")
         rows.append(vals)
     return np.asarray(rows, dtype=np.float64) * 1e-6
 

@@ -35,6 +35,7 @@ from typing import Any
 
 from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.data.layout import MANIFEST, SHARD_PARTS, DatasetError, read_format_json
+from pcmgn_jax.errors import SettingError
 
 __all__ = ["PART_FORMAT", "adopt", "check_parts", "missing_report", "owner", "parse_shard", "plan_digest",
            "read_parts", "remove_parts", "write_part"]
@@ -47,10 +48,10 @@ def parse_shard(text: str) -> tuple[int, int]:
     """``"K/N"`` -> ``(K, N)``: shard K (0-based) of N, ``0 <= K < N``; ValueError naming the flag otherwise."""
     m = _SHARD_RE.match(text) if isinstance(text, str) else None
     if m is None:
-        raise ValueError(f"--shard {text!r}: expected K/N, e.g. 3/8 (shard K of N, K counted from 0)")
+        raise SettingError("shard", f"{text!r}: expected K/N, e.g. 3/8 (shard K of N, K counted from 0)")
     k, n = int(m.group(1)), int(m.group(2))
     if n < 1 or k >= n:
-        raise ValueError(f"--shard {text}: K must be in 0..{max(n - 1, 0)} and N >= 1 (K counts from 0, as "
+        raise SettingError("shard", f"{text}: K must be in 0..{max(n - 1, 0)} and N >= 1 (K counts from 0, as "
                          f"SLURM_ARRAY_TASK_ID with --array=0-{max(n - 1, 0)})")
     return k, n
 
