@@ -57,6 +57,7 @@ def main(argv=None) -> int:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
 
     from pcmgn_jax.atomic import atomic_write_text
     from pcmgn_jax.opt.table import best_so_far, trace_rows
@@ -87,6 +88,7 @@ def main(argv=None) -> int:
                       label=f"{name}: search{' + training' if name in train else ''}")
             ax_n.plot([], [], "--", color=colour, label=f"{name} ({d['n_evals']:,} surrogate evaluations)")
     ax_t.set(xscale="log", xlabel="wall time [s]", ylabel="solver-checked objective [MPa]")
+    ax_t.xaxis.set_minor_formatter(NullFormatter())     # the log axis's minor labels overlap
     ax_n.set(xlabel="solver runs (a value and gradient each; a screened value counts one)")
     for ax in (ax_t, ax_n):
         ax.grid(alpha=0.3)
