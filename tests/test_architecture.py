@@ -36,3 +36,14 @@ def test_module_constants_have_one_meaning():
                     homes[t.id].append(str(path.relative_to(ROOT)))
     twice = {name: where for name, where in homes.items() if len(set(where)) > 1}
     assert not twice, f"constants defined in more than one module: {twice}"
+
+
+def test_the_library_speaks_of_no_tracker_issue():
+    """No ``issue N`` in library code (the docs say which issue a module serves); another project's issue,
+    cited as its repository's (``CalculiX issue 63``), is a reference, not the tracker."""
+    import re
+
+    pattern = re.compile(r"(?<!CalculiX )\bissues? \d+", re.IGNORECASE)
+    found = [f"{p.relative_to(ROOT)}:{n}" for p in sorted((ROOT / "pcmgn_jax").rglob("*.py"))
+             for n, line in enumerate(p.read_text().splitlines(), 1) if pattern.search(line)]
+    assert not found, f"tracker issue numbers in the library: {found}"

@@ -1,4 +1,4 @@
-"""A model of only the question: a scene's reference graph -> per-node time fields, in one pass (issue 49, item 4).
+"""A model of only the question: a scene's reference graph -> per-node time fields, in one pass.
 
     cfg = OnePassConfig(num_steps=2000)
     d = design_inputs(cfg, traj, radius=r, capacity=c)     # the design's graph at its initial state (frame 0)

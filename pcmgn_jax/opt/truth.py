@@ -1,5 +1,5 @@
 """Design on the truth: the built-in solver as the optimiser's objective, every evaluation a solver run with
-its exact design gradient (issue 50, item 4: ``python -m experiments.optimize --surrogate solver --method slsqp``).
+its exact design gradient (``python -m experiments.optimize --surrogate solver --method slsqp``).
 
 :class:`SolverObjective` has the interface of :mod:`pcmgn_jax.opt.objectives` (designs (B, D) [m] in,
 objective (B,) [MPa] out; ``value_and_grad`` with the gradient [MPa/m]; ``n_evals``; ``name`` = ``solver``;
