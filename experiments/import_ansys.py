@@ -34,6 +34,7 @@ from typing import Optional
 from pcmgn_jax import cli
 from pcmgn_jax.data.importers import parse_parts
 from pcmgn_jax.data.importers.exports import import_exports, import_files
+from pcmgn_jax.errors import SettingError
 from pcmgn_jax.scene import Scene
 
 
@@ -85,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError("give --mesh, --results and --out (one run), or --exports and --out (a dataset)")
         traj, digest = import_files(args.mesh, args.results, args.out, **settings)
     except ValueError as err:
-        print(f"error: {err}", file=sys.stderr)
+        print(f"error: {err.as_flag() if isinstance(err, SettingError) else err}", file=sys.stderr)
         return 2
     print(f"wrote {args.out}.xdmf/.h5/.json: {traj.n_nodes} nodes, {len(traj.cells)} cells, "
           f"{traj.n_frames} frames, sha256 {digest[:12]}")

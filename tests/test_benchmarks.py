@@ -247,6 +247,7 @@ def test_gpu_check_budget_skips_and_says_so(tmp_path):
     assert r["config"]["budget_s"] == 0 and "skipped: not started" in out.with_suffix(".md").read_text()
 
 
+@pytest.mark.slow  # ~11 s: solver calls of the benchmark
 def test_solver_throughput_rows(tmp_path):
     """`benchmarks.solver_throughput` at tiny sizes: one row per batch size, written as measured, finite."""
     import math

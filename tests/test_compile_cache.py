@@ -112,6 +112,7 @@ def test_designs_per_call_device_default():
         solver.designs_per_call(solver.SolverSettings(designs_per_call=-1))
 
 
+@pytest.mark.slow  # ~15 s; compile-once of padded calls stays in the default suite
 def test_generate_ragged_last_batch_compiles_the_solver_once(tmp_path, monkeypatch):
     """5 designs in batches of 2 (2, 2, 1) with 2 designs per compiled call (as an accelerator's 64, here on
     the CPU): the last batch is padded with a copy, so the solver compiles once (a shape no other test uses:

@@ -50,6 +50,7 @@ def test_a_trajectory_of_another_element_disagrees_with_its_manifest():
     assert layout.entry_mismatch(entry, made, ("OCA1", "OCA2"), "q4") is None
 
 
+@pytest.mark.slow  # ~12 s: a tiny generation
 def test_the_solver_records_its_element_in_every_trajectory():
     from pcmgn_jax.scene import default_scene
     from pcmgn_jax.sim import solver

@@ -92,6 +92,7 @@ def test_teacher_forcing_separates_the_drift():
         assert set(m["phases"]) == set(PHASES)
 
 
+@pytest.mark.slow  # ~15 s: a tiny run's whole budget; the splits' arithmetic is tested above by default
 def test_the_tiny_runs_budget(tiny_run, tiny_trajs, tmp_path):
     """On a trained tiny run: the teacher-forced frame 1 is the rollout's (both one step from the true frame 0), every
     mode of a quasi-static panel is there, and the page, figure and JSON are written."""

@@ -261,9 +261,9 @@ def test_import_cli_crops_before_writing(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("flags, named", [
-    (["--roi_radius", "1e-5"], "--roi_radius=1e-05"),
-    (["--roi_radius", "1e-3", "--roi_ball_height", "1e-5"], "--roi_ball_height=1e-05"),
-    (["--roi_depth", "-1"], "--roi_depth=-1.0")])
+    (["--roi_radius", "1e-5"], "--roi_radius: 1e-05"),
+    (["--roi_radius", "1e-3", "--roi_ball_height", "1e-5"], "--roi_ball_height: 1e-05"),
+    (["--roi_depth", "-1"], "--roi_depth: -1.0")])
 def test_import_cli_empty_crop_names_the_flag(tmp_path, capsys, flags, named):
     from experiments.import_ansys import main
 

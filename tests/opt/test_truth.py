@@ -49,6 +49,7 @@ def test_extreme_designs_are_the_paper_box_vertices_and_projected_corners():
     assert got == {(50, 100), (100, 50), (150, 50), (150, 100), (100, 150), (50, 150), (75, 75), (125, 125)}
 
 
+@pytest.mark.slow  # ~26 s; the solver gradient's fast FD check is tests/sim/test_differentiable.py
 def test_exact_gradient_matches_central_differences_of_the_same_values(truth):
     """Two designs' value and gradient in one call against central differences (0.01 µm) of the objective's
     values, each component within 1 % of the gradient's norm; the step is the box's, held fixed."""

@@ -182,6 +182,7 @@ def test_a_kill_between_the_best_and_the_periodic_checkpoint_resumes(tiny_trajs,
 
 
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")  # orbax's loop after the failed read
+@pytest.mark.slow  # ~47 s (two tiny trainings); the other checkpoint-fault tests here run by default
 def test_a_damaged_newest_checkpoint_is_named_and_the_previous_one_used(tiny_trajs, tmp_path, reference, capsys):
     trajs = dict(train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:])
     training.train(_cfg(), tmp_path, stop_after=40, **trajs)
@@ -273,7 +274,8 @@ def test_an_entry_point_answers_a_bad_run_with_one_line_and_writes_nothing(tmp_p
         tiny_config(dataset_dir=str(tmp_path / "nodata")).save_json(run / "config.json")
     before = _tree(tmp_path)
     module = importlib.import_module(f"experiments.{command}")
-    assert cli.run(module.main, ["--workdir", str(run)]) == 2
+    mgn = ["--surrogate", "mgn"] if command == "optimize" else []   # optimize's default (kriging) needs no checkpoint
+    assert cli.run(module.main, ["--workdir", str(run), *mgn]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(run) in err and f"experiments.train --workdir {run}" in err, err
     assert {"missing": "no such run folder", "file": "is a file", "no_checkpoint": "holds no checkpoint"}[what] in err

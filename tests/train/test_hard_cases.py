@@ -99,6 +99,7 @@ def test_solver_energy_within_one_percent_on_extrapolated_designs(solver_trajs):
         assert t.meta["phases"]["peak_force_N"] > 0
 
 
+@pytest.mark.slow  # with the next-but-one test: ~35 s of extrapolated rollouts (their session fixture)
 def test_rollout_twice_the_window_finite_on_extrapolated_designs(solver_trajs, extra_rollouts):
     _, extra = solver_trajs
     setup, res = extra_rollouts
@@ -156,6 +157,7 @@ def test_loss_and_gradient_finite_on_extrapolated_frames(solver_trajs, hard_run)
     assert np.any(pen[contact] > 0)
 
 
+@pytest.mark.slow  # shares the extrapolated rollouts above (~35 s)
 def test_fit_free_penetration_finite_on_extrapolated_rollouts(solver_trajs, extra_rollouts):
     _, extra = solver_trajs
     sim, res = extra_rollouts
