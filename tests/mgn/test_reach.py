@@ -162,7 +162,9 @@ def union_graph(form, ds, **kw):
 
 _input_graph = jax.jit(rl.input_graph, static_argnums=0)
 # multiscale's two checks below take ~16 s each: slow, so the default suite stays under 10 minutes
-REACHES_DEFAULT_SUITE = [pytest.param(r, marks=pytest.mark.slow) if r == "multiscale" else r for r in REACHES]
+# the default suite keeps the local (default) processor; the reach processors (~12 s each per test) run with -m slow
+REACHES_DEFAULT_SUITE = [pytest.param(r, marks=pytest.mark.slow) if r in ("multiscale", "attention") else r
+                         for r in REACHES]
 
 
 @pytest.mark.parametrize("reach", REACHES_DEFAULT_SUITE)

@@ -68,6 +68,7 @@ def test_exact_gradient_matches_central_differences_of_the_same_values(truth):
     assert truth.trace[0]["grad_mpa_per_m"] is not None and truth.trace[-1]["grad_mpa_per_m"] is None
 
 
+@pytest.mark.slow  # ~19 s: compiles the tiny solver's value and gradient
 def test_slsqp_on_the_solver_end_to_end_resumes_and_refuses_another_search(truth_run, truth, monkeypatch):
     """A 2-iteration SLSQP through ``opt.run``: killed after its search (the resume file stays), refused for
     another budget (naming it), then run again: every evaluation replayed from the file, no solver run, the
