@@ -28,6 +28,7 @@ from scipy.stats import spearmanr
 
 from pcmgn_jax import markdown, metrics
 from pcmgn_jax.surrogates.inputs import TrainingScenes
+from pcmgn_jax.surrogates.objective import objective_of_fields
 from pcmgn_jax.surrogates.registry import fit
 from pcmgn_jax.surrogates.surface_fit import fit_gp, objective_table
 
@@ -93,12 +94,6 @@ def residual_spread_record(spread: ResidualSpread, trajs, pred_mpa, *, reading: 
             "train_residual_rms_mpa": float(np.sqrt(np.mean(spread.residual_mpa ** 2))), "warnings": spread.warnings}
 
 
-def rollout_objectives(trajs, vms, part, reading: str = metrics.DEFAULT_OBJECTIVE) -> np.ndarray:
-    """(B,) the objective [MPa] of predicted von Mises ``vms`` (one (T, N) [Pa] per trajectory, on its mesh)."""
-    return np.array([float(metrics.oled_objective_of(t, np.asarray(vm), part=part, reading=reading))
-                     for t, vm in zip(trajs, vms)])
-
-
 def member_predictions(workdirs: Sequence, sets: Mapping[str, Sequence], ref, part: int | None = None) -> list[dict]:
     """Per member {set: (u list (T, N, 2) [m], objective (B,) [MPa], vm list (T, N) [Pa])}, each member's
     rollouts of every set; ``part``: the objective's part id (default the OLED, by name)."""
@@ -108,7 +103,8 @@ def member_predictions(workdirs: Sequence, sets: Mapping[str, Sequence], ref, pa
         got = {}
         for name, trajs in sets.items():
             u, vm = m.rollout_trajectories(trajs)
-            got[name] = ([np.asarray(a) for a in u], rollout_objectives(trajs, vm, part), [np.asarray(a) for a in vm])
+            got[name] = ([np.asarray(a) for a in u], objective_of_fields(trajs, vm, part=part),
+                         [np.asarray(a) for a in vm])
         out.append(got)
     return out
 

@@ -37,11 +37,12 @@ from pcmgn_jax.config import TrainConfig
 from pcmgn_jax.data.stack import stack_warnings
 from pcmgn_jax.eval import plots
 from pcmgn_jax.eval.baselines import BASELINES, READING_KEYS, baseline_metrics, objective_scores
-from pcmgn_jax.eval.ensemble import ResidualSpread, residual_spread_record, rollout_objectives
+from pcmgn_jax.eval.ensemble import ResidualSpread, residual_spread_record
 from pcmgn_jax.geometry import roi_boundary_nodes
 from pcmgn_jax.mgn.contact import contact_parts
 from pcmgn_jax.provenance import code_version
 from pcmgn_jax.scene import Scene
+from pcmgn_jax.surrogates.objective import objective_of_fields
 from pcmgn_jax.surrogates.registry import fit
 
 
@@ -99,8 +100,7 @@ def _scores(scene: Scene, trajs, pred_u, pred_vm, bnodes, pnodes) -> dict:
         # (section area mean) under oled_objective_area_*; each trajectory on its own mesh, the OLED found by
         # name in each (a stack's OLED is not always the same part id)
         part = scene.part_names.index("OLED") if len(set(names)) == 1 else None
-        pred = {r: np.array([float(metrics.oled_objective_of(t, np.asarray(v), part=part, reading=r))
-                             for t, v in zip(trajs, pred_vm)]) for r in READING_KEYS}
+        pred = {r: objective_of_fields(trajs, pred_vm, part=part, reading=r) for r in READING_KEYS}
         out.update(objective_scores(trajs, pred, part=part))
     return out
 
@@ -169,7 +169,7 @@ def evaluate(workdir: str | Path, *, test_trajs: Sequence, train_trajs: Sequence
         stacks = {tuple(t.meta.get("part_names") or scene.part_names) for t in list(train_trajs) + list(test_trajs)}
         part = scene.part_names.index("OLED") if len(stacks) == 1 else None   # None: by name, per trajectory
         _, tv = mgn.rollout_trajectories(train_trajs)
-        spread = ResidualSpread(train_trajs, rollout_objectives(train_trajs, tv, part), part=part)
+        spread = ResidualSpread(train_trajs, objective_of_fields(train_trajs, tv, part=part), part=part)
         # the test predictions' objective, as _scores computed it above
         m["mgn_spread"] = residual_spread_record(spread, test_trajs, m["oled_objective_area_pred_mpa"], part=part)
     out = plots.ensure_dir(workdir / "eval" / name if name else workdir / "eval")

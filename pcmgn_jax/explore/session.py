@@ -42,7 +42,7 @@ from pcmgn_jax.data.layout import load_manifest
 from pcmgn_jax.data.splits import load_splits
 from pcmgn_jax.data.stack import nominal, range_warnings, stack_layer_count
 from pcmgn_jax.eval.baselines import READING_KEYS
-from pcmgn_jax.eval.ensemble import ResidualSpread, rollout_objectives
+from pcmgn_jax.eval.ensemble import ResidualSpread
 from pcmgn_jax.explore.page import Page
 from pcmgn_jax.explore.predictors import fit_predictor, has_fields, predict_one
 from pcmgn_jax.explore.types import (
@@ -64,6 +64,7 @@ from pcmgn_jax.opt.scenes import family_of, is_stack, query, row_of, scene_at, s
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.surrogates.inputs import TrainingScenes, shared_mesh
 from pcmgn_jax.surrogates.kinds import KINDS, by_rank
+from pcmgn_jax.surrogates.objective import objective_of_fields
 from pcmgn_jax.surrogates.registry import fit
 from pcmgn_jax.trajectory import Trajectory
 
@@ -225,7 +226,7 @@ class Explorer(Page):
             t0 = time.perf_counter()
             self.log(f"the MGN on its {len(self.train)} training scenes (its ± comes from its residuals there) ...")
             _, vms = model.rollout_trajectories(self.train)
-            f = rollout_objectives(self.train, vms, self.part, self.reading)
+            f = objective_of_fields(self.train, vms, part=self.part, reading=self.reading)
             self._mgn_spread = ResidualSpread(self.train, f, reading=self.reading, part=self.part)
             self._pred = Cache(CACHE_DESIGNS)   # the warm-up's prediction was made without the ±
             self.log(f"MGN ± ready in {time.perf_counter() - t0:.1f} s (training residual rms "

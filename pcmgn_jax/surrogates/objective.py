@@ -26,9 +26,11 @@ def check_reading(kind: str, reading: str, readings: Sequence[str] = OBJECTIVES)
 
 def objective_of_fields(trajs: Sequence, vms, *, reading: str = DEFAULT_OBJECTIVE,
                         part: int | None = None) -> np.ndarray:
-    """(B,) [MPa]: the objective ``reading`` of predicted von Mises ``vms`` (one (T, N_b) [Pa] per query) on each
-    query trajectory's mesh; ``part``: the OLED part id (None: found by name in each query)."""
-    return np.array([float(oled_objective_of(t, vm, part=part, reading=reading)) for t, vm in zip(trajs, vms)])
+    """(B,) [MPa]: the objective ``reading`` of predicted von Mises ``vms`` (one (T, N_b) [Pa] per query, NumPy or
+    JAX) on each query trajectory's mesh; ``part``: the OLED part id (None: found by name in each query). The one
+    scoring of predicted fields: evaluation, the residual spread and the explorer call it too."""
+    return np.array([float(oled_objective_of(t, np.asarray(vm), part=part, reading=reading))
+                     for t, vm in zip(trajs, vms)])
 
 
 class FromFields:
