@@ -15,7 +15,6 @@ each other result).
 from __future__ import annotations
 
 import glob
-import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,17 +31,12 @@ class TraceArgs:
 
 def load(files: str) -> dict:
     """{file stem: result} of the comma-separated paths / globs ``files``; ValueError naming a file that is no
-    optimize result, two files of one stem, or no file at all."""
+    optimize result (:func:`pcmgn_jax.opt.table.read_result`), two files of one stem, or no file at all."""
+    from pcmgn_jax.opt.table import read_result
     out, where = {}, {}
     for item in (s.strip() for s in files.split(",") if s.strip()):
         for p in sorted(glob.glob(item)) if any(c in item for c in "*?[") else [item]:
-            try:
-                d = json.loads(Path(p).read_text())
-            except (OSError, ValueError) as e:
-                raise ValueError(f"{p}: not a result of experiments.optimize ({e})") from e
-            missing = [k for k in ("surrogate", "method", "optimum_um", "search_seconds") if k not in d]
-            if missing:
-                raise ValueError(f"{p}: not a design-layer result of experiments.optimize (no {', '.join(missing)})")
+            d = read_result(p, required=("surrogate", "method", "optimum_um", "search_seconds"))
             stem = Path(p).stem
             if stem in where and where[stem] != p:
                 raise ValueError(f"{p} and {where[stem]}: two results named {stem!r} (copy one under another name)")

@@ -24,22 +24,26 @@ def budget_of(d: dict) -> str:
     return text + (f", {b['screen']} screened" if b.get("screen") else "")
 
 
+def read_result(path, required=("method", "optimum_um", "predicted_mpa")) -> dict:
+    """The design-layer result JSON of ``experiments.optimize`` at ``path``; ValueError naming the file when it
+    cannot be read, is a stack search's (its optimum a row of scene parameters) or lacks a ``required`` key."""
+    try:
+        d = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as e:
+        raise ValueError(f"{path}: not a result of experiments.optimize ({e})") from e
+    if isinstance(d, dict) and "optimum" in d:
+        raise ValueError(f"{path}: a stack search's result (its optimum is a row of scene parameters, "
+                         "pcmgn_jax/opt/stack_search.py); this table is of design-layer optima")
+    missing = [k for k in required if not isinstance(d, dict) or k not in d]
+    if missing:
+        raise ValueError(f"{path}: not a result of experiments.optimize (no {', '.join(map(repr, missing))})")
+    return d
+
+
 def rows(paths) -> list[str]:
     """The markdown table of the optimize JSONs ``paths`` (see the module docstring), as lines.
     Raises ``ValueError`` naming a file that is not an optimize result, or when ``paths`` is empty."""
-    results = []
-    for p in paths:
-        try:
-            d = json.loads(Path(p).read_text())
-        except (OSError, ValueError) as e:
-            raise ValueError(f"{p}: not a result of experiments.optimize ({e})") from e
-        if isinstance(d, dict) and "optimum" in d:
-            raise ValueError(f"{p}: a stack search's result (its optimum is a row of scene parameters, "
-                             "pcmgn_jax/opt/stack_search.py); this table is of design-layer optima")
-        missing = [k for k in ("method", "optimum_um", "predicted_mpa") if not isinstance(d, dict) or k not in d]
-        if missing:
-            raise ValueError(f"{p}: not a result of experiments.optimize (no {', '.join(map(repr, missing))})")
-        results.append((Path(p), d))
+    results = [(Path(p), read_result(p)) for p in paths]
     if not results:
         raise SettingError("files", "no optimize results given")
     results.sort(key=lambda r: (r[1].get("solver_mpa") is None, r[1].get("solver_mpa") or 0.0))
