@@ -4,6 +4,11 @@
   python -m experiments.gradient --preset tiny --design 50,100 --fd_steps 1e-3,1e-4 --out g.json   # + a step study
   python -m experiments.gradient --scene my.toml --params OCA1.thickness,CG.youngs,ball.radius --out g.json
   python -m experiments.gradient --table 'results/gradients/*.json' --out results/gradients/table.md
+  python -m experiments.gradient --dataset_dir DATA --split train --n 25 --out grads.json   # a dataset's designs
+
+With ``--dataset_dir``: the objective and its gradient with respect to the row's parameters at the first ``--n``
+designs of a generated dataset's split, one file a gradient-enhanced surrogate reads (resumable: rerun the
+same command after a kill; pcmgn_jax/data/gradients.py).
 
 Writes JSON (pcmgn_jax/sim/gradient_check.py): the objective [Pa], its gradient per named parameter in SI units
 (every layer's thickness and Young's modulus, the ball's radius and speed by default; ``--params`` names others:
@@ -32,6 +37,9 @@ class GradientArgs:
     fd_params: str = ""                 # parameters of the step study (default: all of --params)
     out: str = ""                       # write the JSON here
     table: str = ""                     # instead: the accuracy and cost tables (markdown) of these JSON files (a glob)
+    dataset_dir: str = ""               # instead: the gradients at a generated dataset's designs (--split, --n, --out)
+    split: str = "train"                # the dataset's split
+    n: int = 0                          # its first n designs (0: all)
 
 
 def main(argv=None) -> int:
@@ -40,6 +48,15 @@ def main(argv=None) -> int:
     from pcmgn_jax.scene import Scene
     from pcmgn_jax.sim.gradient_check import gradient_report
 
+    if args.dataset_dir:
+        from pcmgn_jax.data.gradients import design_gradients
+        from pcmgn_jax.data.splits import split_designs
+        from pcmgn_jax.errors import SettingError
+        if not args.out:
+            raise SettingError("out", "the gradients of --dataset_dir go to a file: give one")
+        n = args.n or len(split_designs(args.dataset_dir, args.split))
+        design_gradients(args.dataset_dir, args.split, n=n, out=args.out, reading=args.reading)
+        return 0
     if args.table:
         import glob
 
@@ -47,8 +64,8 @@ def main(argv=None) -> int:
         files = sorted(glob.glob(args.table))
         text = "\n".join(accuracy_table([json.loads(open(f).read()) for f in files])) + "\n"
         if args.out:
-            from pathlib import Path
-            Path(args.out).write_text(text)
+            from pcmgn_jax.atomic import atomic_write_text
+            atomic_write_text(args.out, text)
         print(text)
         return 0
     scene = Scene.load(args.scene) if args.scene else Scene()

@@ -40,7 +40,7 @@ from pcmgn_jax.scene import Scene
 from pcmgn_jax.sim import fem, stencil
 from pcmgn_jax.sim.initial import ball_velocity
 from pcmgn_jax.sim.integrate import _run, ball_weights, node_arrays, scaled_blocks
-from pcmgn_jax.sim.mesh import Mesh, MeshSpec, roi
+from pcmgn_jax.sim.mesh import Mesh, MeshSpec, pinned_spec, roi
 from pcmgn_jax.sim.parameters import ParameterMap
 from pcmgn_jax.sim.prepare import DEFAULT_SETTINGS, SolverSettings, prepare, slave_penalty, soft_modulus
 
@@ -86,6 +86,7 @@ def setup(scenes: Sequence[Scene], preset: str | MeshSpec, *, names=None, settin
     if reading not in metrics.OBJECTIVES:
         raise ValueError(f"objective reading must be one of {metrics.OBJECTIVES}, got {reading!r}")
     base = scenes[0]
+    preset = pinned_spec(base, preset)   # a family mesh's topology at the first scene (mesh.pinned_spec)
     prep = prepare(scenes, preset, settings)
     pmap = ParameterMap.build(base, preset, names)
     mesh = pmap.mesh

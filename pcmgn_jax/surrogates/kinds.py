@@ -60,6 +60,10 @@ KINDS: dict[str, Kind] = {k.name: k for k in (
     Kind("kriging", "kriging", "surface", fields="shared", objective_surface=True, std=True, optimise=True,
          active=True, rank=1, curve=True),
     Kind("mop", "MOP", "surface", fields="shared", objective_surface=True, optimise=True, rank=2, curve=True),
+    # gradient-enhanced kriging of the objective (surface_fit.GEK): fitted with the solver's gradients at the
+    # training designs (pcmgn_jax.data.gradients), which evaluation's baselines do not have: scored by its curve
+    Kind("gek", "gradient-enhanced kriging", "surface", fields="", objective_surface=True, baseline=False,
+         explore=False, rank=10),
     Kind("rom", "POD reduced-order model", "rom", residual_base=True, rank=3, curve=True),
     # the rom with the MGN rollout's hard contact (surrogates.correction.rigid_contact): what the constraint
     # alone gives, beside a baseline-corrected MGN (residual_of=rom); scored by evaluate only

@@ -12,7 +12,8 @@ take are refused (TypeError):
 
 - ``regression`` (none, nearest, poly2, rbf): one shared mesh of training and ``queries``, or ``none`` /
   ``nearest`` across meshes
-- ``surface`` (kriging, mop): ``fields`` (fit the field surface too; default: on a shared mesh)
+- ``surface`` (kriging, mop, gek): ``fields`` (fit the field surface too; default: on a shared mesh);
+  ``gradients`` (gek only: the objective's gradients at the training designs, :mod:`surface_kind`)
 - ``rom`` (rom, rom_contact): ``energy`` (the POD's kept energy fraction)
 - ``mgn``: ``workdir`` (the run), ``ref``, ``which``, ``batch``, ``cfg`` (:func:`mgn.fit`)
 - ``time_fields`` (onepass): ``workdir`` (a one-pass run), ``which`` (:func:`onepass.fit`): objectives only

@@ -5,6 +5,7 @@ over any parameters x and named quantities; no trajectories, no kinds (the adapt
     mean, std = k.predict(xq, return_std=True)         # {quantity: (Q,) or (Q, M)} each, y's units
     m = MOP(x, {"area_mean": y}, names=names)          # best of linear / quadratic / rbf / kriging
     m.report()                                         # the CoP of every candidate and the choice
+    g = GEK(x, {"area_mean": y}, names=names, gradients={"area_mean": G})   # G (B, P) [y's unit per SI unit]
 
 The kinds over trajectories (the ``kriging`` and ``mop`` kinds: the objective readings over the scene
 parameters, the fields over the design) are adapted to the registry in :mod:`pcmgn_jax.surrogates.surface_kind`;
@@ -42,6 +43,7 @@ from pcmgn_jax.surrogates.regression import poly2_features
 CANDIDATES = ("linear", "quadratic", "rbf", "kriging")   # simplest first (MOP's tie-break order)
 GP_RESTARTS = 3          # optimiser restarts of the kernel hyperparameters
 GP_RANDOM_STATE = 0      # their seed (fits are reproducible)
+GEK_DELTA = 1e-3         # gradient-enhanced kriging's Taylor step in the scaled inputs [-1, 1] (:class:`GEK`)
 COP_TIE = 1e-9           # CoPs closer than this to the best count as equal (the simpler candidate wins)
 
 
@@ -220,7 +222,7 @@ def loo_predictions(fit: Callable, z, Y) -> np.ndarray:
     return out
 
 
-class _Surface:
+class SurfaceFit:
     """Per-quantity fits over a :class:`ParameterBox`; ``predict`` -> {quantity: (Q,) or (Q, M)}."""
 
     name = "surface"
@@ -252,7 +254,7 @@ class _Surface:
         return {q: self._out(q, np.reshape(m(z), (len(z), -1))) for q, m in self.models.items()}
 
 
-class Kriging(_Surface):
+class Kriging(SurfaceFit):
     """A GP response surface per quantity (module docstring, ``kriging``), with its posterior std."""
 
     name = "kriging"
@@ -270,7 +272,7 @@ class Kriging(_Surface):
         return tuple({q: self._out(q, pair[i]) for q, pair in got.items()} for i in (0, 1))
 
 
-class MOP(_Surface):
+class MOP(SurfaceFit):
     """optiSLang-style Metamodel of Optimal Prognosis: per quantity the candidate of best leave-one-out
     CoP (module docstring); ``choice`` {quantity: candidate}, ``cop`` {quantity: {candidate: CoP | None}},
     ``reasons`` {quantity: {candidate: why not applicable / why no CoP}}."""
@@ -317,12 +319,49 @@ class MOP(_Surface):
                 for q in self.choice}
 
 
-SURFACES = {"kriging": Kriging, "mop": MOP}
+class GEK(SurfaceFit):
+    """Gradient-enhanced kriging of scalar quantities with their gradients: SMT's ``GEKPLS`` (Bouhlel & Martins
+    2019: kriging over PLS directions, each training point joined by first-order Taylor points along them).
+    ``gradients`` {quantity: (B, P) [the quantity's unit per SI unit of each parameter]}; in the scaled inputs
+    z the derivative is g (hi - lo) / 2. Settings fixed before any project data was seen (a 5-D analytic
+    test function): every direction kept (``n_comp`` = ``extra_points`` = D), Taylor step
+    :data:`GEK_DELTA` in z."""
+
+    name = "gek"
+
+    def __init__(self, x, quantities, *, names, gradients: Mapping[str, np.ndarray]):
+        self.gradients = gradients
+        super().__init__(x, quantities, names=names)
+
+    def _fit(self, q, Y):
+        from smt.surrogate_models import GEKPLS
+        G = np.asarray(self.gradients.get(q, np.zeros(0)), np.float64)
+        if Y.shape[1] != 1 or G.shape != (len(Y), len(self.box.names)) or not np.all(np.isfinite(G)):
+            raise ValueError(f"gek of {q!r}: needs a scalar quantity and finite gradients ({len(Y)}, "
+                             f"{len(self.box.names)}) for {self.box.names}, got {Y.shape[1]} output(s), {G.shape}")
+        v, D = self.box.varied, self.box.n_inputs
+        if D < 2 or len(Y) < 2:   # SMT builds its Taylor points for 2 or more inputs
+            raise ValueError(f"gek of {q!r}: SMT's GEKPLS needs >= 2 varied parameters and >= 2 samples, got "
+                             f"{D} and {len(Y)}; kriging fits one parameter")
+        dz = G[:, v] * (self.box.hi[v] - self.box.lo[v]) / 2
+        m = GEKPLS(xlimits=np.tile([-1.0, 1.0], (D, 1)), n_comp=D, extra_points=D, delta_x=GEK_DELTA,
+                   print_global=False)
+        m.set_training_values(self.z, Y[:, 0])
+        for k in range(D):
+            m.set_training_derivatives(self.z, dz[:, k], k)
+        with _warnings.catch_warnings():    # sklearn's PLS on exact Taylor points: 'y residual is constant'
+            _warnings.simplefilter("ignore", UserWarning)
+            m.train()
+        return lambda z: m.predict_values(np.asarray(z, np.float64))[:, 0]
+
+
+SURFACES = {fit.name: fit for fit in (Kriging, MOP, GEK)}   # by the fits' names (the kinds' names)
 
 
 def fit_surface(kind: str, x, quantities: Mapping[str, np.ndarray], *, names: Sequence[str] | None = None,
-                checking: bool = True) -> _Surface:
-    """A :class:`Kriging` or :class:`MOP` (``kind`` 'kriging' | 'mop') of ``quantities`` {name: (B,) or (B, M)}
+                checking: bool = True, **options) -> SurfaceFit:
+    """A :class:`Kriging`, :class:`MOP` or :class:`GEK` (``kind`` 'kriging' | 'mop' | 'gek'; ``options`` the
+    class's own: GEK's ``gradients``) of ``quantities`` {name: (B,) or (B, M)}
     over x (B, P) [SI], named ``names`` (default ``x[0]``, ``x[1]``, ...: the names its warnings use).
     ``checking`` False: queries outside the samples' span are neither warned about nor recorded (where leaving
     the span is the point, e.g. an active loop's candidates). ValueError naming ``kind`` when it is neither."""
@@ -333,7 +372,7 @@ def fit_surface(kind: str, x, quantities: Mapping[str, np.ndarray], *, names: Se
     with _warnings.catch_warnings():
         if not checking:
             _warnings.simplefilter("ignore", ExtrapolationWarning)
-        out = SURFACES[kind](x, quantities, names=names)
+        out = SURFACES[kind](x, quantities, names=names, **options)
     out.box.checking = checking
     return out
 

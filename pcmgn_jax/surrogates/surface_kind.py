@@ -1,4 +1,4 @@
-"""The adapter of the surface family: the ``kriging`` and ``mop`` kinds over trajectories, for the registry and
+"""The adapter of the surface family: the ``kriging``, ``mop`` and ``gek`` kinds over trajectories, for the registry and
 the :class:`~pcmgn_jax.surrogates.kinds.Surrogate` calls (the numerical fits are :mod:`surface_fit`).
 
     s = fit("mop", train_trajs)                  # registry.fit("mop", train_trajs) does the same
@@ -20,25 +20,41 @@ import numpy as np
 
 from pcmgn_jax.metrics import DEFAULT_OBJECTIVE, OBJECTIVES
 from pcmgn_jax.surrogates.inputs import TrainingScenes, design_of, shared_mesh, trajectory_labels
-from pcmgn_jax.surrogates.kinds import CannotAnswer
+from pcmgn_jax.surrogates.kinds import KINDS, CannotAnswer
 from pcmgn_jax.surrogates.objective import check_reading
 from pcmgn_jax.surrogates.regression import FieldRegression
 from pcmgn_jax.surrogates.surface_fit import fit_surface, objective_table
 
 
 class ObjectiveSurface:
-    """``kind`` 'kriging' or 'mop' of the OLED objective readings [MPa] over the training trajectories'
-    scene parameters (:class:`scene_inputs.TrainingScenes`); ``part``: the OLED part id (default: found by name)."""
+    """``kind`` 'kriging', 'mop' or 'gek' of the OLED objective readings [MPa] over the training trajectories'
+    scene parameters (:class:`scene_inputs.TrainingScenes`); ``part``: the OLED part id (default: found by name).
+    ``gradients`` (gek, and only it): {reading: {parameter: (B,) [Pa per its SI unit]}} at the training
+    trajectories (:func:`pcmgn_jax.data.gradients.aligned_gradients`), every parameter of ``names``; it fits
+    those readings."""
 
     def __init__(self, kind: str, train_trajs: Sequence, *, readings: Sequence[str] = OBJECTIVES,
-                 part: int | None = None):
+                 part: int | None = None, gradients=None):
         if not train_trajs:
             raise ValueError(f"{kind}: a response surface needs training trajectories")
+        if (kind == "gek") != (gradients is not None):
+            raise ValueError(f"{kind}: gradients go with gradient-enhanced kriging (gek) only, which needs the "
+                             "objective's gradients at the training designs (python -m experiments.gradient "
+                             "--dataset_dir)" if kind == "gek" else f"{kind}: takes no gradients (gek does)")
         self.name, self.scenes, self.part = kind, TrainingScenes(train_trajs), part
         self.names = self.scenes.names
+        options = {} if gradients is None else {"gradients": {r: self._columns(g) for r, g in gradients.items()}}
+        readings = tuple(gradients) if gradients is not None else readings
         self.model = fit_surface(kind, self.scenes.x, objective_table(train_trajs, readings, part=part),
-                                 names=self.names)
+                                 names=self.names, **options)
         self.fit_seconds, self.warnings = self.model.fit_seconds, self.model.warnings
+
+    def _columns(self, g) -> np.ndarray:
+        """(B, P) [MPa per SI unit, the objective table's] of {parameter: (B,) [Pa per SI unit]} in ``names`` order."""
+        missing = [n for n in self.names if n not in g]
+        if missing:
+            raise ValueError(f"{self.name}: no gradient with respect to {missing} (given: {sorted(g)})")
+        return np.stack([np.asarray(g[n], np.float64) for n in self.names], axis=1) * 1e-6
 
     def predict(self, x, labels=None, **kw):
         """{reading: (Q,) [MPa]} at scene parameters x (Q, P) [SI] (``names`` order)."""
@@ -89,10 +105,10 @@ class Surface:
     the field surface too (it needs one shared mesh). ``fit_seconds``: the objective surface's fit."""
 
     def __init__(self, kind: str, train_trajs: Sequence, *, readings: Sequence[str] = OBJECTIVES,
-                 part: int | None = None, fields: bool = False):
+                 part: int | None = None, fields: bool = False, gradients=None):
         self.name, self.objective, self.fields, self.objective_not_applicable = kind, None, None, ""
         try:
-            self.objective = ObjectiveSurface(kind, train_trajs, readings=readings, part=part)
+            self.objective = ObjectiveSurface(kind, train_trajs, readings=readings, part=part, gradients=gradients)
         except ValueError as err:  # e.g. no OLED part: the fields may still apply
             if not fields:
                 raise
@@ -143,9 +159,10 @@ class Surface:
 
 
 def fit(kind: str, train_trajs: Sequence, *, queries: Sequence = (), readings: Sequence[str] = OBJECTIVES,
-        part: int | None = None, fields: bool | None = None) -> Surface:
-    """A :class:`Surface`; ``fields`` None: fit the field surface when training and ``queries`` share one mesh."""
+        part: int | None = None, fields: bool | None = None, gradients=None) -> Surface:
+    """A :class:`Surface`; ``fields`` None: fit the field surface when the kind has one and training and
+    ``queries`` share one mesh; ``gradients``: gek's (:class:`ObjectiveSurface`)."""
     train = list(train_trajs)
     if fields is None:
-        fields = bool(train) and shared_mesh(train + list(queries))
-    return Surface(kind, train, readings=readings, part=part, fields=fields)
+        fields = bool(train) and bool(KINDS[kind].fields) and shared_mesh(train + list(queries))
+    return Surface(kind, train, readings=readings, part=part, fields=fields, gradients=gradients)

@@ -79,15 +79,38 @@ def _onepass(queries):
 RUNS = {"mgn": _mgn, "time_fields": _onepass}   # the families of trained runs, built here without one
 
 
+def _two_parameters(trajs):
+    """Copies of ``trajs`` as scenes of two parameters (SMT's GEKPLS needs >= 2): radius and speed per design."""
+    import dataclasses
+    out = []
+    for i, t in enumerate(trajs):
+        d = float(np.asarray(t.meta["design"] if not isinstance(t.meta["design"], dict)
+                             else list(t.meta["design"].values()))[0])
+        params = {"ball.radius": 5e-3 * d, "ball.velocity": 0.5 + 0.05 * ((3 * i) % 5)}
+        out.append(dataclasses.replace(t, meta={**t.meta, "scene_params": params}))
+    return out
+
+
+def _extra(name, train, queries):
+    """(train, queries, options) of a kind: gek on two scene parameters with the objective's gradients at the
+    training designs (zeros); the others as they are."""
+    if name != "gek":
+        return train, queries, {}
+    train, queries = _two_parameters(train), _two_parameters(queries)
+    zeros = {n: np.zeros(len(train)) for n in ("ball.radius", "ball.velocity")}
+    return train, queries, {"gradients": {"area_mean": zeros}}
+
+
 @pytest.mark.parametrize("name", list(KINDS))
 def test_every_kind_answers_the_objective_or_refuses_by_name(name, tiny_trajs, queries):
     """Every registered kind, fitted on the tiny set (a trained run's kind: its class without the run), answers
     predict_objective (B,) [MPa] finite, its std only where the Kind says so, and fields or CannotAnswer."""
     spec = KINDS[name]
+    train, queries, options = _extra(name, tiny_trajs, queries)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         s = RUNS[spec.family](queries) if spec.family in RUNS else \
-            registry.fit(name, tiny_trajs, queries=queries, readings=("area_mean",), part=PART)
+            registry.fit(name, train, queries=queries, readings=("area_mean",), part=PART, **options)
         assert isinstance(s, Surrogate)
         f = s.predict_objective(queries, reading="area_mean", part=PART)
         assert f.shape == (2,) and np.all(np.isfinite(f))
