@@ -38,7 +38,6 @@ class Kind:
     label: str                  # what the explorer's page calls it
     family: str                 # 'mgn' | 'regression' | 'surface' | 'rom' | 'time_fields' (registry.FITTERS)
     fields: str = "any"
-    objective_surface: bool = False   # the fitted surrogate's attribute of that name says the same (Surrogate)
     std: bool = False
     baseline: bool = True       # fitted on the training split and scored beside the model by evaluate
     explore: bool = True        # offered by the explorer
@@ -56,9 +55,9 @@ KINDS: dict[str, Kind] = {k.name: k for k in (
     Kind("nearest", "nearest training design", "regression", optimise=True, rank=6, curve=True),
     Kind("poly2", "per-node quadratic", "regression", fields="shared", optimise=True, rank=4),
     Kind("rbf", "per-node RBF", "regression", fields="shared", optimise=True, rank=5),
-    Kind("kriging", "kriging", "surface", fields="shared", objective_surface=True, std=True, optimise=True,
+    Kind("kriging", "kriging", "surface", fields="shared", std=True, optimise=True,
          active=True, rank=1, curve=True),
-    Kind("mop", "MOP", "surface", fields="shared", objective_surface=True, optimise=True, rank=2, curve=True),
+    Kind("mop", "MOP", "surface", fields="shared", optimise=True, rank=2, curve=True),
     Kind("rom", "POD reduced-order model", "rom", residual_base=True, rank=3, curve=True),
     # the rom with the MGN rollout's hard contact (surrogates.correction.rigid_contact): what the constraint
     # alone gives, beside a baseline-corrected MGN (residual_of=rom); scored by evaluate only
