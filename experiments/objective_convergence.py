@@ -28,6 +28,7 @@ def main(argv=None) -> int:
 
     from pcmgn_jax.atomic import atomic_write_json
     from pcmgn_jax.data.designs import parse_designs
+    from pcmgn_jax.data.family import Design
     from pcmgn_jax.metrics import OBJECTIVES
     from pcmgn_jax.opt.check import solver_objectives
     from pcmgn_jax.scene import default_scene
@@ -41,7 +42,8 @@ def main(argv=None) -> int:
     rows = []
     for d in designs:
         for m in meshes:
-            r = solver_objectives(scene, d, named_spec(m), Path(args.out) / "solver", label=m)
+            r = solver_objectives(scene, Design.of(None, d, scene.design_layers), named_spec(m),
+                                  Path(args.out) / "solver", label=m)
             rows.append({"mesh": m, **r})
             print(f"{m:9s} {d * 1e6} µm: " + ", ".join(f"{k} {r[k]:.4f}" for k in OBJECTIVES), flush=True)
     ref = {tuple(r["design_um"]): r for r in rows if r["mesh"] == meshes[-1]}

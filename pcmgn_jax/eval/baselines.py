@@ -33,8 +33,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from pcmgn_jax import metrics
-from pcmgn_jax.surrogates.inputs import shared_mesh
-from pcmgn_jax.surrogates.kinds import KINDS, names
+from pcmgn_jax.surrogates.kinds import names
 from pcmgn_jax.surrogates.registry import fit
 from pcmgn_jax.surrogates.surface_fit import ExtrapolationWarning
 
@@ -66,9 +65,9 @@ def _summary(m: dict) -> dict:
     return {k: m[k] for k in SUMMARY_KEYS if k in m}
 
 
-def _fields(kind: str, train_trajs, test_trajs, scores: Callable) -> dict:
-    """A kind that predicts fields (none / nearest / poly2 / rbf / rom / rom_contact), scored like the model."""
-    model = fit(kind, train_trajs, queries=test_trajs)
+def _fields(kind: str, model, test_trajs, scores: Callable) -> dict:
+    """A kind whose objective is its fields' (none / nearest / poly2 / rbf / rom / rom_contact), scored like the
+    model."""
     t0 = time.perf_counter()
     pu, ps = model.predict_trajectories(test_trajs)
     seconds = time.perf_counter() - t0
@@ -79,10 +78,9 @@ def _fields(kind: str, train_trajs, test_trajs, scores: Callable) -> dict:
     return out
 
 
-def _surface(kind: str, train_trajs, test_trajs, shared: bool, scores: Callable) -> dict:
-    """kriging / mop: the objective surface scored on the objective; on a shared mesh the field surface too."""
+def _surface(kind: str, s, test_trajs, scores: Callable) -> dict:
+    """An objective surface (kriging / mop) scored on the objective; on a shared mesh its field surface too."""
     out, warns = {}, []
-    s = fit(kind, train_trajs, queries=test_trajs, fields=shared)
     if s.objective is None:   # e.g. no OLED part: the fields still apply
         out["objective"] = f"not applicable: {s.objective_not_applicable}"
     else:
@@ -112,7 +110,6 @@ def baseline_metrics(train_trajs: Sequence, test_trajs: Sequence, scores: Callab
                      kinds: Sequence[str] = BASELINES) -> dict:
     """Every baseline in ``kinds`` fitted on ``train_trajs`` and scored on ``test_trajs`` (module docstring)."""
     train_trajs, test_trajs = list(train_trajs), list(test_trajs)
-    shared = shared_mesh(train_trajs + test_trajs)
     out = {}
     for kind in kinds:
         if kind not in BASELINES:
@@ -120,10 +117,10 @@ def baseline_metrics(train_trajs: Sequence, test_trajs: Sequence, scores: Callab
         try:
             with _warnings.catch_warnings():
                 _warnings.simplefilter("ignore", ExtrapolationWarning)  # recorded under "warnings" instead
-                if KINDS[kind].objective_surface:
-                    out[kind] = _surface(kind, train_trajs, test_trajs, shared, scores)
-                else:
-                    out[kind] = _fields(kind, train_trajs, test_trajs, scores)
+                # a surface's field surface is fitted when training and test share one mesh (surface_kind.fit)
+                model = fit(kind, train_trajs, queries=test_trajs)
+                # an objective of its own is reported apart from its fields' (kinds.Surrogate.objective_surface)
+                out[kind] = (_surface if model.objective_surface else _fields)(kind, model, test_trajs, scores)
         except ValueError as err:
             out[kind] = {"not_applicable": str(err)}
     return out

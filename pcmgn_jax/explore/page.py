@@ -30,7 +30,7 @@ class Page:
     def rows(self, x) -> list[dict]:
         """The objective table: per predictor its label, value text, [MPa] and std, time [ms], test-split
         error [%] (RUN/eval/metrics.json) and, after a solver check, its error against the truth [%]."""
-        preds = self._pred.get(design_key(x), {})
+        preds = self._pred.get(design_key(self.values(x)), {})
         truth = self.truth(x)
         out = []
         for kind in [k for k in PREDICTORS if k in self.models or k in self.skipped]:
@@ -52,10 +52,10 @@ class Page:
 
     def headline(self, x) -> str:
         """'OLED objective (<reading>) by <predictor>: value ± std MPa', for the default predictor."""
-        p = self._pred.get(design_key(x), {}).get(self.default)
+        p = self._pred.get(design_key(self.values(x)), {}).get(self.default)
         what = f"OLED objective ({self.reading.replace('_', ' ')}) by {LABELS[self.default]}"
         if p is None:
-            fast = self._pred.get(design_key(x), {}).get("kriging")
+            fast = self._pred.get(design_key(self.values(x)), {}).get("kriging")
             meanwhile = f"; kriging meanwhile: {self._text('kriging', fast)}" if fast is not None else ""
             return f"{what}: computing ...{meanwhile}"
         std = f" ± {p.std_mpa:.2g} ({p.note.removeprefix('± ')})" if p.std_mpa is not None else ""
@@ -65,7 +65,7 @@ class Page:
 
     def choices(self, x) -> list[str]:
         """What the field figures can show at x: predictors with fields, then 'truth' and 'error:<p>' after a check."""
-        preds = self._pred.get(design_key(x), {})
+        preds = self._pred.get(design_key(self.values(x)), {})
         have = [k for k in self._field_kinds() if k in preds and preds[k].vm is not None]
         truth = self.truth(x)
         if truth is not None:
@@ -77,7 +77,7 @@ class Page:
         :meth:`predict_rest`), then the headline, the table, the flags and the figures of ``show``
         ('truth', 'error:<predictor>' or a predictor with fields; default: the default predictor, or
         the first with fields when it has none yet) at ``frame`` with colour ``scale`` ('log' | 'linear')."""
-        x = np.asarray(x, float)
+        x = self.values(x)
         preds = self.predict(x)
         choices = self.choices(x)
         frame = self.start_frame if frame is None else int(np.clip(frame, 0, self.ref.n_frames - 1))

@@ -2,8 +2,9 @@
 
     ex = Explorer("runs/cpu")           # RunError with a clear message when the run cannot be opened
     ex.names, ex.params                 # the scene parameters (a design's, or a scene family's) and their box
-    p = ex.predict(x)                   # {predictor: Prediction} at x (P,) [SI], cached per design
-    v = ex.view(x, frame=12, show="kriging")
+    d = ex.design(ex.start)             # a data.family.Design (the family's canonical row, or the design layers)
+    p = ex.predict(d)                   # {predictor: Prediction} at a Design or slider values x (P,) [SI], cached
+    v = ex.view(d, frame=12, show="kriging")
 
 What is fitted once (``Explorer.__init__``), so a slider move only predicts: the run's MGN (checkpoint
 loaded, rollout compiled by one warm-up rollout), and every baseline the explorer offers (the registry's
@@ -12,8 +13,9 @@ evaluation fits it (:mod:`pcmgn_jax.explore.predictors`): ``none``/``nearest`` (
 scene across meshes), ``poly2``/``rbf`` (one shared mesh only), ``kriging`` (the objective surface with its
 GP std, and on one shared mesh the field surface for the plots), ``mop`` (the objective surface only) and ``rom``.
 
-A design is answered on its own mesh: the training data's scene with the parameters set
-(:func:`pcmgn_jax.opt.scenes.scene_at`: :func:`pcmgn_jax.scene.with_parameters`, or a panel stack's
+Every method that takes a design takes a :class:`~pcmgn_jax.data.family.Design` (its values in :attr:`names`'
+order) or the sliders' values x (P,) [SI] (the page's). A design is answered on its own mesh: the training data's
+scene with the parameters set (:meth:`Design.scene`: :func:`pcmgn_jax.scene.with_parameters`, or a panel stack's
 scene, whose layer list follows its ``.present`` sliders), meshed at the data's preset and cropped to its
 region of interest, as a "query" trajectory holding only the initial state (:func:`pcmgn_jax.opt.scenes.query`).
 A stack run gets a slider per padded parameter (:mod:`pcmgn_jax.data.stack`) in the family's
@@ -38,13 +40,14 @@ import numpy as np
 
 from pcmgn_jax import metrics
 from pcmgn_jax.config import TrainConfig
+from pcmgn_jax.data.family import Design
 from pcmgn_jax.data.layout import load_manifest
 from pcmgn_jax.data.splits import load_splits
 from pcmgn_jax.data.stack import nominal, range_warnings, stack_layer_count
 from pcmgn_jax.eval.baselines import READING_KEYS
 from pcmgn_jax.eval.ensemble import ResidualSpread
 from pcmgn_jax.explore.page import Page
-from pcmgn_jax.explore.predictors import fit_predictor, has_fields, predict_one
+from pcmgn_jax.explore.predictors import fit_predictor, predict_one
 from pcmgn_jax.explore.types import (
     CACHE_DESIGNS,
     DEFAULT_LIVE_SECONDS,
@@ -60,7 +63,7 @@ from pcmgn_jax.explore.types import (
     parameter,
 )
 from pcmgn_jax.opt.problem import DesignBox
-from pcmgn_jax.opt.scenes import family_of, is_stack, query, row_of, scene_at, solve_scene
+from pcmgn_jax.opt.scenes import design_at, family_of, is_stack, query, solve_scene
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.surrogates.inputs import TrainingScenes, shared_mesh
 from pcmgn_jax.surrogates.kinds import KINDS, by_rank
@@ -244,21 +247,36 @@ class Explorer(Page):
         return [k for k in self.available if k not in self.live]
 
     def _field_kinds(self) -> list[str]:
-        """Predictors with fields, in the order the page offers them: the default first, 'none' last."""
-        has = [k for k in by_rank(self.models) if has_fields(k, self.models[k])]
-        return sorted(has, key=lambda k: k != self.default)
+        """The predictors in the order the page offers their fields (those that predicted some): the default
+        first, 'none' last."""
+        return sorted(by_rank(self.models), key=lambda k: k != self.default)
+
+    def values(self, design) -> np.ndarray:
+        """(P,) [SI] in :attr:`names`' order of a :class:`~pcmgn_jax.data.family.Design` (ValueError naming a
+        parameter it lacks), or of slider values x (P,) as given."""
+        if not isinstance(design, Design):
+            return np.asarray(design, float)
+        row = design.row
+        missing = [n for n in self.names if n not in row]
+        if missing:
+            raise ValueError(f"{design.label()}: no value for {missing} (the run's parameters: {list(self.names)})")
+        return np.array([row[n] for n in self.names])
+
+    def design(self, x) -> Design:
+        """The :class:`~pcmgn_jax.data.family.Design` of slider values x (P,) [SI] (or a Design): the family's
+        canonical row (:func:`pcmgn_jax.opt.scenes.design_at`), else the design layers' thicknesses."""
+        return design_at(self.names, self.values(x), self.fam)
 
     def scene_at(self, x):
-        """The scene of the parameters x (P,) [SI] (a :class:`pcmgn_jax.scene.Scene`; module docstring)."""
-        return scene_at(self.scene0, row_of(self.names, x, self.fam), self.fam)
+        """The scene of a design (a :class:`pcmgn_jax.scene.Scene`; module docstring)."""
+        return self.design(x).scene(self.scene0)
 
     def query(self, x) -> Trajectory:
-        """The design x (P,) [SI] as a trajectory on its own mesh holding the initial state (module docstring)."""
-        key = design_key(x)
+        """A design as a trajectory on its own mesh holding the initial state (module docstring)."""
+        key = design_key(self.values(x))
         if (q := self._queries.get(key)) is not None:
             return q
-        row = row_of(self.names, x, self.fam) if self.family else None
-        return self._queries.put(key, query(self.scene_at(x), self.ref, self.preset, scene_params=row))
+        return self._queries.put(key, query(self.design(x), self.scene0, self.ref, self.preset, record=self.family))
 
     def oled(self, traj) -> int:
         """The OLED's part id in ``traj`` (a query's or the solver's; a stack's varies with its layers)."""
@@ -268,9 +286,9 @@ class Explorer(Page):
         """Why x (P,) [SI] is outside the training box (one line per parameter; [] inside), or outside the
         span of the training samples (where the regressions extrapolate), and, for a design of the
         scene's design layers, outside the optimiser's problem (:class:`~pcmgn_jax.opt.problem.DesignBox`)."""
-        x = np.asarray(x, float)
+        x = self.values(x)
         lo, hi = self.samples.min(0), self.samples.max(0)
-        row = row_of(self.names, x, self.fam) if self.stack else {}
+        row = self.design(x).row if self.stack else {}
         out = []
         for p, v, a, b in zip(self.params, x, lo, hi):
             slot, _, what = p.name.partition(".")
@@ -299,7 +317,7 @@ class Explorer(Page):
 
     def out_of_box(self, x) -> list[bool]:
         """Per parameter: x (P,) [SI] outside the training box [low, high]."""
-        return [p.outside(v) for p, v in zip(self.params, np.asarray(x, float))]
+        return [p.outside(v) for p, v in zip(self.params, self.values(x))]
 
     # ---- predictions ---------------------------------------------------------------------------------
 
@@ -324,6 +342,7 @@ class Explorer(Page):
     def predict(self, x, kinds: Sequence[str] | None = None) -> dict[str, Prediction]:
         """{predictor: Prediction} at x (P,) [SI] for ``kinds`` (default :attr:`live`), computed once
         per design (the last :data:`CACHE_DESIGNS` designs are kept)."""
+        x = self.values(x)
         key = design_key(x)
         have = self._pred.get(key)
         if have is None:
@@ -336,6 +355,7 @@ class Explorer(Page):
 
     def ask(self, x) -> list[str]:
         """A slider move to x (P,) [SI]: x becomes the latest design, the :attr:`live` predictors run; its flags."""
+        x = self.values(x)
         self.latest = design_key(x)
         self.predict(x)
         return self.flags(x)
@@ -343,6 +363,7 @@ class Explorer(Page):
     def predict_rest(self, x) -> bool:
         """The :attr:`deferred` predictors at x when x is still the latest design asked for (work queued
         behind newer slider moves is skipped); True when a prediction was made."""
+        x = self.values(x)
         todo = [k for k in self.deferred if k not in self._pred.get(design_key(x), {})]
         if not todo or (self.latest is not None and design_key(x) != self.latest):
             return False
@@ -351,6 +372,7 @@ class Explorer(Page):
 
     def check(self, x) -> Truth:
         """The built-in solver at x (P,) [SI] on the data's preset (seconds on the cpu preset), cached."""
+        x = self.values(x)
         key = design_key(x)
         if (known := self._truth.get(key)) is not None:
             return known
@@ -367,4 +389,4 @@ class Explorer(Page):
 
     def truth(self, x) -> Truth | None:
         """The solver check at x if one was run."""
-        return self._truth.get(design_key(x))
+        return self._truth.get(design_key(self.values(x)))

@@ -9,6 +9,7 @@ import numpy as np
 
 from pcmgn_jax import metrics
 from pcmgn_jax.atomic import atomic_write_json
+from pcmgn_jax.data.family import Design
 from pcmgn_jax.scene import Scene
 
 
@@ -25,14 +26,22 @@ def _cache_path(cache_dir, d, label) -> Path:
     return Path(cache_dir) / ("_".join(f"{v * 1e6:.2f}" for v in d) + f"_{label}.json")
 
 
-def solver_objectives(scene: Scene, design, preset, cache_dir: str | Path | None = None, *,
+def solver_objectives(scene: Scene, design: Design, preset, cache_dir: str | Path | None = None, *,
                       label: str | None = None) -> dict:
     """{reading: objective [MPa] for every reading in metrics.OBJECTIVES, 'design_um', 'solver_seconds',
-    'preset', 'n_nodes', 'cached'} of ``design`` (D,) [m] simulated by the built-in solver at ``preset`` (a
-    preset name or a MeshSpec; ``label`` names a MeshSpec in the cache file name)."""
-    return solver_objectives_many(scene, np.asarray(design, float).reshape(1, -1), preset, cache_dir, label=label)[0]
+    'preset', 'n_nodes', 'cached'} of ``design`` (a :class:`~pcmgn_jax.data.family.Design` of ``scene``'s design
+    layers [m]) simulated by the built-in solver at ``preset`` (a preset name or a MeshSpec; ``label`` names a
+    MeshSpec in the cache file name). ValueError naming a design layer the design lacks."""
+    row = design.row
+    missing = [n for n in scene.design_layers if n not in row]
+    if design.family is not None or missing:
+        raise ValueError(f"solver_objectives: a design of the design layers {list(scene.design_layers)} (no family) "
+                         f"is checked here, got {design.label()}")
+    x = np.array([[row[n] for n in scene.design_layers]], float)
+    return solver_objectives_many(scene, x, preset, cache_dir, label=label)[0]
 
 
+# arrays here: the active loop's GP numerics hand their (B, D) rows straight to the batched solver (solve_designs)
 def solver_objectives_many(scene: Scene, designs, preset, cache_dir: str | Path | None = None, *,
                            label: str | None = None) -> list[dict]:
     """:func:`solver_objectives` of designs (B, D) [m]: the designs not in the cache run as one batched

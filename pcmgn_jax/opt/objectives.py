@@ -1,11 +1,15 @@
 """Surrogate objectives for the optimiser: designs (B, D) [m] in, docs/design.md §8's objective (B,) [MPa] out.
 
-- :class:`FieldObjective` wraps any surrogate of :mod:`pcmgn_jax.surrogates` (designs in, fields
-  out): the objective of its predicted von Mises on each design's own mesh. Results are cached per
+The designs are arrays because the searches (pymoo's GA, scipy's SLSQP, the projected gradient) are; each
+objective turns a row into a :class:`~pcmgn_jax.data.family.Design` (:meth:`FieldObjective.designs`) where it
+asks a surrogate at designs alone.
+
+- :class:`FieldObjective` wraps any surrogate of :mod:`pcmgn_jax.surrogates`: a response surface (kriging, MOP:
+  ``objective_surface``) is read at the designs (``predict_objective_at``, no fields); any other kind predicts
+  fields at the designs and the objective is their von Mises' on each design's own mesh. Results are cached per
   design (rounded to ``resolution`` [m]), so a GA's repeated designs cost nothing and ``n_evals`` counts
-  distinct surrogate evaluations. Its gradient is a central finite difference (the regressions are
-  smooth; ``nearest`` is piecewise constant and has none).
-- :class:`SurfaceObjective`: the objective read off a kriging / MOP response surface of it (no fields).
+  distinct surrogate evaluations. Its gradient is a central finite difference (the regressions and surfaces
+  are smooth; ``nearest`` is piecewise constant and has none).
 - :class:`MGNObjective` adds the exact gradient of the MGN's objective through the rollout and the mesh
   (:class:`~pcmgn_jax.sim.design_map.DesignMap`): forward mode (``jax.jacfwd``), because there are 2 design
   variables against ~10^5 rollout states: two tangents cost ~2 forward passes and store no activations,
@@ -17,22 +21,38 @@ import hashlib
 import json
 import time
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
 from pcmgn_jax import metrics
 from pcmgn_jax.atomic import atomic_write_json
+from pcmgn_jax.data.family import Design
+from pcmgn_jax.scene import Scene
 from pcmgn_jax.sim.design_map import DesignMap
 
 
+def fitted_arrays(surrogate) -> list | None:
+    """The numbers a fitted surrogate's values are of, for a fingerprint: the MGN's parameters and normalisation
+    statistics, a response surface's training inputs; None for any other kind."""
+    sim = getattr(surrogate, "sim", None)
+    if sim is not None:
+        import jax
+        return jax.tree.leaves((sim.params, sim.stats))
+    scenes = getattr(getattr(surrogate, "objective", None), "scenes", None)
+    return None if scenes is None else [scenes.x]
+
+
 class FieldObjective:
-    """The objective of a fields surrogate (see the module docstring)."""
+    """The objective of a surrogate at designs (see the module docstring); ``names``: the design's parameters
+    (default the paper scene's design layers, ``Scene().design_layers``)."""
 
     def __init__(self, surrogate, design_map: DesignMap, *, part: int, reading: str = metrics.DEFAULT_OBJECTIVE,
-                 resolution: float = 1e-9, fd_step: float = 0.5e-6):
+                 resolution: float = 1e-9, fd_step: float = 0.5e-6, names: Sequence[str] | None = None):
         if reading not in metrics.OBJECTIVES:
             raise ValueError(f"objective must be one of {metrics.OBJECTIVES}, got {reading!r}")
         self.surrogate, self.map, self.part, self.reading = surrogate, design_map, part, reading
+        self.names = tuple(Scene().design_layers if names is None else names)
         self.resolution, self.fd_step = resolution, fd_step
         self.name = getattr(surrogate, "name", type(surrogate).__name__)
         self.cache: dict[tuple, float] = {}
@@ -45,12 +65,10 @@ class FieldObjective:
 
     def fingerprint(self) -> str:
         """A short hash of what the values are of: the surrogate's name and its fitted numbers (the MGN's
-        parameters and normalisation statistics; a regression's training designs)."""
-        import jax
+        parameters and normalisation statistics; a response surface's or a regression's training inputs)."""
         h = hashlib.sha256(self.name.encode())
-        sim = getattr(self.surrogate, "sim", None)
-        arrays = jax.tree.leaves((sim.params, sim.stats)) if sim is not None else [self.surrogate.x]
-        for a in arrays:
+        arrays = fitted_arrays(self.surrogate)
+        for a in [self.surrogate.x] if arrays is None else arrays:
             h.update(np.ascontiguousarray(np.asarray(a)).tobytes())
         return h.hexdigest()[:16]
 
@@ -126,8 +144,15 @@ class FieldObjective:
             self._flush()
         return np.array([self.cache[self._key(x)] for x in d])
 
+    def designs(self, x) -> list[Design]:
+        """The :class:`~pcmgn_jax.data.family.Design` of each row of x (B, D) [SI] (the searches' arrays)."""
+        return [Design.of(None, row, self.names) for row in np.atleast_2d(np.asarray(x, float))]
+
     def _objectives(self, designs) -> np.ndarray:
-        """(B,) objective [MPa] of new designs (B, D) [m]: the reading of the predicted von Mises."""
+        """(B,) objective [MPa] of new designs (B, D) [m]: a response surface's at the designs, else the reading
+        of the predicted von Mises."""
+        if self.surrogate.objective_surface:
+            return np.asarray(self.surrogate.predict_objective_at(self.designs(designs), reading=self.reading), float)
         _, vm = self._predict(designs)
         return np.array([float(metrics.oled_objective(v, self.weights(x), reading=self.reading))
                          for x, v in zip(designs, vm)])
@@ -146,25 +171,6 @@ class FieldObjective:
         probe = np.concatenate([d] + [d + s for s in steps] + [d - s for s in steps])
         f = self(probe).reshape(2 * D + 1, len(d))
         return f[0], ((f[1:D + 1] - f[D + 1:]) / (2 * self.fd_step)).T
-
-
-class SurfaceObjective(FieldObjective):
-    """The objective read straight off a response surface of it (``kriging`` | ``mop``,
-    :class:`pcmgn_jax.surrogates.surface_kind.ObjectiveSurface` fitted for this reading over the design):
-    what a DOE tool optimises. Cache, resume and finite-difference gradient as :class:`FieldObjective`."""
-
-    def __init__(self, surface, design_map: DesignMap, **kw):
-        super().__init__(surface, design_map, **kw)
-        if self.reading not in surface.model.models:
-            raise ValueError(f"{self.name}: the surface was not fitted for the reading {self.reading!r}")
-
-    def fingerprint(self) -> str:
-        h = hashlib.sha256(self.name.encode())
-        h.update(np.ascontiguousarray(self.surrogate.scenes.x).tobytes())
-        return h.hexdigest()[:16]
-
-    def _objectives(self, designs) -> np.ndarray:
-        return np.asarray(self.surrogate.predict(designs)[self.reading], float)
 
 
 class MGNObjective(FieldObjective):

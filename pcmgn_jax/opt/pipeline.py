@@ -106,7 +106,7 @@ def _optimize(workdir: str | Path, *, surrogate: str, method: str, objective: st
     from pcmgn_jax.eval import plots
     from pcmgn_jax.opt import search
     from pcmgn_jax.opt.check import solver_objectives, solver_preset
-    from pcmgn_jax.opt.objectives import FieldObjective, MGNObjective, SurfaceObjective
+    from pcmgn_jax.opt.objectives import FieldObjective, MGNObjective
     from pcmgn_jax.opt.problem import DesignBox
     from pcmgn_jax.opt.scenes import PAPER_STACK, family_of, is_stack
     from pcmgn_jax.opt.spread import optimum_spread
@@ -115,7 +115,7 @@ def _optimize(workdir: str | Path, *, surrogate: str, method: str, objective: st
     from pcmgn_jax.sim.design_map import DesignMap
     from pcmgn_jax.surrogates.inputs import design_of
     from pcmgn_jax.surrogates.mgn import run_splits
-    from pcmgn_jax.surrogates.registry import fit
+    from pcmgn_jax.surrogates.registry import fit, fit_objective
 
     record = {"workdir": str(workdir), "surrogate": surrogate, "method": method, "objective": objective,
               "pop": pop, "gens": gens, "starts": starts, "iters": iters, "screen": screen, "seed": seed,
@@ -153,12 +153,12 @@ def _optimize(workdir: str | Path, *, surrogate: str, method: str, objective: st
     if surrogate == TRUTH:
         from pcmgn_jax.opt.truth import SolverObjective
         obj = SolverObjective(scene, preset, box, **kw)
-    elif KINDS[kind].family == "mgn":
-        obj = MGNObjective(fit(kind, train, workdir=run_dir, ref=ref, which=which), dmap, **kw)
-    elif KINDS[kind].objective_surface:
-        obj = SurfaceObjective(fit(kind, train, readings=(objective,), part=part, fields=False).objective, dmap, **kw)
-    else:
-        obj = FieldObjective(fit(kind, train), dmap, **kw)
+    elif KINDS[kind].family == "mgn":   # its exact gradient through the rollout and the design map
+        obj = MGNObjective(fit(kind, train, workdir=run_dir, ref=ref, which=which), dmap, names=scene.design_layers,
+                           **kw)
+    else:   # a response surface read at the designs, any other kind's fields at them (objectives.FieldObjective)
+        obj = FieldObjective(fit_objective(kind, train, readings=(objective,), part=part), dmap,
+                             names=scene.design_layers, **kw)
 
     dest = plots.ensure_dir(run_dir / "optimize")
     if note := replacing(dest / f"{tag}.json", record):
@@ -205,7 +205,7 @@ def _optimize(workdir: str | Path, *, surrogate: str, method: str, objective: st
                             members=list(ensemble))
     out.update(predicted_std_mpa=spread["std_mpa"], spread=spread)
     if surrogate in ("mop", "auto"):   # why MOP chose its model: every candidate's CoP
-        out["cop"] = obj.surrogate.model.report()
+        out["cop"] = obj.surrogate.objective.model.report()
     if surrogate == TRUTH:   # the search's value at the optimum is a solver run: no second one
         out.update(solver_mpa=res["f"], rel_error_pct=0.0, beats_dataset_best=None if best_f is None else
                    bool(res["f"] <= best_f), solver_check={
@@ -217,7 +217,7 @@ def _optimize(workdir: str | Path, *, surrogate: str, method: str, objective: st
         out.update(solver_mpa=None, unchecked="the solver was not run at the optimum (--no_check): a prediction, "
                                               "not a solver-checked design")
     else:
-        chk = solver_objectives(scene, x, preset, cache_dir=run_dir / "optimize" / "solver")
+        chk = solver_objectives(scene, obj.designs(x)[0], preset, cache_dir=run_dir / "optimize" / "solver")
         out.update(solver_mpa=chk[objective], solver_all_readings_mpa={k: chk[k] for k in metrics.OBJECTIVES},
                    solver_seconds=chk["solver_seconds"],
                    rel_error_pct=float(metrics.relative_error_pct(res["f"], chk[objective])),

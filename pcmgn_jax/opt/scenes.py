@@ -1,12 +1,13 @@
-"""Designs that are rows of scene parameters, each answered on its own mesh: the scene of a row, its query
+"""Designs that are rows of scene parameters, each answered on its own mesh: the design of a row, its query
 trajectory, the solver at it, and the search box of a panel-stack run (shared by the explorer
 and ``experiments.optimize``).
 
     fam = family_of(ref)                              # the run's scene family (None: a design-layer run)
-    row = row_of(names, x, fam)                       # {name: value} [SI]; a stack's row made canonical
-    scene = scene_at(scene0, row, fam)                # the scene of that row
-    q = query(scene, ref, preset, scene_params=row)   # its mesh and initial state as a trajectory
+    d = design_at(names, x, fam)                      # a data.family.Design; a family's row made canonical
+    scene = d.scene(scene0)                           # the scene of that design on a training scene
+    q = query(d, scene0, ref, preset)                 # its mesh and initial state as a trajectory
     box = stack_box(layers=("CG", ...), search=None)  # a stack search: names, bounds, the fixed base row
+    box.design(x, fam)                                # the Design of searched values x (D,) [SI]
 
 A stack's row (:mod:`pcmgn_jax.data.stack`) decides its layer list (the ``.present`` flags), so every row
 builds its own mesh: no design map, no gradient through the mesh. What a row means, its names and their
@@ -20,6 +21,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from pcmgn_jax.data.designs import FAMILIES
+from pcmgn_jax.data.family import Design
 from pcmgn_jax.data.stack import (
     SLOT_NAMES,
     VARIANTS,
@@ -29,7 +31,7 @@ from pcmgn_jax.data.stack import (
     value_ranges,
     variant_layers,
 )
-from pcmgn_jax.scene import Scene, with_parameters
+from pcmgn_jax.scene import Scene
 from pcmgn_jax.sim.initial import initial_velocity
 from pcmgn_jax.sim.mesh import build_mesh, roi
 from pcmgn_jax.sim.output import to_trajectories
@@ -50,27 +52,22 @@ def is_stack(family) -> bool:
     return isinstance(family, StackFamily)
 
 
-def row_of(names: Sequence[str], x, family=None) -> dict[str, float]:
-    """{name: value} of parameter values x (P,) [SI] in ``names``' order; for a family its canonical row
-    (:meth:`pcmgn_jax.data.family.Family.canonical`; a stack's: flags 0/1, an absent layer's thickness 0)."""
+def design_at(names: Sequence[str], x, family=None) -> Design:
+    """The :class:`~pcmgn_jax.data.family.Design` of parameter values x (P,) [SI] in ``names``' order; for a family
+    its canonical row (:meth:`pcmgn_jax.data.family.Family.canonical`; a stack's: flags 0/1, an absent layer's
+    thickness 0). Its scene is ``.scene(scene0)`` on a training scene of the run (ValueError naming a bad
+    parameter, e.g. a present layer of thickness 0)."""
     row = {n: float(v) for n, v in zip(names, np.asarray(x, float).reshape(-1))}
-    return row if family is None else family.canonical(row)
+    return Design(family, tuple((row if family is None else family.canonical(row)).items()))
 
 
-def scene_at(scene0: Scene, row: Mapping[str, float], family=None) -> Scene:
-    """The scene of ``row`` ({name: value} [SI]) on ``scene0`` (a training scene of the run): the family's
-    scene (:meth:`pcmgn_jax.data.family.Family.scene`; a stack's layers from the row), else
-    :func:`pcmgn_jax.scene.with_parameters`. ValueError naming a bad parameter (e.g. a present layer of
-    thickness 0)."""
-    return with_parameters(scene0, row) if family is None else family.scene(scene0, row)
-
-
-def query(scene: Scene, ref: Trajectory, preset: str | None, *, scene_params: Mapping[str, float] | None = None,
-          name: str = "the explored design") -> Trajectory:
-    """``scene`` as a trajectory holding only its initial state (the solver's rule,
+def query(design: Design, scene0: Scene, ref: Trajectory, preset: str | None, *, name: str = "the explored design",
+          record: bool | None = None) -> Trajectory:
+    """``design``'s scene on ``scene0`` as a trajectory holding only its initial state (the solver's rule,
     :func:`pcmgn_jax.sim.initial.initial_velocity`) on its own mesh (``preset``, cropped to its region of
-    interest; None: ``ref``'s mesh), ``ref``'s frame times: what a predictor is asked. ``scene_params``
-    (a family's row) goes to meta['scene_params'], where the response surfaces read it."""
+    interest; None: ``ref``'s mesh), ``ref``'s frame times: what a predictor is asked. ``record`` (default:
+    the design has a family): its row goes to meta['scene_params'], where the response surfaces read it."""
+    scene = design.scene(scene0)
     if preset is None:
         mesh = ref
     else:
@@ -80,8 +77,8 @@ def query(scene: Scene, ref: Trajectory, preset: str | None, *, scene_params: Ma
     v[0] = initial_velocity(scene, mesh.node_part)
     meta = {"scene": scene.to_dict(), "part_names": list(scene.part_names), "name": name,
             "design": {n: float(t) for n, t in zip(scene.design_layers, scene.design)}}
-    if scene_params is not None:
-        meta["scene_params"] = dict(scene_params)
+    if design.family is not None if record is None else record:
+        meta["scene_params"] = design.row
     return Trajectory(points=np.asarray(mesh.points, np.float64), cells=mesh.cells, cell_part=mesh.cell_part,
                       node_part=mesh.node_part, node_type=mesh.node_type, times=np.asarray(ref.times),
                       displacement=np.zeros((T, N, 2)), velocity=v, von_mises=np.zeros((T, N)), meta=meta)
@@ -128,6 +125,10 @@ class ParameterBox:
     def row(self, x) -> dict[str, float]:
         """The full row of searched values x (D,) [SI] set into :attr:`base`."""
         return canonical({**self.base, **dict(zip(self.names, map(float, np.asarray(x, float))))})
+
+    def design(self, x, family) -> Design:
+        """The :class:`~pcmgn_jax.data.family.Design` of ``family`` (the run's) at searched values x (D,) [SI]."""
+        return Design(family, tuple(self.row(x).items()))
 
 
 def stack_box(layers: Sequence[str] = PAPER_STACK, search: Sequence[str] | None = None) -> ParameterBox:

@@ -22,13 +22,25 @@ from typing import Sequence
 
 import numpy as np
 
+from pcmgn_jax.data.family import Design
 from pcmgn_jax.opt.objectives import MGNObjective
 from pcmgn_jax.surrogates.inputs import design_of
-from pcmgn_jax.surrogates.kinds import KINDS, TRUTH, names
-from pcmgn_jax.surrogates.registry import fit
+from pcmgn_jax.surrogates.kinds import TRUTH, CannotAnswer, names
+from pcmgn_jax.surrogates.registry import fit, fit_objective
 from pcmgn_jax.surrogates.surface_fit import ExtrapolationWarning, fit_gp, objective_table
 
 SPREAD_OF = names(std=True)[0]   # the kind whose posterior std stands in for those without a spread (kriging)
+
+
+def design_spread(model, designs: Sequence[Design], train: Sequence, *, reading: str,
+                  part: int | None = None) -> tuple[np.ndarray, bool]:
+    """((B,) std [MPa], own) at ``designs``: ``model``'s posterior std of the objective where it has one (``own``
+    True), else the std of :data:`SPREAD_OF` fitted on the same training trajectories (a proxy, ``own`` False)."""
+    try:
+        return model.predict_objective_at(designs, reading=reading, return_std=True)[1], True
+    except CannotAnswer:   # no spread of its own (or no surface): kriging's of the same data stands in
+        proxy = fit_objective(SPREAD_OF, train, readings=(reading,), part=part)
+        return proxy.predict_objective_at(designs, reading=reading, return_std=True)[1], False
 
 
 def optimum_spread(surrogate: str, obj, x, train: Sequence, *, part: int, reading: str,
@@ -39,15 +51,10 @@ def optimum_spread(surrogate: str, obj, x, train: Sequence, *, part: int, readin
         return {"std_mpa": 0.0, "source": "none: the solver's own run at the optimum (no surrogate)"}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ExtrapolationWarning)
-        if surrogate in KINDS and KINDS[surrogate].std:
-            _, sd = obj.surrogate.predict(x, return_std=True)
-            return {"std_mpa": float(sd[reading][0]), "source": f"{surrogate} posterior std"}
         if surrogate != "mgn":
-            proxy = fit(SPREAD_OF, train, readings=(reading,), part=part, fields=False).objective
-            _, sd = proxy.predict(x, return_std=True)
-            return {"std_mpa": float(sd[reading][0]),
-                    "source": f"proxy: the kriging std of the same training data "
-                              f"({surrogate} has no spread of its own)"}
+            sd, own = design_spread(obj.surrogate, obj.designs(x), train, reading=reading, part=part)
+            return {"std_mpa": float(sd[0]), "source": f"{surrogate} posterior std" if own else
+                    f"proxy: the kriging std of the same training data ({surrogate} has no spread of its own)"}
         if members:
             vals = [float(obj(x)[0])]
             for m in members:

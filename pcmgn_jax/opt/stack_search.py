@@ -23,77 +23,59 @@ import numpy as np
 from pcmgn_jax import metrics
 from pcmgn_jax.errors import SettingError
 from pcmgn_jax.opt import search
-from pcmgn_jax.opt.objectives import FieldObjective
-from pcmgn_jax.opt.scenes import PAPER_STACK, ParameterBox, family_of, query, scene_at, solve_scene, stack_box
-from pcmgn_jax.opt.spread import SPREAD_OF
+from pcmgn_jax.opt.objectives import FieldObjective, fitted_arrays
+from pcmgn_jax.opt.scenes import PAPER_STACK, ParameterBox, family_of, query, solve_scene, stack_box
+from pcmgn_jax.opt.spread import design_spread
 from pcmgn_jax.scene import Scene
 from pcmgn_jax.surrogates.kinds import AUTO, KINDS
-from pcmgn_jax.surrogates.registry import fit
+from pcmgn_jax.surrogates.registry import fit, fit_objective
 
 
 class StackObjective(FieldObjective):
     """Designs (B, D) [SI] of a :class:`~pcmgn_jax.opt.scenes.ParameterBox` -> the OLED objective (B,) [MPa]
-    of ``model`` (a fitted kind): a response surface reads its objective surface at the rows, any other kind
-    predicts fields on each row's own mesh (:func:`pcmgn_jax.opt.scenes.query`) and the objective is read
-    there. The cache, the GA's resume file and ``n_evals`` are :class:`FieldObjective`'s; no gradient."""
+    of ``model`` (a fitted kind) at each row's :class:`~pcmgn_jax.data.family.Design` (:meth:`designs`: the
+    box's full row): a response surface reads its objective at the designs, any other kind predicts fields on
+    each design's own mesh (:func:`pcmgn_jax.opt.scenes.query`) and the objective is read there. The cache, the
+    GA's resume file and ``n_evals`` are :class:`FieldObjective`'s; no gradient."""
 
     def __init__(self, kind: str, model, box: ParameterBox, *, scene0: Scene, family, ref, preset: str,
                  part: int, reading: str = metrics.DEFAULT_OBJECTIVE):
-        super().__init__(model, None, part=part, reading=reading, resolution=1e-12)
+        super().__init__(model, None, part=part, reading=reading, resolution=1e-12, names=box.names)
         self.kind, self.box, self.scene0, self.family, self.ref, self.preset = kind, box, scene0, family, ref, preset
         self.name = kind
 
     def fingerprint(self) -> str:
-        import jax
         h = hashlib.sha256(self.name.encode())
         h.update(repr((self.box.names, sorted(self.box.base.items()))).encode())
-        sim = getattr(self.surrogate, "sim", None)
-        scenes = getattr(getattr(self.surrogate, "objective", None), "scenes", None)
-        arrays = jax.tree.leaves((sim.params, sim.stats)) if sim is not None else \
-            [scenes.x] if scenes is not None else []
-        for a in arrays:
+        for a in fitted_arrays(self.surrogate) or []:
             h.update(np.ascontiguousarray(np.asarray(a)).tobytes())
         return h.hexdigest()[:16]
 
+    def designs(self, x) -> list:
+        """The :class:`~pcmgn_jax.data.family.Design` of each row of x (B, D) [SI]: the box's full row."""
+        return [self.box.design(r, self.family) for r in np.atleast_2d(np.asarray(x, float))]
+
     def queries(self, designs) -> list:
-        out = []
-        for i, x in enumerate(np.atleast_2d(np.asarray(designs, float))):
-            row = self.box.row(x)
-            out.append(query(scene_at(self.scene0, row, self.family), self.ref, self.preset, scene_params=row,
-                             name=f"candidate {i}"))
-        return out
+        return [query(d, self.scene0, self.ref, self.preset, name=f"candidate {i}")
+                for i, d in enumerate(self.designs(designs))]
 
     def _objectives(self, designs) -> np.ndarray:
-        d = np.atleast_2d(np.asarray(designs, float))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")      # extrapolation notes of the surfaces: the box is the family's
-            if KINDS[self.kind].objective_surface:
-                surface = self.surrogate.objective
-                return np.asarray(surface.predict(_surface_inputs(surface, self.box, d))[self.reading], float)
-            return np.asarray(self.surrogate.predict_objective(self.queries(d), reading=self.reading), float)
+            if self.surrogate.objective_surface:
+                return super()._objectives(designs)
+            return np.asarray(self.surrogate.predict_objective(self.queries(designs), reading=self.reading), float)
 
     def value_and_grad(self, designs):
         raise SettingError("method", "a stack search has no gradient (every candidate has its own mesh): use 'ga'")
 
 
-def _surface_inputs(surface, box: ParameterBox, designs) -> np.ndarray:
-    """(B, P) inputs of an objective ``surface`` (its ``names`` order) at designs (B, D) [SI] of ``box``: each
-    design's full row (:meth:`ParameterBox.row`)."""
-    rows = [box.row(x) for x in np.atleast_2d(np.asarray(designs, float))]
-    return np.array([[r[n] for n in surface.names] for r in rows])
-
-
-def _fit(kind: str, train, run_dir: Path, which: str, reading: str):
-    """The surrogate ``kind`` fitted for a stack search; ValueError naming why it cannot answer."""
-    spec = KINDS[kind]
-    if spec.family == "mgn":
+def _fit(kind: str, train, run_dir: Path, which: str, reading: str, probe):
+    """The surrogate ``kind`` fitted for a stack search (``probe``: the query trajectory of the nominal stack, so a
+    per-node regression sees a mesh of its own); ValueError naming why it cannot answer."""
+    if KINDS[kind].family == "mgn":
         return fit(kind, train, workdir=run_dir, ref=train[0], which=which)
-    if spec.fields == "shared":
-        if not spec.objective_surface:
-            raise ValueError(f"{kind}: per-node regression needs one shared mesh; every stack has its own "
-                             "(use mgn, kriging, mop, auto or nearest)")
-        return fit(kind, train, readings=(reading,), fields=False)
-    return fit(kind, train)
+    return fit_objective(kind, train, readings=(reading,), queries=[probe])
 
 
 def optimize_stack(run_dir: Path, cfg, train: Sequence, *, surrogate: str, method: str, objective: str, pop: int,
@@ -113,11 +95,12 @@ def optimize_stack(run_dir: Path, cfg, train: Sequence, *, surrogate: str, metho
         print(f"note: {note}")
     scene0 = Scene.from_dict(train[0].meta["scene"])
     kind = "mop" if surrogate == AUTO else surrogate
+    base = np.array([box.base[n] for n in box.names])
     try:
-        model = _fit(kind, train, run_dir, which, objective)
+        probe = query(box.design(base, family), scene0, train[0], preset, name="the nominal stack")
+        model = _fit(kind, train, run_dir, which, objective, probe)
         obj = StackObjective(kind, model, box, scene0=scene0, family=family, ref=train[0], preset=preset,
                              part=-1, reading=objective)
-        base = np.array([box.base[n] for n in box.names])
         obj(base[None])                        # a refusal (e.g. no training stack of these layers) says so now
     except ValueError as err:
         raise ValueError(f"{surrogate} cannot answer a stack of {list(layers)} here: {err}") from None
@@ -141,7 +124,7 @@ def optimize_stack(run_dir: Path, cfg, train: Sequence, *, surrogate: str, metho
     out.update(_spread(kind, model, obj, x, train, objective))
     q = obj.queries(x[None])[0]
     if check:
-        traj, _ = solve_scene(scene_at(scene0, row, family), preset)
+        traj, _ = solve_scene(obj.designs(x)[0].scene(scene0), preset)
         f = {r: float(metrics.oled_objective_of(traj, reading=r)) for r in metrics.OBJECTIVES}
         out.update(solver_mpa=f[objective], solver_all_readings_mpa=f,
                    rel_error_pct=float(metrics.relative_error_pct(res["f"], f[objective])))
@@ -170,11 +153,10 @@ def _unseen(layers: Sequence[str], train: Sequence) -> list[str]:
 
 def _spread(kind: str, model, obj: StackObjective, x, train, reading: str) -> dict:
     """{'predicted_std_mpa', 'spread'} at the optimum: kriging's own posterior std, else the kriging std of
-    the same training stacks as a proxy (named as such; opt.spread's rule for surrogates without one)."""
+    the same training stacks as a proxy (named as such; :func:`pcmgn_jax.opt.spread.design_spread`)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        surface = (model if kind == SPREAD_OF else fit(SPREAD_OF, train, readings=(reading,), fields=False)).objective
-        _, sd = surface.predict(_surface_inputs(surface, obj.box, x), return_std=True)
-    source = f"{kind} posterior std" if kind == SPREAD_OF else \
+        sd, own = design_spread(model, obj.designs(x), train, reading=reading)
+    source = f"{kind} posterior std" if own else \
         f"proxy: the kriging std of the same training stacks ({kind} has no spread of its own here)"
-    return {"predicted_std_mpa": float(sd[reading][0]), "spread": {"std_mpa": float(sd[reading][0]), "source": source}}
+    return {"predicted_std_mpa": float(sd[0]), "spread": {"std_mpa": float(sd[0]), "source": source}}

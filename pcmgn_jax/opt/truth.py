@@ -55,7 +55,7 @@ def extreme_designs(box: DesignBox) -> np.ndarray:
     return np.unique(np.round(proj / RESOLUTION) * RESOLUTION, axis=0)
 
 
-class TruthSolver:
+class TruthSolver:   # arrays, not Designs: each row goes straight into one jitted solver call (x64)
     """The solver of one scene, preset and reading over a box: value and exact gradient of designs [m] in Pa
     and Pa/m, one design per jitted call (compiled on first use, once per process: :func:`truth_solver`)."""
 

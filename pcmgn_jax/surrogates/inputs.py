@@ -4,19 +4,25 @@
     scene_vector(t)                               # (names, values [SI]) of what distinguishes its scene
     ts = TrainingScenes(train_trajs)              # names, x (B, P) [SI], and what training held fixed
     xq = ts.inputs(test_trajs, note)              # (Q, P) [SI]; note(str) records each departure
+    xd = ts.rows(designs, note)                   # (Q, P) [SI] of Design objects (data.family.Design)
 
 A trajectory's scene parameters are :func:`scene_vector`'s (``meta['scene_params']`` of a scene
 family, else its design). A query missing one of the training parameters raises ValueError naming it.
-A query whose scene differs from every training scene in a number training held fixed (any number of
-``meta['scene']``: a layer's thickness or modulus, the ball's density, ...; named 'ball.radius',
-'<layer>.thickness', '<layer>.youngs', 'half_width', ...) or that carries a scene parameter training did
-not have is answered as if that number were unchanged, and ``note`` gets a line naming it.
+A :class:`~pcmgn_jax.data.family.Design` (the optimiser's and the explorer's design: a family's row or the
+design-layer thicknesses) is asked by its canonical row (:meth:`TrainingScenes.rows`), with the same rules for
+missing and unknown parameters; it has no scene, so nothing held fixed is checked. A query whose scene
+differs from every training scene in a number training held fixed (any number of ``meta['scene']``: a layer's
+thickness or modulus, the ball's density, ...; named 'ball.radius', '<layer>.thickness', '<layer>.youngs',
+'half_width', ...) or that carries a scene parameter training did not have is answered as if that number
+were unchanged, and ``note`` gets a line naming it.
 """
 from __future__ import annotations
 
 from typing import Callable, Sequence
 
 import numpy as np
+
+from pcmgn_jax.data.family import Design
 
 FIXED_RTOL = 1e-9   # a held-fixed number counts as changed beyond this relative difference
 
@@ -91,23 +97,30 @@ def scene_inputs(trajs: Sequence, names: Sequence[str] | None = None, *,
     """(names, x (B, P) [SI]) of trajectories' scene parameters in ``names`` order (default: the first
     trajectory's). A trajectory lacking one raises ValueError naming it; one with a parameter not in
     ``names`` raises too, unless ``note`` is given (then it is ignored and ``note`` gets a line)."""
-    rows = []
-    for label, t in zip(trajectory_labels(trajs), trajs):
-        got, v = scene_vector(t)
-        names = got if names is None else tuple(names)
+    rows = [(label, dict(zip(*scene_vector(t)))) for label, t in zip(trajectory_labels(trajs), trajs)]
+    if not rows:
+        raise ValueError("scene_inputs: no trajectories")
+    names = tuple(rows[0][1]) if names is None else tuple(names)
+    return names, _ordered(rows, names, note, "its meta['scene_params']")
+
+
+def _ordered(rows: Sequence[tuple[str, dict]], names: tuple[str, ...], note: Callable[[str], None] | None,
+             where: str) -> np.ndarray:
+    """(Q, P) [SI]: each (label, {name: value}) row in ``names`` order; ValueError naming a missing parameter
+    (``where``: where it was looked for), or an unknown one unless ``note`` takes a line for it."""
+    out = []
+    for label, got in rows:
         missing = [n for n in names if n not in got]
         extra = [n for n in got if n not in names]
         if missing or (extra and note is None):
-            parts = [f"scene parameter {n!r} missing from its meta['scene_params']" for n in missing]
-            parts += [f"scene parameter {n!r} unknown to the model" for n in got if n not in names]
+            parts = [f"scene parameter {n!r} missing from {where}" for n in missing]
+            parts += [f"scene parameter {n!r} unknown to the model" for n in extra]
             raise ValueError(f"{label}: {'; '.join(parts)} (the model's parameters: {list(names)})")
         for n in extra:
-            note(f"{label}: scene parameter {n} = {v[got.index(n)]:.6g} unknown to the model "
+            note(f"{label}: scene parameter {n} = {got[n]:.6g} unknown to the model "
                  f"(not a training parameter): answered as if it were unchanged")
-        rows.append([v[got.index(n)] for n in names])
-    if not rows:
-        raise ValueError("scene_inputs: no trajectories")
-    return names, np.array(rows, np.float64)
+        out.append([got[n] for n in names])
+    return np.array(out, np.float64)
 
 
 class TrainingScenes:
@@ -133,3 +146,9 @@ class TrainingScenes:
                     note(f"{label}: {k} = {numbers[k]:.6g} differs from the {val:.6g} held fixed in training: "
                          f"answered as if it were unchanged")
         return x
+
+    def rows(self, designs: Sequence[Design], note: Callable[[str], None]) -> np.ndarray:
+        """(Q, P) [SI]: each :class:`~pcmgn_jax.data.family.Design`'s canonical row (a stack's absent layers
+        zeroed: :meth:`Design.vector`) in :attr:`names` order (module docstring; ``note`` as :meth:`inputs`)."""
+        rows = [(f"design {i}", dict(zip(d.names, d.vector()))) for i, d in enumerate(designs)]
+        return _ordered(rows, self.names, note, "the design") if rows else np.zeros((0, len(self.names)))

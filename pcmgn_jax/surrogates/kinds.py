@@ -4,11 +4,12 @@
     s = fit("rom", train)                      # any kind of KINDS (registry.fit: which family fits it)
     us, vms = s.predict_trajectories(test)     # fields on each query's own mesh: lists (T, N, 2) [m], (T, N) [Pa]
     f = s.predict_objective(test, reading="area_mean")   # (B,) [MPa]: every kind, fields kinds by their fields
+    f = s.predict_objective_at(designs, reading="area_mean")   # (B,) [MPa] at data.family.Design objects: surfaces
     s.fit_seconds, s.warnings
 
 What a kind cannot answer (an objective surface asked for fields, the one-pass model for per-frame fields, a
-kind without a posterior std for one) it refuses through the same call with :class:`CannotAnswer`, naming
-the kind and what it cannot answer.
+kind without a posterior std for one, a kind whose objective needs each design's mesh for it at designs alone) it
+refuses through the same call with :class:`CannotAnswer`, naming the kind and what it cannot answer.
 
 Every list of predictors in the project is a subset of :data:`KINDS` chosen by one of its fields
 (:func:`names`): evaluate's baselines (``baseline``), the explorer's predictors (``explore``), the
@@ -28,10 +29,8 @@ class Kind:
     and where it is used.
 
     ``fields``: where it predicts fields: 'any' (each query on its own mesh), 'shared' (one shared mesh
-    of training and queries), '' (no fields: objective readings only). ``objective_surface``: it reads
-    the objective off a response surface over the parameters, not off its fields (every kind answers
-    ``predict_objective``; this says how: the optimiser reads such a kind at parameter rows without meshing, and
-    evaluation reports its objective and field surfaces apart). ``std``: its objective comes
+    of training and queries), '' (no fields: objective readings only); where its objective comes from is the
+    fitted surrogate's to say (:class:`Surrogate` ``objective_surface``). ``std``: its objective comes
     with a posterior std. ``rank``: the explorer's preference (lower first: its default predictor and the
     order of the field figures). ``floor``: a reference floor (zero fields), never a default."""
 
@@ -39,7 +38,6 @@ class Kind:
     label: str                  # what the explorer's page calls it
     family: str                 # 'mgn' | 'regression' | 'surface' | 'rom' | 'time_fields' (registry.FITTERS)
     fields: str = "any"
-    objective_surface: bool = False
     std: bool = False
     baseline: bool = True       # fitted on the training split and scored beside the model by evaluate
     explore: bool = True        # offered by the explorer
@@ -57,13 +55,12 @@ KINDS: dict[str, Kind] = {k.name: k for k in (
     Kind("nearest", "nearest training design", "regression", optimise=True, rank=6, curve=True),
     Kind("poly2", "per-node quadratic", "regression", fields="shared", optimise=True, rank=4),
     Kind("rbf", "per-node RBF", "regression", fields="shared", optimise=True, rank=5),
-    Kind("kriging", "kriging", "surface", fields="shared", objective_surface=True, std=True, optimise=True,
+    Kind("kriging", "kriging", "surface", fields="shared", std=True, optimise=True,
          active=True, rank=1, curve=True),
-    Kind("mop", "MOP", "surface", fields="shared", objective_surface=True, optimise=True, rank=2, curve=True),
+    Kind("mop", "MOP", "surface", fields="shared", optimise=True, rank=2, curve=True),
     # gradient-enhanced kriging of the objective (surface_fit.GEK): fitted with the solver's gradients at the
     # training designs (pcmgn_jax.data.gradients), which evaluation's baselines do not have: scored by its curve
-    Kind("gek", "gradient-enhanced kriging", "surface", fields="", objective_surface=True, baseline=False,
-         explore=False, rank=10),
+    Kind("gek", "gradient-enhanced kriging", "surface", fields="", baseline=False, explore=False, rank=10),
     Kind("rom", "POD reduced-order model", "rom", residual_base=True, rank=3, curve=True),
     # the rom with the MGN rollout's hard contact (surrogates.correction.rigid_contact): what the constraint
     # alone gives, beside a baseline-corrected MGN (residual_of=rom); scored by evaluate only
@@ -132,6 +129,12 @@ class Surrogate(Protocol):
       (mean, std) (B,) each [MPa]): the OLED objective ``reading`` at the trajectories' scenes, read off the
       kind's objective surface or scored on its fields on each query's mesh (:mod:`objective`); ``part``: the
       OLED part id (None: found by name)
+    - ``predict_objective_at(designs, *, reading, part=None, return_std=False)`` -> as ``predict_objective`` at
+      :class:`~pcmgn_jax.data.family.Design` objects, no mesh built: what the optimiser asks a response surface at
+      its parameter rows; a kind whose objective needs each design's mesh refuses (:func:`objective.needs_a_mesh`)
+    - ``objective_surface``: True when its objective is its own, read off a response surface over the parameters
+      (``predict_objective_at`` answers; evaluation reports it apart from its fields'), False when it is its
+      (time) fields' scored on each query's mesh
     - ``fit_seconds`` [s], ``warnings`` (queries outside the training box so far, strings for metrics.json)
 
     A new kind: a row of :data:`KINDS` and its family's ``fit`` (:mod:`registry`); a fields kind inherits
@@ -141,6 +144,7 @@ class Surrogate(Protocol):
     name: str
     fit_seconds: float
     warnings: list
+    objective_surface: bool
 
     def predict_trajectories(self, trajs: Sequence): ...
 
@@ -148,3 +152,6 @@ class Surrogate(Protocol):
 
     def predict_objective(self, trajs: Sequence, *, reading: str, part: int | None = None,
                           return_std: bool = False): ...
+
+    def predict_objective_at(self, designs: Sequence, *, reading: str, part: int | None = None,
+                             return_std: bool = False): ...

@@ -6,7 +6,9 @@
     MyKind(...).predict_objective(trajs, reading="area_mean")    # (B,) [MPa]
 
 Objective surfaces (:mod:`surface_kind`) and the one-pass model (:mod:`onepass`) answer the same call their own
-way; a std or a reading a kind does not have is refused with :class:`~pcmgn_jax.surrogates.kinds.CannotAnswer`.
+way; a std or a reading a kind does not have is refused with :class:`~pcmgn_jax.surrogates.kinds.CannotAnswer`, and
+so is the objective at designs alone (``predict_objective_at``) by every kind whose objective needs a query's mesh
+(:func:`needs_a_mesh`): only a response surface reads it at parameter rows.
 """
 from __future__ import annotations
 
@@ -33,11 +35,19 @@ def objective_of_fields(trajs: Sequence, vms, *, reading: str = DEFAULT_OBJECTIV
                      for t, vm in zip(trajs, vms)])
 
 
+def needs_a_mesh(kind: str) -> CannotAnswer:
+    """The refusal of ``predict_objective_at`` by a kind whose objective is scored on each query's own mesh."""
+    return CannotAnswer(kind, "the objective at designs alone", "its objective is scored on each design's mesh: "
+                        "ask predict_objective with the designs' query trajectories (a response surface reads it "
+                        "at parameter rows)")
+
+
 class FromFields:
     """Mixin of a fields kind (it has ``name`` and ``predict_trajectories``): :meth:`predict_objective` from its
-    fields. No posterior std: ``return_std`` is refused."""
+    fields. No posterior std: ``return_std`` is refused; nor the objective at designs without their meshes."""
 
     name: str
+    objective_surface = False   # its objective is its fields' (kinds.Surrogate)
 
     def predict_objective(self, trajs: Sequence, *, reading: str = DEFAULT_OBJECTIVE, part: int | None = None,
                           return_std: bool = False) -> np.ndarray:
@@ -49,3 +59,6 @@ class FromFields:
         trajs = list(trajs)
         _, vms = self.predict_trajectories(trajs)
         return objective_of_fields(trajs, vms, reading=reading, part=part)
+
+    def predict_objective_at(self, designs, **_):
+        raise needs_a_mesh(self.name)

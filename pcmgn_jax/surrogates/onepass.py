@@ -20,7 +20,7 @@ import numpy as np
 from pcmgn_jax.metrics import DEFAULT_OBJECTIVE, OBJECTIVES, objective_weights, oled_objective
 from pcmgn_jax.mgn import onepass as op
 from pcmgn_jax.surrogates.kinds import CannotAnswer
-from pcmgn_jax.surrogates.objective import check_reading
+from pcmgn_jax.surrogates.objective import check_reading, needs_a_mesh
 
 PER_FRAME = "the per-frame fields (displacement (T, N, 2) and von_mises (T, N) of every frame)"
 
@@ -30,6 +30,7 @@ class OnePassSurrogate:
     run's ``objective_part`` found by name in each query); ``readings``: the objective readings it answers."""
 
     name = "onepass"
+    objective_surface = False   # its objective is its predicted time fields' (kinds.Surrogate)
 
     def __init__(self, workdir, *, which: str = "best", readings: Sequence[str] = OBJECTIVES, part: int | None = None):
         t0 = time.perf_counter()
@@ -80,6 +81,9 @@ class OnePassSurrogate:
         """(B,) [MPa]: the objective ``reading`` of each trajectory's design from the predicted time fields."""
         check_reading(self.name, reading)
         return self.objectives(trajs, return_std=return_std, readings=(reading,), part=part)[reading]
+
+    def predict_objective_at(self, designs, **_):
+        raise needs_a_mesh(self.name)
 
     def predict_trajectories(self, trajs):
         raise CannotAnswer(self.name, PER_FRAME, "it predicts the time-mean and peak von Mises and the peak "

@@ -2,6 +2,7 @@
 
     s = fit("kriging", train, readings=("area_mean",), fields=False)   # a Surrogate (kinds.Surrogate)
     s = fit("mgn", train, workdir="runs/cpu", ref=test[0])             # the run's model
+    s = fit_objective("mop", train, readings=("area_mean",))           # for its objective (no field surface)
 
 Evaluation (:mod:`pcmgn_jax.eval.baselines`), the optimiser (:mod:`pcmgn_jax.opt.pipeline`), the active loop,
 the residual mode (:mod:`residual`) and the explorer fit their predictors here. A kind's ``family``
@@ -32,7 +33,7 @@ from typing import Sequence
 from pcmgn_jax.surrogates import mgn, onepass, regression, rom, surface_kind
 from pcmgn_jax.surrogates.kinds import KINDS, Kind, Surrogate, kind, names
 
-__all__ = ["FITTERS", "KINDS", "Kind", "Surrogate", "fit", "kind", "names"]
+__all__ = ["FITTERS", "KINDS", "Kind", "Surrogate", "fit", "fit_objective", "kind", "names"]
 
 FITTERS = {"regression": regression.fit, "surface": surface_kind.fit, "rom": rom.fit, "mgn": mgn.fit,
            "time_fields": onepass.fit}  # by Kind.family
@@ -46,3 +47,16 @@ def fit(name: str, train: Sequence = (), **options) -> Surrogate:
     if family == "mgn":
         options.setdefault("fit_base", fit)   # a residual_of run's baseline, fitted by this registry
     return FITTERS[family](name, train, **options)
+
+
+def fit_objective(name: str, train: Sequence = (), *, fields: bool = False, **options) -> Surrogate:
+    """The kind ``name`` fitted to answer the objective (:func:`fit` with ``options``), as the optimiser and the
+    explorer ask it: a response surface (family ``surface``) with its field surface only when ``fields`` (its
+    objective does not need one; MOP over every node is slow), refusing (ValueError, the reason) when its objective
+    surface cannot be fitted; any other kind as :func:`fit` (its objective is its fields'; ``fields`` unused)."""
+    if kind(name).family == "surface":
+        options["fields"] = fields
+    model = fit(name, train, **options)
+    if why := getattr(model, "objective_not_applicable", ""):
+        raise ValueError(why)
+    return model

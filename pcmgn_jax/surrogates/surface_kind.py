@@ -4,6 +4,7 @@ the :class:`~pcmgn_jax.surrogates.kinds.Surrogate` calls (the numerical fits are
     s = fit("mop", train_trajs)                  # registry.fit("mop", train_trajs) does the same
     s.predict_objective(test_trajs, reading="area_mean")   # (B,) [MPa]: the objective surface
     s.objectives(test_trajs)                     # {reading: (B,) [MPa]}: every fitted reading
+    s.predict_objective_at(designs, reading="area_mean")   # (B,) [MPa] at Design objects, no mesh (the optimiser)
     s.predict_trajectories(test_trajs)           # fields, from the field surface (one shared mesh only)
 
 - :class:`ObjectiveSurface`: the OLED objective readings [MPa] over the training trajectories' scene
@@ -18,6 +19,7 @@ from typing import Sequence
 
 import numpy as np
 
+from pcmgn_jax.data.family import Design
 from pcmgn_jax.metrics import DEFAULT_OBJECTIVE, OBJECTIVES
 from pcmgn_jax.surrogates.inputs import TrainingScenes, design_of, shared_mesh, trajectory_labels
 from pcmgn_jax.surrogates.kinds import KINDS, CannotAnswer
@@ -64,6 +66,10 @@ class ObjectiveSurface:
         """{reading: (B,) [MPa]} at each trajectory's scene parameters (kriging: ``return_std=True`` too)."""
         return self.model.predict(self.scenes.inputs(trajs, self.model.box.note), trajectory_labels(trajs), **kw)
 
+    def predict_designs(self, designs: Sequence[Design], **kw):
+        """{reading: (B,) [MPa]} at :class:`~pcmgn_jax.data.family.Design` objects (their canonical rows)."""
+        return self.model.predict(self.scenes.rows(designs, self.model.box.note), **kw)
+
 
 class FieldSurface:
     """``kind`` 'kriging' or 'mop' of the fields of training trajectories on one shared mesh, per field
@@ -104,6 +110,8 @@ class Surface:
     cannot be fitted, e.g. no OLED part) and ``fields`` (a :class:`FieldSurface`, or None). ``fields``: fit
     the field surface too (it needs one shared mesh). ``fit_seconds``: the objective surface's fit."""
 
+    objective_surface = True   # its objective is its own, read off a surface over the parameters (kinds.Surrogate)
+
     def __init__(self, kind: str, train_trajs: Sequence, *, readings: Sequence[str] = OBJECTIVES,
                  part: int | None = None, fields: bool = False, gradients=None):
         self.name, self.objective, self.fields, self.objective_not_applicable = kind, None, None, ""
@@ -123,24 +131,41 @@ class Surface:
         out = list(self.objective.warnings) if self.objective is not None else []
         return out + [w for w in (self.fields.warnings if self.fields is not None else []) if w not in out]
 
-    def objectives(self, trajs, *, return_std: bool = False):
-        """{reading: (B,) [MPa]} at each trajectory's scene parameters (``return_std``: (means, stds), kriging)."""
+    def _surface(self, return_std: bool) -> ObjectiveSurface:
         if self.objective is None:
             raise CannotAnswer(self.name, "the objective", f"no objective surface: {self.objective_not_applicable}")
         if return_std and self.name != "kriging":
             raise CannotAnswer(self.name, "a posterior std of the objective", "kriging has one")
-        return self.objective.predict_trajectories(trajs, **({"return_std": True} if return_std else {}))
+        return self.objective
 
-    def predict_objective(self, trajs, *, reading: str = DEFAULT_OBJECTIVE, part: int | None = None,
-                          return_std: bool = False):
-        """(B,) [MPa] of the objective ``reading`` at each trajectory's scene parameters, read off the objective
-        surface (``return_std``: (mean, std), kriging); CannotAnswer for a reading or ``part`` it was not fitted for."""
-        got = self.objectives(trajs, return_std=return_std)
+    def objectives(self, trajs, *, return_std: bool = False):
+        """{reading: (B,) [MPa]} at each trajectory's scene parameters (``return_std``: (means, stds), kriging)."""
+        return self._surface(return_std).predict_trajectories(trajs, **({"return_std": True} if return_std else {}))
+
+    def _reading(self, got, reading: str, part: int | None, return_std: bool):
         check_reading(self.name, reading, tuple(got[0] if return_std else got))
         if part is not None and self.objective.part is not None and part != self.objective.part:
             raise CannotAnswer(self.name, f"the objective of part {part}",
                                f"its surface was fitted for part {self.objective.part}")
         return tuple(g[reading] for g in got) if return_std else got[reading]
+
+    def predict_objective(self, trajs, *, reading: str = DEFAULT_OBJECTIVE, part: int | None = None,
+                          return_std: bool = False):
+        """(B,) [MPa] of the objective ``reading`` at each trajectory's scene parameters, read off the objective
+        surface (``return_std``: (mean, std), kriging); CannotAnswer for a reading or ``part`` it was not fitted for."""
+        return self._reading(self.objectives(trajs, return_std=return_std), reading, part, return_std)
+
+    def predict_objective_at(self, designs: Sequence[Design], *, reading: str = DEFAULT_OBJECTIVE,
+                             part: int | None = None, return_std: bool = False):
+        """(B,) [MPa] of the objective ``reading`` at :class:`~pcmgn_jax.data.family.Design` objects, no mesh
+        built: the objective surface at their canonical rows (``return_std``: (mean, std), kriging); refusals as
+        :meth:`predict_objective`."""
+        got = self._surface(return_std).predict_designs(designs, **({"return_std": True} if return_std else {}))
+        return self._reading(got, reading, part, return_std)
+
+    def objective_model(self, reading: str) -> str:
+        """The fit behind the objective ``reading``: MOP's chosen candidate ('poly2', 'kriging', ...), else the kind."""
+        return getattr(self._surface(False).model, "choice", {}).get(reading, self.name)
 
     def _field_surface(self) -> FieldSurface:
         if self.fields is None:

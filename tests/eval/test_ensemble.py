@@ -55,9 +55,10 @@ def test_an_optimum_carries_its_spread(tiny_trajs):
     """The residual-GP spread of a model optimum (a stand-in model off the truth by a known function) and
     the kriging posterior std; every spread is finite and >= 0, and a perfect model has a ~0 residual."""
     from pcmgn_jax.metrics import oled_objective_of
+    from pcmgn_jax.opt.objectives import FieldObjective
     from pcmgn_jax.opt.spread import optimum_spread
     from pcmgn_jax.surrogates.inputs import design_of
-    from pcmgn_jax.surrogates.surface_kind import ObjectiveSurface
+    from pcmgn_jax.surrogates.registry import fit_objective
     train = tiny_trajs[:3]
     truth = {float(design_of(t)[0]): float(oled_objective_of(t, part=1)) for t in train}
 
@@ -73,9 +74,8 @@ def test_an_optimum_carries_its_spread(tiny_trajs):
     off = optimum_spread("mgn", Model(0.05), x, train, part=1, reading="area_mean")
     assert off["train_residual_rms_mpa"] > 0.01 and np.isfinite(off["std_mpa"]) and off["std_mpa"] >= 0
 
-    class Obj:
-        surrogate = ObjectiveSurface("kriging", train, readings=("area_mean",), part=1)
-    k = optimum_spread("kriging", Obj(), x, train, part=1, reading="area_mean")
+    obj = FieldObjective(fit_objective("kriging", train, readings=("area_mean",), part=1), None, part=1, names=("CG",))
+    k = optimum_spread("kriging", obj, x, train, part=1, reading="area_mean")
     assert k["source"] == "kriging posterior std" and k["std_mpa"] > 0   # x is not a training design
 
 

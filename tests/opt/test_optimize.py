@@ -152,7 +152,7 @@ def test_field_objective_caches_and_differentiates():
     dmap = SimpleNamespace(mesh=mesh, points=lambda d: pts)
 
     class Lin:  # von Mises = (a . d) * 1e12 everywhere: objective a . d * 1e6 [MPa]
-        name = "lin"
+        name, objective_surface = "lin", False
         calls = 0
 
         def predict(self, d):
@@ -175,7 +175,7 @@ class _Bowl:
     """A fields surrogate whose objective is a bowl around (120, 140) µm [MPa]; ``fail_after`` calls of
     predict it raises KeyboardInterrupt (a kill)."""
 
-    name, batch = "bowl", 7
+    name, batch, objective_surface = "bowl", 7, False
 
     def __init__(self, n_nodes, fail_after=None):
         self.n, self.fail_after, self.calls, self.designs, self.x = n_nodes, fail_after, 0, 0, np.zeros(2)
@@ -189,29 +189,64 @@ class _Bowl:
         return None, np.broadcast_to(s[:, None, None], (len(d), 3, self.n))
 
 
-def test_surface_objective_reads_the_surface_and_caches():
-    """SurfaceObjective: the objective is the response surface's prediction for the reading (no fields),
-    cached per design, differentiated by central differences; a surface without the reading is refused."""
-    from pcmgn_jax.opt.objectives import SurfaceObjective
-    dmap = SimpleNamespace(mesh=None, points=None)
+def _fitted_surface(kind, trajs, reading="area_mean"):
+    import warnings
 
-    class Surface:  # area_mean = a . d * 1e6 [MPa]
-        name, calls = "kriging", 0
-        model = SimpleNamespace(models={"area_mean": None})
-        scenes = SimpleNamespace(x=np.zeros((3, 2)))
+    from pcmgn_jax.surrogates.registry import fit_objective
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return fit_objective(kind, trajs, readings=(reading,), part=1)
 
-        def predict(self, d):
-            self.calls += 1
-            return {"area_mean": np.asarray(d) @ np.array([2.0, -1.0]) * 1e6}
 
-    s = Surface()
-    obj = SurfaceObjective(s, dmap, part=1)
-    d = np.array([[100e-6, 80e-6], [100e-6, 80e-6], [90e-6, 70e-6]])
-    assert obj(d) == pytest.approx((d @ [2.0, -1.0]) * 1e6) and obj.n_evals == 2 and s.calls == 1
-    assert obj.value_and_grad(d[:1])[1][0] == pytest.approx([2e6, -1e6], rel=1e-6)
-    assert len(obj.fingerprint()) == 16
-    with pytest.raises(ValueError, match="not fitted for the reading 'peak'"):
-        SurfaceObjective(s, dmap, part=1, reading="peak")
+def test_a_response_surface_is_read_at_designs_and_cached(tiny_trajs):
+    """FieldObjective over a response surface (the optimiser's kriging / mop): each new row reaches the surrogate as
+    a data.family.Design of the design layers (predict_objective_at, no fields), the values are the surface's own
+    at those rows (what the optimiser read before the surfaces answered Designs), cached per design and
+    differentiated by central differences; a reading the surface was not fitted for is refused by name."""
+    from pcmgn_jax.data.family import Design
+    from pcmgn_jax.opt.objectives import FieldObjective
+    from pcmgn_jax.surrogates.kinds import CannotAnswer
+    s = _fitted_surface("kriging", tiny_trajs)
+    seen = []
+    answer = s.predict_objective_at
+    s.predict_objective_at = lambda designs, **kw: (seen.append(list(designs)), answer(designs, **kw))[1]
+    obj = FieldObjective(s, SimpleNamespace(mesh=None, points=None), part=1, names=("CG",))
+    d = np.array([[95e-6], [95e-6], [110e-6]])                    # tiny_trajs: one design layer, CG
+    f = obj(d)
+    assert f == pytest.approx(s.objective.predict(d[[0, 2]])["area_mean"][[0, 0, 1]], rel=0, abs=0)
+    assert obj.n_evals == 2 and len(seen) == 1
+    assert seen[0] == [Design(None, (("CG", 95e-6),)), Design(None, (("CG", 110e-6),))]
+    obj(d)
+    assert len(seen) == 1                                          # cached
+    assert np.isfinite(obj.value_and_grad(d[:1])[1]).all() and len(obj.fingerprint()) == 16
+    with pytest.raises(CannotAnswer, match="kriging: cannot answer the objective reading 'peak'"):
+        FieldObjective(s, None, part=1, names=("CG",), reading="peak")(d)
+
+
+def test_the_spread_of_an_optimum_at_its_design(tiny_trajs):
+    """opt.spread at an optimum: kriging's own posterior std at the optimum's Design, the values its surface
+    gives at that row; MOP (no std of its own) the kriging std of the same data, named as a proxy."""
+    from pcmgn_jax.opt.objectives import FieldObjective
+    from pcmgn_jax.opt.spread import optimum_spread
+    x = np.array([105e-6])
+    krig = _fitted_surface("kriging", tiny_trajs)
+    want = krig.objective.predict(x[None], return_std=True)[1]["area_mean"][0]
+    for kind in ("kriging", "mop"):
+        obj = FieldObjective(_fitted_surface(kind, tiny_trajs), None, part=1, names=("CG",))
+        got = optimum_spread(kind, obj, x, tiny_trajs, part=1, reading="area_mean")
+        assert got["std_mpa"] == want and got["std_mpa"] > 0
+        assert got["source"] == ("kriging posterior std" if kind == "kriging" else
+                                 "proxy: the kriging std of the same training data (mop has no spread of its own)")
+
+
+def test_the_solver_check_takes_a_design_of_the_design_layers():
+    """opt.check.solver_objectives asks for a Design of the scene's design layers; another design is refused by
+    name before any solver run."""
+    from pcmgn_jax.data.family import Design
+    from pcmgn_jax.opt.check import solver_objectives
+    from pcmgn_jax.scene import default_scene
+    with pytest.raises(ValueError, match=r"design layers \['OCA1', 'OCA2'\] \(no family\).*got OCA1=100 µm$"):
+        solver_objectives(default_scene(), Design.of(None, [100e-6], ("OCA1",)), "tiny")
 
 
 def test_ga_resumes_after_a_kill_with_the_same_result(tmp_path):

@@ -57,6 +57,24 @@ def test_a_slider_per_stack_parameter_in_the_family_order(stack_explorer):
     assert [layer.name for layer in ex.scene_at(ex.start).layers] == list(variant_layers(True, None))
 
 
+def test_the_explorer_takes_a_design(stack_explorer):
+    """A Design of the family is what the explorer's methods take as well as the sliders' values: the same
+    canonical row, scene, query and (cached) predictions; a Design lacking a parameter is refused by name."""
+    from pcmgn_jax.data.family import Design
+    ex = stack_explorer
+    d = ex.design(ex.start)
+    assert isinstance(d, Design) and d.family is FAM and d.names == FAM.names
+    assert ex.design(ex.values(d)) == d and ex.design(d) == d       # its canonical row: an absent film's thickness 0
+    assert ex.query(d).meta["scene_params"] == ex.query(ex.start).meta["scene_params"] == d.row
+    shuffled = Design(FAM, tuple(reversed(d.params)))                 # names in another order: the same design
+    assert ex.query(shuffled) is ex.query(d)
+    assert ex.predict(shuffled, ["kriging"])["kriging"].objective_mpa == \
+        ex.predict(ex.start, ["kriging"])["kriging"].objective_mpa
+    assert [layer.name for layer in ex.scene_at(shuffled).layers] == list(variant_layers(True, None))
+    with pytest.raises(ValueError, match=r"no value for \['ball.velocity'\]"):
+        ex.flags(Design(FAM, tuple(p for p in d.params if p[0] != "ball.velocity")))
+
+
 def test_the_stack_explorer_refuses_by_name_and_answers_what_it_can(stack_explorer):
     ex = stack_explorer
     assert "one shared topology" in ex.skipped["poly2"]          # per-node regression: one mesh only
@@ -122,19 +140,22 @@ def test_the_stack_search_finds_a_known_optimum():
     from pcmgn_jax.opt.scenes import stack_box
     from pcmgn_jax.opt.stack_search import StackObjective
 
-    names = FAM.names
+    seen = []
 
-    def predict(x):
-        r = dict(zip(names, np.asarray(x).T))
-        f = ((r["OCA2.thickness"] - 120e-6) / 40e-6) ** 2 + ((r["OLED.log10_youngs"] - 9.5) / 0.3) ** 2 + 1.0
-        return {"area_mean": f}
+    def predict_objective_at(designs, *, reading):   # what the optimiser asks: Designs of the family [SI]
+        seen.extend(designs)
+        r = {n: np.array([d.row[n] for d in designs]) for n in designs[0].names}
+        return ((r["OCA2.thickness"] - 120e-6) / 40e-6) ** 2 + ((r["OLED.log10_youngs"] - 9.5) / 0.3) ** 2 + 1.0
 
-    surface = SimpleNamespace(objective=SimpleNamespace(names=names, predict=predict, scenes=SimpleNamespace(
-        x=np.zeros((1, len(names))))))
+    surface = SimpleNamespace(objective_surface=True, predict_objective_at=predict_objective_at,
+                              objective=SimpleNamespace(scenes=SimpleNamespace(x=np.zeros((1, len(FAM.names))))))
     box = stack_box(search=("OCA2.thickness", "OLED.log10_youngs"))
     obj = StackObjective("kriging", surface, box, scene0=None, family=FAM, ref=None, preset="stack_tiny", part=-1)
     res = search.ga(obj, box, pop=30, gens=25, seed=0, progress=False)
     assert res["x"] == pytest.approx([120e-6, 9.5], rel=0.02) and res["f"] == pytest.approx(1.0, abs=0.01)
+    # every candidate reached the surrogate as a Design of the family: the box's full row, canonical
+    assert seen and all(d.family is FAM and d.row == box.row([d.row[n] for n in box.names]) for d in seen)
+    assert obj.designs(res["x"])[0].row == box.row(res["x"]) and len(seen) == obj.n_evals
     with pytest.raises(ValueError, match="no gradient"):
         obj.value_and_grad(res["x"][None])
 
@@ -166,7 +187,8 @@ def test_optimize_refuses_what_cannot_answer_a_stack_by_name(stack_run):
     with pytest.raises(ValueError, match=r"nearest cannot answer a stack of \['CG', 'OCA1', 'POL', 'OCA2', 'OLED', "
                                          r"'PLATE'\] here: nearest scene: no training scene has the parts"):
         run(stack_run, surrogate="nearest", method="ga", pop=4, gens=1, check=False, progress=False)
-    with pytest.raises(ValueError, match="rbf cannot answer .* per-node regression needs one shared mesh"):
+    with pytest.raises(ValueError, match=r"rbf cannot answer .* rbf: per-node regression needs one shared topology .*"
+                                         r"here the meshes differ"):
         run(stack_run, surrogate="rbf", method="ga", pop=4, gens=1, check=False, progress=False)
     with pytest.raises(ValueError, match="method: 'gradient': a stack search has no gradient"):
         run(stack_run, surrogate="kriging", method="gradient", check=False, progress=False)

@@ -7,8 +7,10 @@ import numpy as np
 import pytest
 
 from fixtures.helpers import make_synthetic_trajectory
+from pcmgn_jax.data.family import Design
 from pcmgn_jax.metrics import oled_objective_of
 from pcmgn_jax.surrogates import registry
+from pcmgn_jax.surrogates.inputs import TrainingScenes, design_of
 from pcmgn_jax.surrogates.kinds import KINDS, CannotAnswer, Kind, Surrogate
 from pcmgn_jax.surrogates.objective import FromFields
 
@@ -121,6 +123,13 @@ def test_every_kind_answers_the_objective_or_refuses_by_name(name, tiny_trajs, q
         else:
             with pytest.raises(CannotAnswer, match=rf"^{name}: cannot answer a posterior std"):
                 s.predict_objective(queries, reading="area_mean", part=PART, return_std=True)
+        designs = [Design.of(None, design_of(q), ("CG",)) for q in queries]   # the synthetic design layer
+        if s.objective_surface:   # read at designs alone: its value at the queries' own parameters
+            assert s.predict_objective_at(designs, reading="area_mean", part=PART).tolist() == f.tolist()
+        else:
+            with pytest.raises(CannotAnswer, match=rf"^{name}: cannot answer the objective at designs alone"):
+                s.predict_objective_at(designs, reading="area_mean", part=PART)
+        assert s.objective_surface == (spec.family == "surface")
         if spec.fields:
             us, vms = s.predict_trajectories(queries)
             assert [np.shape(v) for v in vms] == [q.von_mises.shape for q in queries]
@@ -142,6 +151,27 @@ def test_an_objective_surface_asked_for_fields_refuses_by_name(tiny_trajs, queri
         s.predict_objective(queries, reading="peak", part=PART)
     with pytest.raises(CannotAnswer, match="mop: cannot answer the objective of part 0"):
         s.predict_objective(queries, reading="area_mean", part=0)
+
+
+def test_a_design_is_asked_by_its_canonical_row_in_the_training_order(tiny_trajs):
+    """TrainingScenes.rows: Designs in any order of names give the training parameters' order; a stack's absent
+    layer is zeroed (its canonical row); a missing parameter is refused by name, an unknown one noted."""
+    from pcmgn_jax.data.stack import STACK_FAMILIES
+    ts = TrainingScenes(tiny_trajs)
+    notes = []
+    assert ts.rows([Design.of(None, [90e-6], ("CG",))], notes.append).tolist() == [[90e-6]] and not notes
+    assert ts.rows([Design(None, (("x", 1.0), ("CG", 90e-6)))], notes.append).tolist() == [[90e-6]]
+    assert notes == ["design 0: scene parameter x = 1 unknown to the model (not a training parameter): answered "
+                     "as if it were unchanged"]
+    with pytest.raises(ValueError, match=r"design 0: scene parameter 'CG' missing from the design"):
+        ts.rows([Design(None, (("x", 1.0),))], notes.append)
+    fam = STACK_FAMILIES["stack_tiny"]
+    row = dict(zip(fam.names, fam.sample(1, seed=0, layer_counts=(5,))[0]))
+    absent = next(n for n in fam.names if n.endswith(".present") and row[n] == 0).replace("present", "thickness")
+    stacks = object.__new__(TrainingScenes)
+    stacks.names = tuple(reversed(fam.names))
+    got = stacks.rows([Design(fam, tuple({**row, absent: 7e-6}.items()))], notes.append)[0]
+    assert got[stacks.names.index(absent)] == 0.0 and got.tolist() == [row[n] for n in stacks.names]
 
 
 def test_no_response_surface_is_built_outside_the_surrogates():
