@@ -27,9 +27,10 @@ from pcmgn_jax.atomic import atomic_write_json, atomic_write_text
 from pcmgn_jax.data.gradients import aligned_gradients, cost_in_solves
 from pcmgn_jax.data.splits import load_splits, split_designs
 from pcmgn_jax.metrics import oled_objective_of, relative_error_pct
+from pcmgn_jax.surrogates.kinds import KINDS, names
 from pcmgn_jax.surrogates.registry import fit
 
-CURVE_KINDS = ("nearest", "kriging", "gek")   # value kinds first; gek also needs the gradients
+CURVE_KINDS = names(gradient_curve=True)   # the kinds drawn (pcmgn_jax/surrogates/kinds.py), in the registry's order
 
 
 def gradient_curve(dataset_dir: str | os.PathLike, doc: dict[str, Any], *, sizes: Sequence[int], n_test: int,
@@ -46,9 +47,9 @@ def gradient_curve(dataset_dir: str | os.PathLike, doc: dict[str, Any], *, sizes
     for n in sorted(sizes):
         for kind in CURVE_KINDS:
             options, solves = {"queries": test, "readings": (reading,)}, float(n)
-            if kind != "nearest":
-                options["fields"] = False
-            if kind == "gek":
+            if KINDS[kind].family == "surface":
+                options["fields"] = False    # the objective only
+            if KINDS[kind].gradients:
                 if n > len(doc["records"]):
                     continue
                 options["gradients"], solves = {reading: aligned_gradients(doc, designs[:n])}, n * ratio
@@ -80,7 +81,7 @@ def curve_plot(res: dict[str, Any], path) -> None:
     """Objective error against solver cost (log-log), one line per kind, each point labelled by its size."""
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(5.6, 4.0))
-    for kind, colour in zip(CURVE_KINDS, ("tab:gray", "tab:green", "tab:purple")):
+    for kind, colour in zip(CURVE_KINDS, ("tab:gray", "tab:green", "tab:purple", "tab:orange")):
         pts = [p for p in res["points"] if p["kind"] == kind]
         if not pts:
             continue

@@ -45,6 +45,8 @@ class Kind:
     optimise: bool = False      # a surrogate of the design optimiser (opt/pipeline.py)
     active: bool = False        # a surrogate of the active loop (opt/active.py)
     residual_base: bool = False  # a baseline a residual_of run can learn the correction of
+    gradients: bool = False     # fitted with the solver's gradients at the training designs (data/gradients.py)
+    gradient_curve: bool = False  # drawn in the gradient curve: error against solver cost (eval/gradient_curve.py)
     rank: int = 99
     floor: bool = False
 
@@ -52,15 +54,17 @@ class Kind:
 KINDS: dict[str, Kind] = {k.name: k for k in (
     Kind("mgn", "MGN (the run's model)", "mgn", baseline=False, optimise=True, active=True, rank=0),
     Kind("none", "nothing moves", "regression", rank=7, floor=True),
-    Kind("nearest", "nearest training design", "regression", optimise=True, rank=6, curve=True),
+    Kind("nearest", "nearest training design", "regression", optimise=True, rank=6, curve=True,
+         gradient_curve=True),
     Kind("poly2", "per-node quadratic", "regression", fields="shared", optimise=True, rank=4),
     Kind("rbf", "per-node RBF", "regression", fields="shared", optimise=True, rank=5),
     Kind("kriging", "kriging", "surface", fields="shared", std=True, optimise=True,
-         active=True, rank=1, curve=True),
+         active=True, rank=1, curve=True, gradient_curve=True),
     Kind("mop", "MOP", "surface", fields="shared", optimise=True, rank=2, curve=True),
     # gradient-enhanced kriging of the objective (surface_fit.GEK): fitted with the solver's gradients at the
     # training designs (pcmgn_jax.data.gradients), which evaluation's baselines do not have: scored by its curve
-    Kind("gek", "gradient-enhanced kriging", "surface", fields="", baseline=False, explore=False, rank=10),
+    Kind("gek", "gradient-enhanced kriging", "surface", fields="", baseline=False, explore=False, rank=10,
+         gradients=True, gradient_curve=True),
     Kind("rom", "POD reduced-order model", "rom", residual_base=True, rank=3, curve=True),
     # the rom with the MGN rollout's hard contact (surrogates.correction.rigid_contact): what the constraint
     # alone gives, beside a baseline-corrected MGN (residual_of=rom); scored by evaluate only

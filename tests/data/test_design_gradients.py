@@ -9,11 +9,11 @@ import types
 import numpy as np
 import pytest
 
+from fixtures.helpers import fake_scene_solve as _fake_solve
 from pcmgn_jax.data import gradients as dg
 from pcmgn_jax.data.dataset import ensure_dataset
 from pcmgn_jax.data.layout import DatasetError
 from pcmgn_jax.data.splits import split_designs
-from test_family_protocol import _fake_solve
 
 A = np.array([3.0e9, -1.0e9])    # the analytic objective's gradient [Pa/m]: f = 1 MPa + A . (t - 100 µm)
 

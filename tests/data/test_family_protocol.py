@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from fixtures.helpers import synthetic_scene_trajectory
+from fixtures.helpers import fake_scene_solve as _fake_solve
 from pcmgn_jax.data.dataset import FAMILIES, ensure_dataset, load_manifest
 from pcmgn_jax.data.designs import SceneFamily, explicit_split, sampled_splits
 from pcmgn_jax.data.family import Design, Family
@@ -52,14 +52,6 @@ class ImpactorFamily:
     def canonical(self, params):
         return dict(params)
 
-
-def _fake_solve(scene, designs, *, preset):    # the solver's contract, without the solver: a scene per design
-    out = []
-    for d in designs:
-        one = with_parameters(scene, dict(zip(scene.design_layers, d)))
-        out.append(synthetic_scene_trajectory(one, {"wall_time_s": 0.1, "design": dict(zip(one.design_layers, d))},
-                                              n_frames=3))
-    return out
 
 
 @pytest.mark.parametrize("name", sorted(FAMILIES))

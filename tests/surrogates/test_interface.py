@@ -123,7 +123,9 @@ def test_every_kind_answers_the_objective_or_refuses_by_name(name, tiny_trajs, q
         else:
             with pytest.raises(CannotAnswer, match=rf"^{name}: cannot answer a posterior std"):
                 s.predict_objective(queries, reading="area_mean", part=PART, return_std=True)
-        designs = [Design.of(None, design_of(q), ("CG",)) for q in queries]   # the synthetic design layer
+        designs = [Design.of(None, list(q.meta["scene_params"].values()), list(q.meta["scene_params"]))
+                   if "scene_params" in q.meta else Design.of(None, design_of(q), ("CG",))   # the synthetic layer
+                   for q in queries]
         if s.objective_surface:   # read at designs alone: its value at the queries' own parameters
             assert s.predict_objective_at(designs, reading="area_mean", part=PART).tolist() == f.tolist()
         else:

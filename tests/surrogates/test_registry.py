@@ -68,7 +68,7 @@ def test_every_list_of_predictors_is_the_registrys():
     assert {k.family for k in KINDS.values()} == set(FITTERS)
     assert RESIDUAL_BASES == ("",) + names(residual_base=True) and "rom" in RESIDUAL_BASES
     trained = ("mgn", "time_fields")   # the families of trained runs (a workdir): never a baseline
-    graded = ("gek",)   # fitted with the solver's gradients, which a dataset does not hold: never a baseline
+    graded = names(gradients=True)   # fitted with the solver's gradients, which a dataset does not hold: no baseline
     assert BASELINES == tuple(n for n, k in KINDS.items() if k.family not in trained and n not in graded)
     assert PREDICTORS[0] == "mgn"
     assert set(LABELS) == set(PREDICTORS) == set(names(explore=True))
