@@ -26,12 +26,13 @@ COMMANDS = ("generate", "train", "evaluate", "report", "explore", "optimize", "o
             "active", "ensemble", "tasks_table", "learning_curve", "error_budget", "compute_curve", "onepass",
             "export", "import_ansys", "export_ansys", "study", "ablation", "objective_convergence",
             "panel_report", "hertz_check", "reach", "calculix", "calculix_check", "mesh_series", "calculix_locking",
-            "gradient")
+            "gradient", "gradient_curve")
 PACKAGE = "experiments"
 # ``pcmgn GROUP SUB`` runs COMMANDS' ``GROUPS[GROUP][SUB]``; ``pcmgn GROUP`` followed by anything else runs
 # the command of the group's own name (``pcmgn calculix --preset tiny``, as before the groups)
 GROUPS = {"calculix": {"run": "calculix", "check": "calculix_check", "locking": "calculix_locking"},
-          "optimize": {"run": "optimize", "table": "optimize_table", "trace": "optimize_trace"}}
+          "optimize": {"run": "optimize", "table": "optimize_table", "trace": "optimize_trace"},
+          "gradient": {"run": "gradient", "curve": "gradient_curve"}}
 
 
 def _spec(name: str):

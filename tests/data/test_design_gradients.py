@@ -101,3 +101,25 @@ def test_the_solver_gradient_at_a_family_design(family_tiny, tmp_path):
     assert set(rec["gradient"]) == {"ball.radius", "ball.velocity", "OCA1", "OCA2", "POL"}
     assert all(np.isfinite(list(rec["gradient"].values())))
     assert rec["gradient"]["ball.velocity"] > 0      # a faster ball stresses the OLED more
+
+
+def test_the_gradient_curve_reads_the_file(fake_solver, tmp_path):
+    """The curve (pcmgn_jax.eval.gradient_curve) fits every kind it draws at every size, gek only where the file
+    has gradients, charges gek its measured cost in solves, and writes its three files."""
+    from pcmgn_jax.eval.gradient_curve import CURVE_KINDS, gradient_curve, write_gradient_curve
+    rng = np.random.default_rng(1)
+    root = tmp_path / "d"
+    for split, n in (("train", 6), ("test", 3)):
+        ensure_dataset(root, preset="tiny", designs=rng.uniform(50e-6, 150e-6, (n, 2)), split=split,
+                       solve_fn=_fake_solve, progress=False)
+    doc = dg.design_gradients(root, "train", n=4, out=tmp_path / "g.json", time_every=1, progress=None)
+    for r in doc["records"]:
+        r["wall_value_and_grad_s"], r["wall_value_s"] = 5.0, 2.0
+    res = gradient_curve(root, doc, sizes=(3, 6), n_test=3, progress=None)
+    got = {(p["kind"], p["n"]): p for p in res["points"]}
+    assert set(got) == {(k, n) for k in CURVE_KINDS for n in (3, 6)} - {("gek", 6)}
+    assert got[("gek", 3)]["solves"] == pytest.approx(7.5) and got[("kriging", 6)]["solves"] == 6
+    assert all(np.isfinite(p["error_pct_mean"]) and p["error_pct_max"] >= p["error_pct_mean"] for p in res["points"])
+    out = write_gradient_curve(res, tmp_path / "curve", "cmd")
+    assert sorted(f.name for f in out.iterdir()) == ["gradient_curve.json", "gradient_curve.md", "gradient_curve.png"]
+    assert "2.50 solves" in (out / "gradient_curve.md").read_text()
