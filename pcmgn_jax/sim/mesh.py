@@ -75,12 +75,11 @@ def pinned_spec(scene: Scene, preset: str | MeshSpec) -> MeshSpec:
     """``preset``'s mesh with every layer's element count fixed at ``scene``'s: the same mesh at ``scene``,
     and one topology for thicknesses near it (a ``thickness_elems`` family mesh sizes its layers by their
     thickness, so its topology follows the design; a derivative in a thickness is of the pinned mesh)."""
-    spec = mesh_spec(preset)
+    spec, bottom = mesh_spec(preset), scene.layers[-1].name
     if not spec.thickness_elems:
         return spec
-    counts = _layer_counts(scene, spec)
-    bottom = scene.layers[-1].name
-    pinned = {layer.name: spec.layer_elems.get(layer.name, n) for layer, n in zip(scene.layers, counts)
+    pinned = {layer.name: spec.layer_elems.get(layer.name, n)
+              for layer, n in zip(scene.layers, _layer_counts(scene, spec))
               if layer.name != bottom or layer.name in spec.layer_elems}   # in the scene's order
     return dataclasses.replace(spec, layer_elems=pinned, thickness_elems=False)
 

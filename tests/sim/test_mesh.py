@@ -308,3 +308,20 @@ def test_crop_roi_explicit_and_empty():
     assert sub.n_nodes < M.roi(full, "tiny")[0].n_nodes
     with pytest.raises(ValueError, match="no cell"):
         M.crop_roi(full, roi_x=1e-9, roi_ball_height=1e-9)
+
+
+def test_a_family_mesh_pinned_at_its_design():
+    """pinned_spec: the same mesh at the scene, one topology for thicker layers (where the family mesh's own
+    element counts would change), so a thickness derivative has a mesh to move."""
+    from pcmgn_jax.data.designs import FAMILIES
+    from pcmgn_jax.scene import default_scene, with_parameters
+    from pcmgn_jax.sim.mesh import build_mesh, mesh_spec, pinned_spec
+    fam = FAMILIES["family_tiny"]
+    scene = with_parameters(fam.base(default_scene()), {"OCA1": 120e-6, "POL": 40e-6})
+    spec = pinned_spec(scene, "family_tiny")
+    a, b = build_mesh(scene, "family_tiny"), build_mesh(scene, spec)
+    assert np.array_equal(a.cells, b.cells) and np.array_equal(a.points, b.points)
+    thicker = with_parameters(scene, {"OCA1": 180e-6})
+    assert build_mesh(thicker, "family_tiny").n_nodes != a.n_nodes          # the family's own rule re-meshes
+    assert np.array_equal(build_mesh(thicker, spec).cells, a.cells)          # the pinned one keeps the topology
+    assert pinned_spec(scene, "tiny") is mesh_spec("tiny")          # a preset of fixed counts is returned as it is
