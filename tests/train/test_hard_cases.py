@@ -111,6 +111,7 @@ def test_rollout_twice_the_window_finite_on_extrapolated_designs(solver_trajs, e
     assert np.all(np.asarray(res.displacement)[:, :, fixed] == 0)
 
 
+@pytest.mark.slow  # ~45 s with its trained run (the default suite was 575 s of 600 on a clean clone)
 def test_loss_and_gradient_finite_on_extrapolated_frames(solver_trajs, hard_run):
     """Every (frame, next frame) pair of every extrapolated design, noise on, lambda_pen = 10."""
     _, extra = solver_trajs
