@@ -50,12 +50,10 @@ def main(argv=None) -> int:
 
     if args.dataset_dir:
         from pcmgn_jax.data.gradients import design_gradients
-        from pcmgn_jax.data.splits import split_designs
         from pcmgn_jax.errors import SettingError
         if not args.out:
             raise SettingError("out", "the gradients of --dataset_dir go to a file: give one")
-        n = args.n or len(split_designs(args.dataset_dir, args.split))
-        design_gradients(args.dataset_dir, args.split, n=n, out=args.out, reading=args.reading)
+        design_gradients(args.dataset_dir, args.split, n=args.n or None, out=args.out, reading=args.reading)
         return 0
     if args.table:
         import glob

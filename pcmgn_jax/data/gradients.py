@@ -54,12 +54,12 @@ def _header(root: Path, man: dict[str, Any], split: str, reading: str, names: Se
                                             "wall": "s"}, "records": []}
 
 
-def design_gradients(dataset_dir: str | os.PathLike, split: str, *, n: int, out: str | os.PathLike,
+def design_gradients(dataset_dir: str | os.PathLike, split: str, *, n: int | None, out: str | os.PathLike,
                      reading: str = "area_mean", time_every: int = 5,
                      progress: Callable[[str], None] | None = print) -> dict[str, Any]:
-    """The objective and its gradient at the first ``n`` designs of ``split`` of a generated dataset, written
-    to ``out`` after each design (atomic; a rerun keeps the records already there and adds the rest; an
-    ``out`` of another dataset, split or reading is refused by name). Returns the document."""
+    """The objective and its gradient at the first ``n`` designs (None: every one) of ``split`` of a generated
+    dataset, written to ``out`` after each design (atomic; a rerun keeps the records already there and adds the
+    rest; an ``out`` of another dataset, split or reading is refused by name). Returns the document."""
     import jax
 
     from pcmgn_jax.sim import differentiable as dsim  # jax: imported by who computes, not who reads the file
@@ -68,7 +68,9 @@ def design_gradients(dataset_dir: str | os.PathLike, split: str, *, n: int, out:
     man = load_manifest(root)
     if man is None:
         raise DatasetError(f"{root}: no generated dataset (manifest.json) here")
-    designs = split_designs(root, split)[:n]
+    designs = split_designs(root, split)
+    n = len(designs) if n is None else n
+    designs = designs[:n]
     if len(designs) < n:
         raise DatasetError(f"{root}: split {split!r} holds {len(designs)} designs, {n} asked for")
     base = Scene.from_dict(man["scene"], where=f"{root}/manifest.json scene")

@@ -28,7 +28,7 @@ from pcmgn_jax.data.gradients import aligned_gradients, cost_in_solves
 from pcmgn_jax.data.splits import load_splits, split_designs
 from pcmgn_jax.metrics import oled_objective_of, relative_error_pct
 from pcmgn_jax.surrogates.kinds import KINDS, names
-from pcmgn_jax.surrogates.registry import fit
+from pcmgn_jax.surrogates.registry import fit_objective
 
 CURVE_KINDS = names(gradient_curve=True)   # the kinds drawn (pcmgn_jax/surrogates/kinds.py), in the registry's order
 
@@ -47,15 +47,13 @@ def gradient_curve(dataset_dir: str | os.PathLike, doc: dict[str, Any], *, sizes
     for n in sorted(sizes):
         for kind in CURVE_KINDS:
             options, solves = {"queries": test, "readings": (reading,)}, float(n)
-            if KINDS[kind].family == "surface":
-                options["fields"] = False    # the objective only
             if KINDS[kind].gradients:
                 if n > len(doc["records"]):
                     continue
                 options["gradients"], solves = {reading: aligned_gradients(doc, designs[:n])}, n * ratio
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")   # test designs outside a small sample's box: expected here
-                s = fit(kind, train[:n], **options)
+                s = fit_objective(kind, train[:n], **options)   # a surface without its field surface
                 pred = np.asarray(s.predict_objective(test, reading=reading))
             err = relative_error_pct(pred, truth)
             points.append({"kind": kind, "n": n, "solves": solves, "error_pct_mean": float(err.mean()),

@@ -39,10 +39,10 @@ class ObjectiveSurface:
                  part: int | None = None, gradients=None):
         if not train_trajs:
             raise ValueError(f"{kind}: a response surface needs training trajectories")
-        if (kind == "gek") != (gradients is not None):
-            raise ValueError(f"{kind}: gradients go with gradient-enhanced kriging (gek) only, which needs the "
-                             "objective's gradients at the training designs (python -m experiments.gradient "
-                             "--dataset_dir)" if kind == "gek" else f"{kind}: takes no gradients (gek does)")
+        if KINDS[kind].gradients != (gradients is not None):   # the registry says which kinds take them
+            raise ValueError(f"{kind}: needs the objective's gradients at the training designs (python -m "
+                             "experiments.gradient --dataset_dir)" if KINDS[kind].gradients else
+                             f"{kind}: takes no gradients (gek does)")
         self.name, self.scenes, self.part = kind, TrainingScenes(train_trajs), part
         self.names = self.scenes.names
         options = {} if gradients is None else {"gradients": {r: self._columns(g) for r, g in gradients.items()}}
@@ -134,7 +134,7 @@ class Surface:
     def _surface(self, return_std: bool) -> ObjectiveSurface:
         if self.objective is None:
             raise CannotAnswer(self.name, "the objective", f"no objective surface: {self.objective_not_applicable}")
-        if return_std and self.name != "kriging":
+        if return_std and not KINDS[self.name].std:
             raise CannotAnswer(self.name, "a posterior std of the objective", "kriging has one")
         return self.objective
 
