@@ -71,6 +71,10 @@ class LossConfig:
     # weight of the objective term: per graph, the squared error of the OLED's objective-section mean von
     # Mises (normalised; docs/design.md §7); 0 = off
     lambda_obj: float = 0.0
+    # the OLED's share of the stress term: its nodes' stress weights x this factor, every graph's weights then
+    # rescaled to sum 1 (pcmgn_jax.train.setup.emphasise_part); 1 = off. A target chosen from the error budget
+    # (docs/results/compute.md): the objective's error is the OLED stress map's own, not drift
+    oled_stress_weight: float = 1.0
     # "" (the network predicts the fields) | rom: the network predicts what the named baseline gets wrong (the panel's
     # displacement and every node's von Mises minus the baseline's, out-of-fold on the training scenes); a rollout adds
     # the baseline back (pcmgn_jax/surrogates/residual.py; docs/design.md §5.2)
@@ -170,7 +174,7 @@ class TrainConfig:
         if not 0 <= self.lambda_start < 1:
             bad("lambda_start", "must be in [0, 1) (a fraction of the training steps)")
         for name in ("contact_radius", "contact_capacity_factor", "noise_std", "noise_rel", "lambda_pen", "lambda_obj",
-                     "pen_x_max", "pen_length_scale", "lr_decay_rate"):
+                     "oled_stress_weight", "pen_x_max", "pen_length_scale", "lr_decay_rate"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 bad(name, "must be a finite number >= 0")
         if self.formulation.reach == "attention" and self.latent_size % self.formulation.reach_heads:

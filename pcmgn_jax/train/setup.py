@@ -150,15 +150,31 @@ def loss_weights(form: Formulation, topology: Topology) -> dict:
             "stress": spread(np.ones(node_type.shape, bool)).astype(np.float32)}
 
 
+def emphasise_part(w: np.ndarray, node_part, part: int, factor: float) -> np.ndarray:
+    """(N,) float32: the loss weights ``w`` (sum 1 over the graph) with the nodes of ``part`` (``node_part``
+    (N,), the trajectory's part id per node) multiplied by ``factor`` and the whole rescaled to sum 1 again
+    (the ``oled_stress_weight`` option: the OLED's share of the stress term). ``factor`` = 1 returns ``w``."""
+    if factor == 1.0:
+        return w
+    out = np.where(np.asarray(node_part) == part, factor, 1.0) * np.asarray(w, np.float64)
+    return (out / max(out.sum(), np.finfo(np.float64).tiny)).astype(np.float32)
+
+
+def oled_part(scene: Scene, option: str) -> int:
+    """The part id of the scene's 'OLED' (the objective's layer); ValueError naming ``option`` when it has none."""
+    if "OLED" not in scene.part_names:
+        raise ValueError(f"{option} needs a part named 'OLED' (the objective's layer); "
+                         f"the scene has {list(scene.part_names)}")
+    return scene.part_names.index("OLED")
+
+
 def objective_loss_weights(traj, scene: Scene) -> np.ndarray:
     """(N,) float32 nodal weights (sum 1) of the design objective's reading (the default, area mean over
     the OLED's section under the ball: :func:`pcmgn_jax.metrics.objective_weights`, the same rule
     the evaluation scores) on one trajectory's mesh, for the ``lambda_obj`` term. ValueError when the
     scene has no part named 'OLED'."""
-    if "OLED" not in scene.part_names:
-        raise ValueError(f"lambda_obj > 0 needs a part named 'OLED' (the objective's layer); "
-                         f"the scene has {list(scene.part_names)}")
-    w = objective_weights(traj.points, traj.cells, traj.cell_part, traj.node_part, part=scene.part_names.index("OLED"))
+    w = objective_weights(traj.points, traj.cells, traj.cell_part, traj.node_part,
+                          part=oled_part(scene, "lambda_obj > 0"))
     return np.asarray(w, np.float32)
 
 
@@ -288,6 +304,9 @@ def prepare(cfg: TrainConfig, train_trajs: Sequence, *, stats_max_frames: int = 
             intervals.append(bn.interval)
             pen_ball, pen_panel = np.asarray(bn.ball, np.int32), np.asarray(bn.panel, np.int32)
         w = loss_weights(form, topo)
+        if cfg.oled_stress_weight != 1.0:
+            oled = oled_part(scene_of(g_ref), "oled_stress_weight != 1")
+            w["stress"] = emphasise_part(w["stress"], g_ref.node_part, oled, cfg.oled_stress_weight)
         w_obj = objective_loss_weights(g_ref, scene_of(g_ref)) if cfg.lambda_obj > 0 else None
         sigma = noise_sigma(topo.node_type, g_ref.node_part, topo.fixed, parts=cfg.noise_parts,
                             noise_std=cfg.noise_std, noise_rel=cfg.noise_rel, rms=rms)

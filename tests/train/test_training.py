@@ -214,3 +214,24 @@ def test_objective_term_is_the_squared_section_mean_error(tiny_trajs):
     on, aux = step_lib._total(spec, batch, data_b, zero, obj_bias, edges, None)
     assert float(aux["loss_obj"]) == pytest.approx(0.09, rel=1e-5)
     assert float(on) == pytest.approx(float(off) + 2.0 * 0.09, rel=1e-5)
+
+
+def test_oled_stress_weight_raises_the_oled_share_of_the_stress_term(tiny_trajs):
+    """oled_stress_weight = k: the OLED nodes' stress weights x k, each graph's weights summing to 1 again
+    (the others' shrink alike); 1 leaves them untouched; a scene without an OLED is refused by the option."""
+    from fixtures.helpers import synthetic_scene_trajectory, tiny_config
+    from pcmgn_jax.scene import default_scene
+    from pcmgn_jax.train.setup import prepare
+
+    scene = default_scene()
+    trajs = [synthetic_scene_trajectory(scene, {"name": f"s{i}"}, n_frames=4, preset="tiny") for i in range(2)]
+    oled = np.asarray(trajs[0].node_part) == scene.part_names.index("OLED")
+    base = prepare(tiny_config(), trajs).graphs[0].stress
+    heavy = prepare(tiny_config(oled_stress_weight=8.0), trajs).graphs[0].stress
+    assert base.sum() == pytest.approx(1.0, abs=1e-5) and heavy.sum() == pytest.approx(1.0, abs=1e-5)
+    share, share8 = base[oled].sum(), heavy[oled].sum()
+    assert 0 < share < 0.5 and share8 == pytest.approx(8 * share / (8 * share + 1 - share), rel=1e-5)
+    ratio = heavy[~oled] / base[~oled]
+    np.testing.assert_allclose(ratio, ratio[0], rtol=1e-5)            # every other node scaled alike
+    with pytest.raises(ValueError, match="oled_stress_weight != 1 needs a part named 'OLED'"):
+        prepare(tiny_config(oled_stress_weight=2.0), tiny_trajs[:2])
