@@ -155,9 +155,6 @@ def prepare(scenes: Sequence[Scene], preset: str | MeshSpec,
     free_dofs = np.flatnonzero(free.ravel() > 0)
     slaves = m0.ball_surface
     masters = m0.panel_top[np.argsort(m0.points[m0.panel_top, 0])]
-    top = scenes[0].layers[0]
-    ball = scenes[0].ball
-    e_soft = soft_modulus(top.youngs, top.poisson, ball.youngs, ball.poisson)
     out = {k: [] for k in ("points", "ke", "db", "mass", "k_slave", "w2m", "w2c", "w2t")}
     for scene, m in zip(scenes, meshes):
         youngs, poisson, density = _material_arrays(scene, m.cell_part)
@@ -169,6 +166,9 @@ def prepare(scenes: Sequence[Scene], preset: str | MeshSpec,
         minv = 1.0 / np.sqrt(np.repeat(mass, 2)[free_dofs])
         w2m = _largest_omega2(k_glob, minv, free_dofs)
         xm = m.points[masters, 0]
+        # each design's own contact bodies set its penalty (a stack family varies the top layer's modulus)
+        top, ball = scene.layers[0], scene.ball
+        e_soft = soft_modulus(top.youngs, top.poisson, ball.youngs, ball.poisson)
         k_s = slave_penalty(m.points[slaves, 0], xm, e_soft, factor=settings.penalty_factor, axisymmetric=axi)
         # contact bound: each slave spring on its own node, and the springs a master can see
         ksum = np.zeros(len(masters))

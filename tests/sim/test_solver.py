@@ -267,3 +267,18 @@ def test_designs_with_different_topology_rejected():
     wide = default_scene(half_width=9e-3)
     with pytest.raises(ValueError, match="topology"):
         solver.prepare([S1, wide], with_spec("tiny"))
+
+
+def test_each_design_of_a_batch_gets_its_own_contact_penalty():
+    """The penalty scales with the softer contact body's modulus: a batch whose second design has a softer
+    cover glass must give that design a softer penalty, not the first design's (a batch is not one design)."""
+    import dataclasses
+
+    from pcmgn_jax.sim.mesh import with_spec
+    soft_cg = dataclasses.replace(S1.layers[0], youngs=S1.layers[0].youngs / 2)
+    soft = dataclasses.replace(S1, layers=(soft_cg,) + S1.layers[1:])
+    alone = [solver.prepare([s], with_spec("tiny")).k_slave[0] for s in (S1, soft)]
+    both = solver.prepare([S1, soft], with_spec("tiny")).k_slave
+    np.testing.assert_allclose(both[0], alone[0], rtol=1e-12)
+    np.testing.assert_allclose(both[1], alone[1], rtol=1e-12)
+    assert np.all(both[1] < both[0])
