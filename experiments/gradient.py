@@ -8,7 +8,8 @@
 
 With ``--dataset_dir``: the objective and its gradient with respect to the row's parameters at the first ``--n``
 designs of a generated dataset's split, one file a gradient-enhanced surrogate reads (resumable: rerun the
-same command after a kill; pcmgn_jax/data/gradients.py).
+same command after a kill; pcmgn_jax/data/gradients.py). A stack dataset's rows too: each design in its own
+scene, a log10 modulus by the chain rule, a presence flag and an absent layer's numbers 0.
 
 Writes JSON (pcmgn_jax/sim/gradient_check.py): the objective [Pa], its gradient per named parameter in SI units
 (every layer's thickness and Young's modulus, the ball's radius and speed by default; ``--params`` names others:

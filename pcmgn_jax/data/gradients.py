@@ -2,16 +2,21 @@
 surrogate reads (the differentiable solver, :mod:`pcmgn_jax.sim.differentiable`).
 
     doc = design_gradients("data/family", "train", n=25, out="grads.json")   # resumable: done rows are kept
-    G = aligned_gradients(doc, designs)       # {parameter: (B,) [Pa per its SI unit]}, rows matched
+    G = aligned_gradients(doc, designs)       # {parameter: (B,) [Pa per its unit]}, rows matched
 
-Each design's scene is the dataset's base scene (its manifest's ``scene``) at the design's row; its
-objective ``reading`` [Pa] and the derivative with respect to every parameter of the row are computed in
-float64 at the design's own stable step held fixed (a derivative at fixed dt; a scene family's mesh
-pinned at the design's element counts, :func:`pcmgn_jax.sim.mesh.pinned_spec`). A row parameter maps to a
-solver parameter (:func:`solver_parameter`): a layer name is its thickness, ``ball.radius`` and
-``ball.velocity`` themselves. The ball's radius is differentiated on the ball mesh scaled about its pole
-(:mod:`pcmgn_jax.sim.parameters`), where the generator re-grades the ball: a derivative of a slightly
-different discrete problem. Padded stack rows (log moduli, presence flags) are not mapped: refused by name.
+Each design's scene is the dataset's base scene (its manifest's ``scene``) at the design's row
+(``design.scene(base)``: a stack design has its own layers); its objective ``reading`` [Pa] and the derivative
+with respect to every parameter of the row are computed in float64 at the design's own stable step held fixed
+(a derivative at fixed dt; a scene family's mesh pinned at the design's element counts,
+:func:`pcmgn_jax.sim.mesh.pinned_spec`), each design compiled on its own mesh. A row parameter's derivative
+comes from the solver's parameters (:mod:`pcmgn_jax.sim.parameters`) by :func:`solver_parameters`: a layer
+name (a scene family's row) and a stack row's ``<slot>.thickness`` [m] are that layer's thickness;
+``<slot>.log10_youngs`` [log10 Pa] is its modulus E by the chain rule, dF/dlog10 E = dF/dE * E * ln 10;
+``ball.radius`` and ``ball.velocity`` are themselves. A stack row's ``<slot>.present`` flag is discrete (a
+layer is there or not): not differentiable, its derivative recorded as 0; so are the numbers of a slot absent
+from the design's stack, which do not enter its scene. The ball's radius is differentiated on the ball mesh
+scaled about its pole (:mod:`pcmgn_jax.sim.parameters`), where the generator re-grades the ball: a derivative
+of a slightly different discrete problem. Any other row name is refused by name.
 
 Cost is what a gradient-enhanced surrogate is charged: every record holds the wall time of value and
 gradient, and every ``time_every``-th also of the value alone (each after its own compilation), so the
@@ -19,6 +24,7 @@ file states the measured cost of a gradient in solves (:func:`cost_in_solves`).
 """
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -31,27 +37,57 @@ from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.data.family import Design
 from pcmgn_jax.data.layout import DatasetError, load_manifest, read_format_json
 from pcmgn_jax.data.splits import split_designs
+from pcmgn_jax.data.stack import SLOT_NAMES
 from pcmgn_jax.scene import SCENE_PARAMETERS, Scene
 
 GRADIENTS_FORMAT = "pcmgn_jax.design_gradients"
+UNITS = {"objective_pa": "Pa", "gradient": "Pa per unit of the row parameter (SI; log10 Pa for a log10 modulus)",
+         "solver_gradient": "Pa per SI unit of the solver parameter", "wall": "s"}
+STACK_FIELDS = ("thickness", "log10_youngs", "present")   # a stack row's per-slot numbers (data/stack.py)
 
 
-def solver_parameter(name: str, layers: Sequence[str]) -> str:
-    """The solver parameter (:mod:`pcmgn_jax.sim.parameters`) of a row parameter ``name``: a layer name ->
-    '<layer>.thickness'; 'ball.radius' / 'ball.velocity' as they are; ValueError naming any other."""
-    if name in SCENE_PARAMETERS:
-        return name
-    if name in layers:
-        return f"{name}.thickness"
-    raise ValueError(f"design gradients: row parameter {name!r} has no solver parameter (a layer name "
-                     f"{list(layers)} or one of {list(SCENE_PARAMETERS)})")
+def solver_parameters(names: Sequence[str], scene: Scene) -> dict[str, tuple[str, float] | None]:
+    """How each row parameter's derivative comes from the solver's (module docstring), at ``scene`` (the
+    design's own scene): {row parameter: (solver parameter, factor)}, d objective / d row parameter = factor x
+    d objective / d solver parameter; None where it is 0 (a ``<slot>.present`` flag, not differentiable, and
+    every number of a stack slot absent from ``scene``, which does not enter it). ValueError naming a row
+    parameter that maps to nothing."""
+    layers = {layer.name: layer for layer in scene.layers}
+    out: dict[str, tuple[str, float] | None] = {}
+    for name in names:
+        part, _, field = name.partition(".")
+        if name in SCENE_PARAMETERS:
+            out[name] = (name, 1.0)
+        elif name in layers:
+            out[name] = (f"{name}.thickness", 1.0)
+        elif field in STACK_FIELDS and part in layers:
+            out[name] = {"thickness": (name, 1.0), "present": None,
+                         "log10_youngs": (f"{part}.youngs", layers[part].youngs * math.log(10.0))}[field]
+        elif field in STACK_FIELDS and part in SLOT_NAMES:
+            out[name] = None
+        else:
+            raise ValueError(f"design gradients: row parameter {name!r} has no solver parameter (a layer name "
+                             f"{list(layers)}, one of {list(SCENE_PARAMETERS)}, or a stack slot's "
+                             f"<slot>.{{{','.join(STACK_FIELDS)}}})")
+    return out
+
+
+def differentiated(terms: dict[str, tuple[str, float] | None]) -> list[str]:
+    """The solver parameters ``terms`` (:func:`solver_parameters`) read, once each, in the row's order."""
+    return list(dict.fromkeys(t[0] for t in terms.values() if t is not None))
+
+
+def row_gradient(terms: dict[str, tuple[str, float] | None], solver_gradient: dict[str, float]) -> dict[str, float]:
+    """{row parameter: d objective / d it} from ``solver_gradient`` {solver parameter: d objective / d it}
+    (every one :func:`differentiated` names) by ``terms`` (:func:`solver_parameters`): factor x the solver's
+    derivative, 0.0 where the term is None."""
+    return {name: 0.0 if t is None else t[1] * solver_gradient[t[0]] for name, t in terms.items()}
 
 
 def _header(root: Path, man: dict[str, Any], split: str, reading: str, names: Sequence[str]) -> dict[str, Any]:
     return {"format": GRADIENTS_FORMAT, "format_version": 1, "dataset": str(root), "preset": man["preset"],
             "element": man.get("element"), "scene": man["scene"], "split": split, "reading": reading,
-            "names": list(names), "units": {"objective_pa": "Pa", "gradient": "Pa per SI unit of the parameter",
-                                            "wall": "s"}, "records": []}
+            "names": list(names), "units": UNITS, "records": []}
 
 
 def design_gradients(dataset_dir: str | os.PathLike, split: str, *, n: int | None, out: str | os.PathLike,
@@ -74,9 +110,9 @@ def design_gradients(dataset_dir: str | os.PathLike, split: str, *, n: int | Non
     if len(designs) < n:
         raise DatasetError(f"{root}: split {split!r} holds {len(designs)} designs, {n} asked for")
     base = Scene.from_dict(man["scene"], where=f"{root}/manifest.json scene")
-    layers = [layer.name for layer in base.layers]
     names = designs[0].names
-    params = [solver_parameter(name, layers) for name in names]
+    scenes = [design.scene(base) for design in designs]       # each design's own (a stack's own layers)
+    terms = [solver_parameters(names, scene) for scene in scenes]   # refused by name before any solve
     doc = _header(root, man, split, reading, names)
     if out.exists():
         old = read_format_json(out, GRADIENTS_FORMAT, "design gradients")
@@ -91,13 +127,15 @@ def design_gradients(dataset_dir: str | os.PathLike, split: str, *, n: int | Non
             continue
         t0 = time.perf_counter()
         with jax.enable_x64(True):
-            gs = dsim.setup([design.scene(base)], man["preset"], names=params, reading=reading)
+            params = differentiated(terms[i])
+            gs = dsim.setup([scenes[i]], man["preset"], names=params, reading=reading)
             both = dsim.value_and_grad_fn(gs)
             jax.block_until_ready(both(gs.theta))          # compile (each design has its own mesh)
             t1 = time.perf_counter()
             v, g = jax.block_until_ready(both(gs.theta))
+            solver = dict(zip(params, map(float, np.asarray(g)[0])))
             rec = {"index": i, "label": design.label(), "row": design.row, "objective_pa": float(np.asarray(v)[0]),
-                   "gradient": dict(zip(names, map(float, np.asarray(g)[0]))),
+                   "gradient": row_gradient(terms[i], solver), "solver_gradient": solver,
                    "wall_value_and_grad_s": time.perf_counter() - t1, "dt_s": gs.dt, "n_substeps_per_frame": gs.n_sub}
             if i % time_every == 0:
                 value = dsim.value_fn(gs)
@@ -126,7 +164,7 @@ def cost_in_solves(doc: dict[str, Any]) -> float:
 
 def aligned_gradients(doc: dict[str, Any], designs: Sequence[Design], *,
                       rtol: float = 1e-9) -> dict[str, np.ndarray]:
-    """{row parameter: (B,) [Pa per its SI unit]}: the gradients of ``designs``, each found by its row (named
+    """{row parameter: (B,) [Pa per its unit]}: the gradients of ``designs``, each found by its row (named
     columns: a surface orders them as its inputs); DatasetError naming the first design without one."""
     names = doc["names"]
     rows = np.array([[r["row"][k] for k in names] for r in doc["records"]])

@@ -10,7 +10,9 @@ hypercube), scored on its first ``n_test`` test designs by the evaluation's obje
 (:func:`pcmgn_jax.metrics.relative_error_pct` of the ``reading``). Its cost is counted in solves: n for the
 kinds fitted on values; n × the gradient's measured cost in solves (value included,
 :func:`pcmgn_jax.data.gradients.cost_in_solves`) for gek, which is fitted only at sizes the gradient file
-covers. Nothing is chosen on the test designs: gek's settings are fixed in :class:`surface_fit.GEK`.
+covers. Nothing is chosen on the test designs: gek's settings are fixed in :class:`surface_fit.GEK`. A kind
+that refuses a size (a ValueError or SettingError from its fit: too few samples for its parameters, say) is
+no point: it is recorded under ``not_applicable`` with its reason, and the curve goes on.
 """
 from __future__ import annotations
 
@@ -36,14 +38,15 @@ CURVE_KINDS = names(gradient_curve=True)   # the kinds drawn (pcmgn_jax/surrogat
 def gradient_curve(dataset_dir: str | os.PathLike, doc: dict[str, Any], *, sizes: Sequence[int], n_test: int,
                    progress=print) -> dict[str, Any]:
     """The curve (module docstring): {'points': [{kind, n, solves, error_pct_mean, error_pct_max,
-    fit_seconds}], 'cost_in_solves', 'reading', ...}. ValueError naming a size the dataset cannot hold."""
+    fit_seconds}], 'not_applicable': [{kind, n, reason}], 'cost_in_solves', 'reading', ...}. ValueError
+    naming a size the dataset cannot hold."""
     reading = doc["reading"]
     n_max = max(sizes)
     train, _, test = load_splits(dataset_dir, n_train=n_max, n_val=0, n_test=n_test)
     designs = split_designs(dataset_dir, "train")[:n_max]
     truth = np.array([float(oled_objective_of(t, reading=reading)) for t in test])
     ratio = cost_in_solves(doc)
-    points = []
+    points, refused = [], []
     for n in sorted(sizes):
         for kind in CURVE_KINDS:
             options, solves = {"queries": test, "readings": (reading,)}, float(n)
@@ -53,7 +56,13 @@ def gradient_curve(dataset_dir: str | os.PathLike, doc: dict[str, Any], *, sizes
                 options["gradients"], solves = {reading: aligned_gradients(doc, designs[:n])}, n * ratio
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")   # test designs outside a small sample's box: expected here
-                s = fit_objective(kind, train[:n], **options)   # a surface without its field surface
+                try:
+                    s = fit_objective(kind, train[:n], **options)   # a surface without its field surface
+                except ValueError as e:                             # SettingError is one
+                    refused.append({"kind": kind, "n": n, "reason": str(e)})
+                    if progress is not None:
+                        progress(f"{kind:8s} n={n:4d}: not applicable: {e}")
+                    continue
                 pred = np.asarray(s.predict_objective(test, reading=reading))
             err = relative_error_pct(pred, truth)
             points.append({"kind": kind, "n": n, "solves": solves, "error_pct_mean": float(err.mean()),
@@ -61,17 +70,21 @@ def gradient_curve(dataset_dir: str | os.PathLike, doc: dict[str, Any], *, sizes
             if progress is not None:
                 progress(f"{kind:8s} n={n:4d} ({solves:7.1f} solves): {err.mean():.3f} % (worst {err.max():.3f})")
     return {"dataset": str(dataset_dir), "reading": reading, "n_test": n_test, "cost_in_solves": ratio,
-            "gradients": len(doc["records"]), "parameters": doc["names"], "points": points}
+            "gradients": len(doc["records"]), "parameters": doc["names"], "points": points,
+            "not_applicable": refused}
 
 
 def curve_table(res: dict[str, Any]) -> list[str]:
-    """Markdown lines: one row per size, per kind its error (worst) and solver cost."""
-    kinds = [k for k in CURVE_KINDS if any(p["kind"] == k for p in res["points"])]
+    """Markdown lines: one row per size, per kind its error (worst) and solver cost ('n/a' where the kind
+    refused the size, :func:`gradient_curve`'s ``not_applicable``)."""
+    refused = res.get("not_applicable", [])
+    kinds = [k for k in CURVE_KINDS if any(p["kind"] == k for p in res["points"] + refused)]
     rows = []
-    for n in sorted({p["n"] for p in res["points"]}):
+    for n in sorted({p["n"] for p in res["points"] + refused}):
         got = {p["kind"]: p for p in res["points"] if p["n"] == n}
+        na = {p["kind"] for p in refused if p["n"] == n}
         rows.append([n] + [f"{got[k]['error_pct_mean']:.3g} ({got[k]['error_pct_max']:.3g}); {got[k]['solves']:.0f}"
-                           if k in got else "–" for k in kinds])
+                           if k in got else "n/a" if k in na else "–" for k in kinds])
     return markdown.table(["designs", *[f"{k}: error % (worst); solves" for k in kinds]], rows)
 
 
@@ -106,6 +119,8 @@ def write_gradient_curve(res: dict[str, Any], out_dir: str | os.PathLike, comman
             f"    {command}" if command else "", "",
             f"A gradient costs {res['cost_in_solves']:.2f} solves (value included, measured); "
             f"{res['gradients']} gradients; parameters {', '.join(res['parameters'])}.", ""]
-    atomic_write_text(out / "gradient_curve.md", "\n".join(head + curve_table(res)) + "\n")
+    why = [f"- {p['kind']} at {p['n']} designs: not applicable: {p['reason']}" for p in res.get("not_applicable", [])]
+    tail = [""] + why if why else []
+    atomic_write_text(out / "gradient_curve.md", "\n".join(head + curve_table(res) + tail) + "\n")
     curve_plot(res, out / "gradient_curve.png")
     return out

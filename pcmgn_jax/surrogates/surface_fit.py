@@ -44,6 +44,10 @@ CANDIDATES = ("linear", "quadratic", "rbf", "kriging")   # simplest first (MOP's
 GP_RESTARTS = 3          # optimiser restarts of the kernel hyperparameters
 GP_RANDOM_STATE = 0      # their seed (fits are reproducible)
 GEK_DELTA = 1e-3         # gradient-enhanced kriging's Taylor step in the scaled inputs [-1, 1] (:class:`GEK`)
+# gek's PLS directions (n_comp) and Taylor points per sample (extra_points): min(D, 5). The fit's cost grows with
+# both (a hyperparameter per direction, (1 + extra_points) x B points in the GP): all 26 directions of a stack
+# row took 846 s on this project's CPU for 25 samples; the analytic 5-D test that fixed GEK's settings keeps all.
+GEK_MAX_DIRECTIONS = 5
 COP_TIE = 1e-9           # CoPs closer than this to the best count as equal (the simpler candidate wins)
 
 
@@ -323,14 +327,16 @@ class GEK(SurfaceFit):
     """Gradient-enhanced kriging of scalar quantities with their gradients: SMT's ``GEKPLS`` (Bouhlel & Martins
     2019: kriging over PLS directions, each training point joined by first-order Taylor points along them).
     ``gradients`` {quantity: (B, P) [the quantity's unit per SI unit of each parameter]}; in the scaled inputs
-    z the derivative is g (hi - lo) / 2. Settings fixed before any project data was seen (a 5-D analytic
-    test function): every direction kept (``n_comp`` = ``extra_points`` = D), Taylor step
-    :data:`GEK_DELTA` in z."""
+    z the derivative is g (hi - lo) / 2. A parameter constant over the training samples (an absent-everywhere
+    stack slot, a flag that never changes) is left out of the inputs, its gradient column with it, as kriging
+    leaves it (:class:`ParameterBox`). Settings fixed before any project data was seen (a 5-D analytic test
+    function): every direction up to :data:`GEK_MAX_DIRECTIONS` (``n_comp`` = ``extra_points`` =
+    min(D, 5)), Taylor step :data:`GEK_DELTA` in z. ``smt`` {quantity: the fitted SMT model}."""
 
     name = "gek"
 
     def __init__(self, x, quantities, *, names, gradients: Mapping[str, np.ndarray]):
-        self.gradients = gradients
+        self.gradients, self.smt = gradients, {}
         super().__init__(x, quantities, names=names)
 
     def _fit(self, q, Y):
@@ -344,7 +350,8 @@ class GEK(SurfaceFit):
             raise ValueError(f"gek of {q!r}: SMT's GEKPLS needs >= 2 varied parameters and >= 2 samples, got "
                              f"{D} and {len(Y)}; kriging fits one parameter")
         dz = G[:, v] * (self.box.hi[v] - self.box.lo[v]) / 2
-        m = GEKPLS(xlimits=np.tile([-1.0, 1.0], (D, 1)), n_comp=D, extra_points=D, delta_x=GEK_DELTA,
+        k = min(D, GEK_MAX_DIRECTIONS)
+        m = GEKPLS(xlimits=np.tile([-1.0, 1.0], (D, 1)), n_comp=k, extra_points=k, delta_x=GEK_DELTA,
                    print_global=False)
         m.set_training_values(self.z, Y[:, 0])
         for k in range(D):
@@ -352,6 +359,7 @@ class GEK(SurfaceFit):
         with _warnings.catch_warnings():    # sklearn's PLS on exact Taylor points: 'y residual is constant'
             _warnings.simplefilter("ignore", UserWarning)
             m.train()
+        self.smt[q] = m
         return lambda z: m.predict_values(np.asarray(z, np.float64))[:, 0]
 
 

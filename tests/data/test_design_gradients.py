@@ -1,5 +1,6 @@
 """Gradients at a dataset's designs (pcmgn_jax.data.gradients): one record per design, written as it goes and
-resumed after a kill, refused for another dataset's file, matched to designs by their rows, its cost in solves.
+resumed after a kill, refused for another dataset's file, matched to designs by their rows, its cost in solves;
+a stack row's from its own scene by the chain rule; the curve's kinds that refuse a size listed as such.
 The differentiable solver is replaced by an analytic objective here (its own checks are tests/sim); the
 slow test runs the real one on a family scene."""
 from __future__ import annotations
@@ -82,10 +83,71 @@ def test_aligned_by_row_and_cost_in_solves(fake_solver, data, tmp_path):
 
 
 def test_row_parameters_map_to_solver_parameters():
-    assert dg.solver_parameter("OCA1", ["CG", "OCA1"]) == "OCA1.thickness"
-    assert dg.solver_parameter("ball.velocity", ["CG"]) == "ball.velocity"
-    with pytest.raises(ValueError, match="'OCA1.log10_youngs' has no solver parameter"):
-        dg.solver_parameter("OCA1.log10_youngs", ["OCA1"])
+    """A family row's layer name is its thickness, the ball's numbers themselves (factor 1); a stack row's
+    thickness is its layer's, its log10 modulus the modulus times E ln 10, its flag and an absent slot's
+    numbers 0 (None); a name that maps to nothing is refused by name."""
+    from pcmgn_jax.scene import Scene
+    scene = Scene()          # CG, OCA1, POL, OCA2, OLED, PLATE
+    e_cg = scene.layers[0].youngs
+    got = dg.solver_parameters(["OCA1", "ball.velocity", "CG.log10_youngs", "CG.thickness", "CG.present",
+                                "TSP.thickness", "TSP.log10_youngs", "TSP.present"], scene)
+    assert got == {"OCA1": ("OCA1.thickness", 1.0), "ball.velocity": ("ball.velocity", 1.0),
+                   "CG.log10_youngs": ("CG.youngs", pytest.approx(e_cg * np.log(10))),
+                   "CG.thickness": ("CG.thickness", 1.0), "CG.present": None, "TSP.thickness": None,
+                   "TSP.log10_youngs": None, "TSP.present": None}
+    assert dg.differentiated(got) == ["OCA1.thickness", "ball.velocity", "CG.youngs", "CG.thickness"]
+    solver = {"OCA1.thickness": 2.0, "ball.velocity": 3.0, "CG.youngs": 5.0, "CG.thickness": 7.0}
+    assert dg.row_gradient(got, solver) == {"OCA1": 2.0, "ball.velocity": 3.0, "CG.log10_youngs":
+                                            pytest.approx(5.0 * e_cg * np.log(10)), "CG.thickness": 7.0,
+                                            "CG.present": 0.0, "TSP.thickness": 0.0, "TSP.log10_youngs": 0.0,
+                                            "TSP.present": 0.0}
+    for bad in ("OCA1.poisson", "FOO.thickness", "ball.density", "POLX"):
+        with pytest.raises(ValueError, match=f"row parameter '{bad}' has no solver parameter"):
+            dg.solver_parameters([bad], scene)
+
+
+def test_stack_rows_by_the_chain_rule(monkeypatch, tmp_path):
+    """A stack dataset's designs (e2: 5 and 7 layers): each is differentiated in its own scene with respect to
+    its own layers' thicknesses and moduli and the ball (a fake solver whose derivative in the k-th parameter
+    is k + 1); the row's gradient is the thickness's as it is, the modulus's x E ln 10 for the log10 modulus,
+    0 for every flag and for every number of an absent slot."""
+    from fixtures.helpers import synthetic_scene_trajectory
+    from pcmgn_jax.data.stack import SLOT_NAMES
+    from pcmgn_jax.sim import differentiable as dsim
+    from pcmgn_jax.sim.parameters import scene_value
+    seen = []
+
+    def setup(scenes, preset, *, names, reading):
+        layers = [layer.name for layer in scenes[0].layers]
+        assert preset == "stack_tiny" and names == [f"{n}.{f}" for n in layers for f in ("thickness", "youngs")] \
+            + ["ball.radius", "ball.velocity"]
+        seen.append(layers)
+        return types.SimpleNamespace(theta=np.array([[scene_value(scenes[0], n) for n in names]]), dt=1e-8, n_sub=3)
+    grad = lambda th: np.arange(1.0, th.shape[1] + 1)[None]     # noqa: E731
+    monkeypatch.setattr(dsim, "setup", setup)
+    monkeypatch.setattr(dsim, "value_fn", lambda gs: lambda th: np.ones(1))
+    monkeypatch.setattr(dsim, "value_and_grad_fn", lambda gs: lambda th: (np.ones(1), grad(th)))
+
+    def solve(scene, designs, *, preset):
+        return [synthetic_scene_trajectory(scene, {"wall_time_s": 0.1}, n_frames=3)]
+    root = ensure_dataset(tmp_path / "s", preset="stack_tiny", n_train=3, n_test=1, seed=0, stack_split="e2",
+                          solve_fn=solve, progress=False, batch=1)
+    doc = dg.design_gradients(root, "train", n=3, out=tmp_path / "g.json", progress=None)
+    assert len(seen) == 3 and {len(s) for s in seen} <= {5, 7}
+    for rec, layers in zip(doc["records"], seen):
+        solver, g, row = rec["solver_gradient"], rec["gradient"], rec["row"]
+        assert list(solver) == [f"{n}.{f}" for n in layers for f in ("thickness", "youngs")] \
+            + ["ball.radius", "ball.velocity"]
+        assert list(g) == doc["names"] and g["ball.velocity"] == solver["ball.velocity"] == len(solver)
+        for slot in SLOT_NAMES:
+            assert g[f"{slot}.present"] == 0.0
+            if slot not in layers:
+                assert g[f"{slot}.thickness"] == g[f"{slot}.log10_youngs"] == 0.0
+                continue
+            assert g[f"{slot}.thickness"] == solver[f"{slot}.thickness"] > 0
+            e = 10.0 ** row[f"{slot}.log10_youngs"]
+            assert g[f"{slot}.log10_youngs"] == pytest.approx(solver[f"{slot}.youngs"] * e * np.log(10), rel=1e-12)
+        assert {n for n in SLOT_NAMES if n not in layers}        # every e2 training stack lacks a slot
 
 
 @pytest.mark.slow
@@ -123,3 +185,33 @@ def test_the_gradient_curve_reads_the_file(fake_solver, tmp_path):
     out = write_gradient_curve(res, tmp_path / "curve", "cmd")
     assert sorted(f.name for f in out.iterdir()) == ["gradient_curve.json", "gradient_curve.md", "gradient_curve.png"]
     assert "2.50 solves" in (out / "gradient_curve.md").read_text()
+
+
+@pytest.mark.filterwarnings("ignore:Data has no positive values")   # the fake objective: nearest is exact
+def test_the_gradient_curve_records_a_refusing_kind(fake_solver, monkeypatch, tmp_path):
+    """A kind whose fit refuses a size (ValueError, or SettingError, one of them) is no point: it is listed under
+    not_applicable with its reason, its table cell reads n/a, and the other kinds are drawn."""
+    from pcmgn_jax.errors import SettingError
+    from pcmgn_jax.eval import gradient_curve as gc
+    rng = np.random.default_rng(1)
+    root = tmp_path / "d"
+    for split, n in (("train", 3), ("test", 2)):
+        ensure_dataset(root, preset="tiny", designs=rng.uniform(50e-6, 150e-6, (n, 2)), split=split,
+                       solve_fn=_fake_solve, progress=False)
+    doc = dg.design_gradients(root, "train", n=3, out=tmp_path / "g.json", time_every=1, progress=None)
+    fit = gc.fit_objective
+
+    def refusing(kind, train, **options):
+        if kind == "gek":
+            raise SettingError("gradients", "26 directions are too many here")
+        if kind == "kriging":
+            raise ValueError("kriging of 'area_mean': needs more samples")
+        return fit(kind, train, **options)
+    monkeypatch.setattr(gc, "fit_objective", refusing)
+    res = gc.gradient_curve(root, doc, sizes=(3,), n_test=2, progress=None)
+    assert [(p["kind"], p["n"]) for p in res["points"]] == [("nearest", 3)]
+    assert res["not_applicable"] == [
+        {"kind": "kriging", "n": 3, "reason": "kriging of 'area_mean': needs more samples"},
+        {"kind": "gek", "n": 3, "reason": "gradients: 26 directions are too many here"}]
+    text = (gc.write_gradient_curve(res, tmp_path / "curve") / "gradient_curve.md").read_text()
+    assert "| n/a | n/a |" in text and "- gek at 3 designs: not applicable: gradients: 26 directions" in text
