@@ -68,9 +68,10 @@ def run(workdir: str | Path, *, surrogate: str = "kriging", method: str = "ga", 
     none); ``which``: mgn checkpoint; ``check``: re-run the solver at the optimum; ``ensemble``: run folders
     whose MGNs join the run's for the spread of an mgn optimum (:mod:`pcmgn_jax.opt.spread`; without: a residual GP's);
     ``command``: recorded in the result. A panel-stack run is searched over its scene parameters
-    instead (:mod:`pcmgn_jax.opt.stack_search`, GA only): ``stack`` (the layer names, top to bottom; () the
-    paper's six) and ``params`` (the parameter names to search; () every layer's thickness and modulus);
-    both are refused on other runs. Designs in the result
+    instead (:mod:`pcmgn_jax.opt.stack_search`: GA on a surrogate; slsqp or gradient on the solver,
+    :mod:`pcmgn_jax.opt.truth_stack`): ``stack`` (the layer names, top to bottom; () the paper's six) and
+    ``params`` (the parameter names to search; () every layer's thickness and modulus); both are refused on
+    other runs. Designs in the result
     in µm, objectives in MPa. Raises ``ValueError`` for ``screen`` without slsqp or data without a solver
     preset; :class:`pcmgn_jax.mgn.checkpoint.MissingRun` (one line, nothing written) when ``workdir`` is no run
     folder, holds no config.json or (``mgn``) no checkpoint. RUN/optimize is locked while it runs
@@ -129,8 +130,6 @@ def _optimize(workdir: str | Path, *, surrogate: str, method: str, objective: st
     preset = solver_preset(ref, cfg.resolved_dataset_dir)
     tag = result_tag(surrogate, method, objective, stack, params)
     if is_stack(family_of(ref)):
-        if surrogate == TRUTH:
-            raise ValueError(f"surrogate='solver': the design-layer box only; {run_dir} is a panel-stack run")
         dest = plots.ensure_dir(run_dir / "optimize")
         record.update(stack=",".join(stack), params=",".join(params))   # the result's record: as the flags were
         if note := replacing(dest / f"{tag}.json", record):
@@ -138,7 +137,8 @@ def _optimize(workdir: str | Path, *, surrogate: str, method: str, objective: st
         out = optimize_stack(run_dir, cfg, train, surrogate=surrogate, method=method, objective=objective, pop=pop,
                              gens=gens, seed=seed, which=which, check=check, progress=progress,
                              layers=stack or PAPER_STACK, search_names=params or None,
-                             preset=preset, resume=dest / f"{tag}.resume.json", record=record, command=command)
+                             preset=preset, resume=dest / f"{tag}.resume.json", record=record, command=command,
+                             starts=starts, iters=iters, screen=screen)
         atomic_write_json(dest / f"{tag}.json", out)
         (dest / f"{tag}.resume.json").unlink(missing_ok=True)
         return out

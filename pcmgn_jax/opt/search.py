@@ -126,8 +126,9 @@ def slsqp(objective, box: DesignBox, *, starts: int = 2, iters: int = 20, ftol: 
     (~3.5 rollouts each). ``iters`` caps SLSQP's iterations per start, ``ftol`` [MPa] its stopping
     tolerance on the objective. ``screen`` > ``starts``: first evaluate that many seeded designs (values
     only, one batch: a rollout costs ~1/3.5 of a value and gradient) and start from the best ``starts``
-    of them. Returns the keys of :func:`gradient` (paths: per start the iterates; ``screened``: the
-    screened designs [µm] and values)."""
+    of them. ``box``: a :class:`DesignBox` or a box of bounds only (a stack search's
+    :class:`pcmgn_jax.opt.scenes.ParameterBox`, SI: its ``x_um`` fields hold SI x 1e6). Returns the keys of
+    :func:`gradient` (paths: per start the iterates; ``screened``: the screened designs [µm] and values)."""
     from scipy.optimize import minimize
     from tqdm.auto import tqdm
 
@@ -155,9 +156,11 @@ def slsqp(objective, box: DesignBox, *, starts: int = 2, iters: int = 20, ftol: 
             memo[key] = (float(f[0]), np.asarray(g[0], float) * span)
         return memo[key]
 
-    # the sum band as SLSQP's g(z) >= 0: DesignBox.constraints is g <= 0 [m], linear in z
+    # the sum band as SLSQP's g(z) >= 0: DesignBox.constraints is g <= 0 [m], linear in z; a box of bounds only
+    # (a stack's ParameterBox, n_constraints 0) gives scipy no constraint at all (its default, ())
     dg = np.stack([span * np.ones(box.dim), -span * np.ones(box.dim)])
-    cons = [{"type": "ineq", "fun": lambda z: -box.constraints(box.low + z * span)[0], "jac": lambda z: dg}]
+    cons = [{"type": "ineq", "fun": lambda z: -box.constraints(box.low + z * span)[0], "jac": lambda z: dg}] \
+        if box.n_constraints else ()
     results, paths = [], []
     for d in d0:
         z0 = (d - box.low) / span
