@@ -59,6 +59,7 @@ def test_the_solver_parameters_and_the_thin_stiff_corner_of_a_stack_box():
     assert stiff_corner(ball).tolist() == [ball.low[0], ball.high[1]]
 
 
+@pytest.mark.slow  # 21-28 s on this CPU; the family FD check stays in the fast suite
 def test_stack_truth_gradient_matches_central_differences_per_box_unit():
     """One design of a tiny 6-layer stack, float64: the exact derivative in a thickness [MPa/m] and in a log10
     modulus [MPa per decade: dF/dE * E ln 10] against central differences of the same solver's values (one
