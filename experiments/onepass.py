@@ -3,7 +3,12 @@
   python -m experiments.onepass --dataset_dir /tmp/clean/data/cpu --workdir runs/onepass --num_steps 2000 --seed 0
   python -m experiments.onepass --workdir runs/onepass --dataset_dir ... --resume      # continue (or only score)
 
-Every field of :class:`pcmgn_jax.mgn.onepass.OnePassConfig` is a flag (``--help``). Trains on the first ``n_train``
+Every field of :class:`pcmgn_jax.mgn.onepass.OnePassConfig` is a flag (``--help``), except what a generated dataset's
+manifest decides: its ``preset``, and that preset's ``part_identity``, ``origin`` and (unless ``--scene_features`` is
+given) ``scene_features``, the rollout MGN's inputs for the preset (:func:`pcmgn_jax.train.onepass.for_dataset`), so
+the box (task (a)), the scene family (task (b), each design its own mesh) and the stacks of 5-7 layers (task (e2))
+each get theirs. Designs of different meshes train and predict together as padded unions of one static size
+(:mod:`pcmgn_jax.mgn.onepass_union`). Trains on the first ``n_train``
 designs of the dataset's train split, validates on the next ``n_val`` (best on validation: ``checkpoints/best``),
 then scores the best checkpoint on the first ``n_test`` of the test split by the evaluation's one scoring of an
 objective prediction (:func:`pcmgn_jax.eval.baselines.objective_scores`), beside kriging fitted on the same training
@@ -33,19 +38,18 @@ class OnePassArgs:
 
 
 def _cost(surrogate, traj, repeats: int) -> dict:
-    """Seconds per design after warm-up: the network alone (a prepared graph) and the whole answer (the design's
-    graph from its trajectory, the network, the objective readings)."""
+    """Seconds per design after warm-up: the network alone (a prepared union of the one design) and the whole
+    answer (the design's graph from its trajectory, the network, the objective readings)."""
     import jax
 
-    from pcmgn_jax.mgn import onepass as op
+    from pcmgn_jax.mgn import onepass as op, onepass_union as union
     run = surrogate.run
     d = run.inputs(traj)
-    graphs = op.stack([op.normalized_graph(run.cfg, run.stats, d)])
-    nt = d["topology"].node_type
-    jax.block_until_ready(op.predict_jit(run.cfg, run.params, run.stats, graphs, nt))
+    u = union.make_union([d], union.union_sizes([d], 1))
+    jax.block_until_ready(op.predict_jit(run.cfg, run.params, run.stats, u))
     t0 = time.perf_counter()
     for _ in range(repeats):
-        jax.block_until_ready(op.predict_jit(run.cfg, run.params, run.stats, graphs, nt))
+        jax.block_until_ready(op.predict_jit(run.cfg, run.params, run.stats, u))
     net = (time.perf_counter() - t0) / repeats
     surrogate.objectives([traj])
     t0 = time.perf_counter()
@@ -54,16 +58,27 @@ def _cost(surrogate, traj, repeats: int) -> dict:
     return {"network_seconds_per_design": net, "answer_seconds_per_design": (time.perf_counter() - t0) / repeats}
 
 
+MANIFEST_FIELDS = ("preset", "part_identity", "origin")   # read from the dataset's manifest, never flags
+
+
 def main(argv=None) -> int:
     args = cli.parse(OnePassArgs, argv, description=__doc__, prog="python -m experiments.onepass")
     cfg = args.config
     if not cfg.dataset_dir:
         raise ValueError("--dataset_dir: required (a generated dataset, e.g. /tmp/clean/data/cpu)")
     from pcmgn_jax.atomic import atomic_write_json
+    from pcmgn_jax.data.layout import load_manifest
     from pcmgn_jax.data.splits import load_splits
     from pcmgn_jax.eval.baselines import objective_scores
     from pcmgn_jax.surrogates.registry import fit
-    from pcmgn_jax.train.onepass import train
+    from pcmgn_jax.train.onepass import for_dataset, train
+
+    given = cli.given_flags(sys.argv[1:] if argv is None else argv)
+    manifest = load_manifest(cfg.dataset_dir)
+    if manifest is not None:
+        cli.refuse_inapplicable(given, {f: f"read from {cfg.dataset_dir}/manifest.json (the dataset's preset)"
+                                        for f in MANIFEST_FIELDS})
+    cfg = for_dataset(cfg, manifest, given=given)
 
     train_t, val_t, test_t = load_splits(cfg.dataset_dir, n_train=cfg.n_train, n_val=cfg.n_val, n_test=cfg.n_test)
     workdir = Path(args.workdir)

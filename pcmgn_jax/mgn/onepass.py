@@ -1,35 +1,42 @@
 """A model of only the question: a scene's reference graph -> per-node time fields, in one pass.
 
-    cfg = OnePassConfig(num_steps=2000)
+    cfg = OnePassConfig(num_steps=2000, preset="stack", part_identity="role", origin="contact_top", ...)
     d = design_inputs(cfg, traj, radius=r, capacity=c)     # the design's graph at its initial state (frame 0)
     y = time_targets(traj)                                 # (N, 3) what the model learns, physical units
     run = load(workdir)                                    # a trained run (pcmgn_jax.train.onepass)
-    fields = run.predict([d, ...])                         # (B, N, 3) physical
+    fields = run.predict([d, ...])                         # one (N_b, 3) array per design, physical
 
 No rollout. The input is the graph the MGN sees of a design's initial state (frame 0: the reference mesh, zero
 displacement, the ball's drop velocity): the same construction (:func:`pcmgn_jax.mgn.rollout.input_graph` of
-:func:`pcmgn_jax.mgn.inputs.graph_inputs`, with the design's scene features, e.g. ``layer_thickness``), the same
-normalisation of the inputs (:func:`pcmgn_jax.mgn.normalization.normalize_graph`) and the same encode-process-decode
-network (:class:`pcmgn_jax.mgn.model.EncodeProcessDecode`, its decoder giving 3 channels per node). The outputs
-(:data:`TARGETS`), per node over the T frames of the window (frame 0 included, as the objective averages them):
+:func:`pcmgn_jax.mgn.inputs.graph_inputs`, with the design's scene features), the same normalisation of the inputs
+(:func:`pcmgn_jax.mgn.normalization.normalize_graph`) and the same encode-process-decode network
+(:class:`pcmgn_jax.mgn.model.EncodeProcessDecode`, its decoder giving 3 channels per node). What tells the parts
+apart is the rollout MGN's rule for the dataset's preset (``preset``, ``scene_features``, ``part_identity``,
+``origin``: :func:`pcmgn_jax.train.onepass.for_dataset` reads them from the dataset's manifest): the box's and the
+scene family's one-hot of every part with the layer thicknesses as node inputs, the stacks' six role node types
+(:data:`pcmgn_jax.mgn.graphs.ROLES`) with each node's own material, thickness and depth and heights from the
+contact layer's top, so stacks of 5, 6 and 7 layers share one input width. The outputs (:data:`TARGETS`), per node
+over the T frames of the window (frame 0 included, as the objective averages them):
 
 - ``mean_von_mises``   time-mean von Mises stress [Pa]
 - ``peak_von_mises``   the largest von Mises stress over the frames [Pa]
 - ``peak_deflection``  the largest displacement magnitude |u| over the frames [m]
 
-Each target is normalised per node type (part) by its mean and std over the training designs' nodes of that
-part (``Stats.target_mean/std`` rows, :func:`pcmgn_jax.mgn.normalization.normalize_target`): O(1) in every
+Each target is normalised per node type (part or role) by its mean and std over the training designs' nodes of
+that type (``Stats.target_mean/std`` rows, :func:`pcmgn_jax.mgn.normalization.normalize_target`): O(1) in every
 part, whether the part's stress is the cover glass's ~100 MPa or the OLED's ~1 MPa.
 
 The objective follows from the predicted time-mean field by the one definition
-(:func:`pcmgn_jax.metrics.oled_objective`): every linear reading (``area_mean``, ``node_mean``, ``disc_mean``)
-is a weighted section sum averaged over frames, so it equals the same reading of the time-mean field (one
-"frame"); ``peak`` (max over frames and section nodes) equals the max of the peak field over the section.
+(:func:`pcmgn_jax.metrics.oled_objective`, on each design's own mesh): every linear reading (``area_mean``,
+``node_mean``, ``disc_mean``) is a weighted section sum averaged over frames, so it equals the same reading of the
+time-mean field (one "frame"); ``peak`` (max over frames and section nodes) equals the max of the peak field over
+the section.
 
 Loss of one design (normalised units): sum_i w_i |e_i|^2 / 3 over its nodes (w: each part counts alike,
 :func:`pcmgn_jax.train.setup.loss_weights`) plus ``lambda_obj`` x (relative error of its ``area_mean``
 objective)^2 from the predicted time-mean field; the step's loss is the mean over the batch's designs.
-Designs are batched by stacking (one node numbering for all: the built-in solver's meshes of one preset).
+Designs of any meshes are batched as one padded disjoint union of a static size (:mod:`pcmgn_jax.mgn.onepass_union`),
+so a scene family's or a stack family's designs (each its own mesh) train together and a step compiles once.
 """
 from __future__ import annotations
 
@@ -40,23 +47,16 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
-from pcmgn_jax.mgn import checkpoint
-from pcmgn_jax.mgn.formulation import Formulation
+from pcmgn_jax.mgn import checkpoint, onepass_union as union
+from pcmgn_jax.mgn.formulation import Formulation, Origin, PartIdentity
 from pcmgn_jax.mgn.inputs import graph_inputs
 from pcmgn_jax.mgn.model import EncodeProcessDecode
-from pcmgn_jax.mgn.normalization import (
-    Accumulator,
-    Stats,
-    TypedAccumulator,
-    denormalize_output,
-    normalize_graph,
-    normalize_target,
-)
-from pcmgn_jax.mgn.rollout import input_graph
+from pcmgn_jax.mgn.normalization import Accumulator, Stats, TypedAccumulator
+from pcmgn_jax.mgn.scene_features import across_part_channels
+from pcmgn_jax.presets import PRESET_NAMES
 
 TARGETS = ("mean_von_mises", "peak_von_mises", "peak_deflection")   # [Pa], [Pa], [m] per node
 CONFIG_FILE = "onepass.json"
@@ -67,6 +67,7 @@ class OnePassConfig:
     """A one-pass run's settings (written to ``workdir/onepass.json``; ``--resume`` refuses a change)."""
 
     dataset_dir: str = ""
+    preset: str = ""                               # the dataset's preset (its manifest's; "" an imported dataset)
     n_train: int = 12
     n_val: int = 2
     n_test: int = 6
@@ -75,7 +76,9 @@ class OnePassConfig:
     message_passing_steps: int = 8
     reach: str = "local"                           # local | multiscale | attention (EncodeProcessDecode)
     features: str = "strain"                       # the MGN's edge / node feature set (graphs.node_features)
-    scene_features: tuple[str, ...] = ("layer_thickness",)
+    scene_features: tuple[str, ...] = ("layer_thickness",)  # the preset's (manifest) unless given
+    part_identity: PartIdentity = "type"           # the preset's (manifest): type | material | role (Formulation)
+    origin: Origin = "mesh"                        # the preset's (manifest): mesh | contact_top | support_top
     num_steps: int = 2000
     batch_graphs: int = 4                          # designs per step (capped at the training designs)
     learning_rate: float = 1e-3
@@ -102,12 +105,15 @@ class OnePassConfig:
             raise ValueError(f"onepass config: learning_rate={self.learning_rate} must be > 0, lr_decay_rate="
                              f"{self.lr_decay_rate} in (0, 1], ema_decay={self.ema_decay} in [0, 1), lambda_obj="
                              f"{self.lambda_obj} >= 0")
-        self.formulation  # validates features / scene_features / reach
+        if self.preset and self.preset not in PRESET_NAMES:
+            raise ValueError(f"onepass config: preset={self.preset!r} must be one of {PRESET_NAMES} (or '')")
+        self.formulation  # validates features / scene_features / reach / part_identity / origin
 
     @property
     def formulation(self) -> Formulation:
         """The graph construction's settings (a dynamic formulation: the initial state as it is)."""
-        return Formulation(features=self.features, scene_features=self.scene_features, reach=self.reach)
+        return Formulation(features=self.features, scene_features=self.scene_features, reach=self.reach,
+                           part_identity=self.part_identity, origin=self.origin)
 
     def model(self) -> EncodeProcessDecode:
         return EncodeProcessDecode(output_size=len(TARGETS), latent_size=self.latent_size, mlp_layers=self.mlp_layers,
@@ -158,79 +164,50 @@ def design_inputs(cfg: OnePassConfig, traj, *, radius: float | None = None, capa
     u0 = np.asarray(traj.displacement[0], np.float32)
     inp = graph_inputs(traj, traj.meta["scene"], scene_features=cfg.scene_features, radius=radius,
                        capacity=capacity, positions=[np.asarray(traj.points)[None] + u0[None]],
-                       levels=cfg.formulation.hierarchy_levels)
+                       levels=cfg.formulation.hierarchy_levels, identity=cfg.part_identity)
     return {**inp._asdict(), "u0": u0, "v0": np.asarray(traj.velocity[0], np.float32)}
 
 
-def raw_graph(cfg: OnePassConfig, d: dict):
-    """The raw (SI) input graph of a design (:func:`design_inputs`)."""
-    return input_graph(cfg.formulation, d["topology"], d["index"], d["points"], d["u0"], d["v0"])[0]
-
-
-def compute_stats(cfg: OnePassConfig, designs, targets) -> Stats:
-    """Input statistics (the MGN's layout and rules: per node type with ``per_part``) of the training designs'
-    graphs, and the targets' per-part mean/std (``target_mean/std`` [T, 3]); ``targets``: (N, 3) per design."""
+def compute_stats(cfg: OnePassConfig, designs, targets, *, scene: dict | None = None) -> Stats:
+    """Input statistics (the MGN's layout and rules: per node type with ``per_part``, a part's own ``material``
+    over all nodes) of the training designs' graphs, and the targets' per-type mean/std (``target_mean/std``
+    [T, 3]); ``targets``: (N_b, 3) per design. The designs' graphs (any meshes) are built in padded unions of one
+    size (:mod:`pcmgn_jax.mgn.onepass_union`, one compilation) and only their real nodes and edges are counted.
+    ``scene``: a training design's scene dict (the widths of its scene features, for where ``material`` lies)."""
     form = cfg.formulation
     n_types = designs[0]["topology"].n_node_types
-    graphs = [raw_graph(cfg, d) for d in designs]
-    acc = {"node": TypedAccumulator(n_types, graphs[0].nodes.shape[1] - n_types),
-           "mesh": TypedAccumulator(n_types, graphs[0].edges["mesh"].features.shape[1]),
-           "contact": Accumulator(graphs[0].edges["contact"].features.shape[1]),
-           "target": TypedAccumulator(n_types, len(TARGETS))}
-    for d, g, y in zip(designs, graphs, targets):
-        nt = np.asarray(d["topology"].node_type)
-        acc["node"].add(np.asarray(g.nodes)[:, n_types:], nt)
-        acc["mesh"].add(g.edges["mesh"].features, nt[np.asarray(d["topology"].mesh_receivers)])
-        acc["contact"].add(g.edges["contact"].features, np.asarray(g.edges["contact"].mask))
-        acc["target"].add(y, nt)
+    widths = sorted({d["topology"].n_node_types for d in designs})
+    if widths != [n_types]:
+        raise ValueError(f"one-pass statistics: the designs have {widths} node types; designs of different parts "
+                         "train together only with part_identity='role'")
+    slots = min(cfg.batch_graphs, len(designs))
+    sizes = union.union_sizes(designs, slots)
+    raw = _jitted("raw", cfg, lambda: lambda x: union.raw_graph(form, x))
+    acc: dict = {}
+    for ids in union.chunks(len(designs), slots):
+        u = union.make_union([designs[i] for i in ids], sizes)
+        g = raw(u)
+        nt, mask = np.asarray(u.graph.topology.node_type), np.asarray(u.graph.layout.node_mask)
+        nodes, mesh, cont = np.asarray(g.nodes)[:, n_types:], g.edges["mesh"], g.edges["contact"]
+        if not acc:
+            acc = {"node": TypedAccumulator(n_types, nodes.shape[1]),
+                   "mesh": TypedAccumulator(n_types, mesh.features.shape[1]),
+                   "contact": Accumulator(cont.features.shape[1]), "target": TypedAccumulator(n_types, len(TARGETS))}
+        acc["node"].add(nodes, nt, mask)
+        acc["mesh"].add(mesh.features, nt[np.asarray(mesh.receivers)], np.asarray(mesh.mask))
+        acc["contact"].add(cont.features, np.asarray(cont.mask))
+        acc["target"].add(union.node_array(u, [targets[i] for i in ids]), nt, mask)
+    sf = designs[0]["topology"].scene_features
+    first = nodes.shape[1] - (0 if sf is None else np.shape(sf)[1])   # the scene features: the last channels
+    across = [first + i for i in across_part_channels(scene or {}, cfg.scene_features)]
     per_part = form.normalization == "per_part"
     f = lambda a: np.asarray(a, np.float32)  # noqa: E731
-    nm, ns = acc["node"].result(per_part)
+    nm, ns = acc["node"].result(per_part, across)
     mm, ms = acc["mesh"].result(per_part)
     cm, cs = acc["contact"].result(default_std=float(designs[0]["index"].radius))
     tm, ts = acc["target"].result(True)
     return Stats(f(nm), f(ns), f(mm), f(ms), f(cm), f(cs), f(tm), f(ts), np.zeros(2, np.float32),
                  np.ones(2, np.float32))
-
-
-def normalized_graph(cfg: OnePassConfig, stats: Stats, d: dict):
-    """The normalised input graph of a design: what the network reads."""
-    return normalize_graph(stats, raw_graph(cfg, d), d["topology"].node_type)
-
-
-def stack(trees, what: str = "designs"):
-    """Stack pytrees of one structure and shape (one node numbering); ValueError naming the first mismatch."""
-    shapes = [jax.tree.map(np.shape, t) for t in trees]
-    for i, s in enumerate(shapes[1:], 1):
-        if s != shapes[0]:
-            raise ValueError(f"one-pass model: {what} 0 and {i} differ in graph size or structure; the one-pass "
-                             "model batches designs of one node numbering (one mesh topology, as the built-in "
-                             "solver meshes one preset), not a scene family of several meshes")
-    return jax.tree.map(lambda *a: jnp.stack([jnp.asarray(x) for x in a]), *trees)
-
-
-def forward(model, params, graphs):
-    """Normalised outputs (B, N, 3) of a stack of normalised graphs."""
-    return jax.vmap(lambda g: model.apply(params, g))(graphs)
-
-
-def physical(stats: Stats, node_type, out):
-    """(B, N, 3) normalised outputs -> physical [Pa, Pa, m] with each node's part row."""
-    return jax.vmap(lambda o: denormalize_output(stats, node_type, o))(out)
-
-
-def loss_fn(params, model, stats: Stats, graphs, targets, node_type, weights, obj_weights, lambda_obj):
-    """The step's loss (module docstring): ``graphs`` stacked (B, ...), ``targets`` (B, N, 3) physical,
-    ``weights`` (N,) per node (sum 1), ``obj_weights`` (N,) the ``area_mean`` section weights (sum 1).
-    Returns (loss, (data term, objective term)) as scalars."""
-    out = forward(model, params, graphs)
-    tn = jax.vmap(lambda y: normalize_target(stats, node_type, y))(targets)
-    data = jnp.mean(jnp.sum(weights[None, :, None] * (out - tn) ** 2, axis=(1, 2)) / len(TARGETS))
-    mean_pred = physical(stats, node_type, out)[..., 0]
-    truth = targets[..., 0] @ obj_weights
-    rel = (mean_pred @ obj_weights - truth) / jnp.maximum(jnp.abs(truth), 1e-12)
-    obj = jnp.mean(rel ** 2)
-    return data + lambda_obj * obj, (data, obj)
 
 
 class Run(NamedTuple):
@@ -245,23 +222,45 @@ class Run(NamedTuple):
         """:func:`design_inputs` of a trajectory at the run's contact radius and buffer."""
         return design_inputs(self.cfg, traj, radius=self.meta["contact_radius"], capacity=self.meta["contact_capacity"])
 
-    def predict(self, designs) -> np.ndarray:
-        """(B, N, 3) float64 physical fields [Pa, Pa, m] (:data:`TARGETS`) of designs of one node numbering."""
-        graphs = stack([normalized_graph(self.cfg, self.stats, d) for d in designs])
-        return np.asarray(predict_jit(self.cfg, self.params, self.stats, graphs,
-                                      jnp.asarray(designs[0]["topology"].node_type)), np.float64)
+    def predict(self, designs) -> list[np.ndarray]:
+        """One (N_b, 3) float64 array of physical fields [Pa, Pa, m] (:data:`TARGETS`) per design, each on its own
+        mesh (:func:`predict_fields`)."""
+        return predict_fields(self.cfg, self.params, self.stats, designs)
 
 
-def predict_jit(cfg: OnePassConfig, params, stats, graphs, node_type):
-    """Jitted physical prediction (B, N, 3) of stacked normalised graphs; one compilation per (config, shape)."""
-    if cfg not in _JITS:
-        model = cfg.model()
+def predict_fields(cfg: OnePassConfig, params, stats: Stats, designs, *, slots: int | None = None) -> list[np.ndarray]:
+    """One (N_b, 3) float64 array [Pa, Pa, m] per design (:func:`design_inputs` dicts, any meshes): the designs in
+    unions of ``slots`` (default ``cfg.batch_graphs``) of one size for the whole call (one compilation per size)."""
+    designs = list(designs)
+    if not designs:
+        return []
+    slots = min(slots or cfg.batch_graphs, len(designs))
+    sizes = union.union_sizes(designs, slots)
+    out: list[np.ndarray] = []
+    for ids in union.chunks(len(designs), slots):
+        u = union.make_union([designs[i] for i in ids], sizes)
+        out += [np.asarray(f, np.float64) for f in union.split(u, predict_jit(cfg, params, stats, u))]
+    return out
 
-        def onepass_predict(p, s, g, nt):
-            return physical(s, nt, forward(model, p, g))
 
-        _JITS[cfg] = jax.jit(onepass_predict)
-    return _JITS[cfg](params, stats, graphs, node_type)
+def predict_jit(cfg: OnePassConfig, params, stats, u: union.Union):
+    """Jitted physical prediction (N, 3) over a union (:mod:`pcmgn_jax.mgn.onepass_union`); one compilation per
+    (config, union size)."""
+    def make():
+        model, form = cfg.model(), cfg.formulation
+
+        def onepass_predict(p, s, x):
+            return union.physical(s, x, union.forward(form, model, p, s, x))
+        return onepass_predict
+
+    return _jitted("predict", cfg, make)(params, stats, u)
+
+
+def _jitted(what: str, cfg: OnePassConfig, make):
+    """``jax.jit(make())``, made once per (what, config)."""
+    if (what, cfg) not in _JITS:
+        _JITS[what, cfg] = jax.jit(make())
+    return _JITS[what, cfg]
 
 
 _JITS: dict = {}

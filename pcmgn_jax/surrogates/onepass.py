@@ -5,8 +5,9 @@
     s.time_fields(test)                                   # {target: list of (N_b,)}: the fields it predicts
 
 It predicts, per design, the time-mean and the peak von Mises stress and the peak deflection of every node, in one
-pass from the design's initial state (frame 0 of each query trajectory, on its own mesh), and the objective
-readings from them by the one definition (:func:`pcmgn_jax.metrics.oled_objective`: a linear reading of the
+pass from the design's initial state (frame 0 of each query trajectory, on its own mesh: the box's designs, a
+scene family's or a stack family's alike), and the objective readings from them, each on the query's own mesh, by
+the one definition (:func:`pcmgn_jax.metrics.oled_objective`: a linear reading of the
 time-mean field as one frame, ``peak`` of the peak field). It has no per-frame fields: ``predict_trajectories``
 and ``predict`` refuse, naming them.
 """
@@ -44,17 +45,11 @@ class OnePassSurrogate:
 
     def time_fields(self, trajs) -> dict[str, list[np.ndarray]]:
         """{target: one (N_b,) array per trajectory} of :data:`pcmgn_jax.mgn.onepass.TARGETS` [Pa, Pa, m], each on the
-        query's own mesh (queries of one node numbering are batched together; others one at a time)."""
+        query's own mesh (the queries' graphs joined in padded unions of one size, whatever their meshes:
+        :func:`pcmgn_jax.mgn.onepass.predict_fields`)."""
         trajs = list(trajs)
         t0 = time.perf_counter()
-        groups: dict = {}
-        for i, t in enumerate(trajs):
-            groups.setdefault((t.n_nodes, np.asarray(t.cells).tobytes()), []).append(i)
-        out: list = [None] * len(trajs)
-        for ids in groups.values():
-            fields = self.run.predict([self.run.inputs(trajs[i]) for i in ids])
-            for i, f in zip(ids, fields):
-                out[i] = f
+        out = self.run.predict([self.run.inputs(t) for t in trajs])
         self.predict_seconds = time.perf_counter() - t0
         return {name: [f[:, k] for f in out] for k, name in enumerate(op.TARGETS)}
 

@@ -2,8 +2,15 @@
 
     summary = train(cfg, workdir, train_trajs=..., val_trajs=..., resume=False)
 
+- The dataset's graph settings (:func:`for_dataset`): the preset its manifest names, and that preset's part
+  identity, origin and scene features (the rollout MGN's), so a stack family's 5-, 6- and 7-layer designs share
+  one node-type set (the roles) and one input width.
+- Each design's graph on its own mesh (one contact radius, the first design's; one contact buffer, the largest any
+  training design needs at its initial state), its loss weights and the objective's section weights on it.
 - Each step: ``batch_graphs`` training designs drawn without replacement by a pure function of (seed, step)
-  (:func:`batch_ids`), so a resumed run takes the same steps as an uninterrupted one; one jitted Adam step
+  (:func:`batch_ids`), so a resumed run takes the same steps as an uninterrupted one, joined into a padded union
+  of one static size for the whole dataset (:mod:`pcmgn_jax.mgn.onepass_union`: no recompilation when the draw's
+  meshes change); one jitted Adam step
   (the MGN's schedule: lr0 x rate^(step / num_steps)) and the parameters' moving average (``ema_decay``;
   ``optax.incremental_update``), both in :class:`pcmgn_jax.train.step.TrainState`.
 - Validation every ``val_every`` steps and at the end: the moving average's ``area_mean`` objective error on the
@@ -17,6 +24,7 @@
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -30,7 +38,8 @@ import optax
 from pcmgn_jax.atomic import atomic_write_json
 from pcmgn_jax.errors import SettingError
 from pcmgn_jax.metrics import objective_weights, relative_error_pct
-from pcmgn_jax.mgn import checkpoint, onepass as op
+from pcmgn_jax.mgn import checkpoint, onepass as op, onepass_union as union
+from pcmgn_jax.presets import PRESET_NAMES
 from pcmgn_jax.train.resume import resume_point
 from pcmgn_jax.train.setup import loss_weights
 from pcmgn_jax.train.step import TrainState
@@ -60,27 +69,32 @@ def _check_config(cfg: op.OnePassConfig, workdir: Path, resume: bool) -> None:
 
 
 class Data:
-    """A split's designs as the step reads them: stacked normalised graphs (B, ...), physical targets (B, N, 3),
-    the node types (N,), the objective's section weights (N,) and each design's objective [Pa]."""
+    """A split's designs as the step reads them: each design's graph inputs on its own mesh
+    (:func:`pcmgn_jax.mgn.onepass.design_inputs`), physical targets (N_b, 3), per-node loss weights (N_b,), the
+    objective's section weights (N_b,) on its own mesh, and each design's objective [Pa]; ``take`` joins a draw
+    into a padded union of the one static size ``sizes`` (:mod:`pcmgn_jax.mgn.onepass_union`)."""
 
-    def __init__(self, cfg, stats, designs, targets, obj_weights):
-        self.graphs = op.stack([op.normalized_graph(cfg, stats, d) for d in designs])
-        self.targets = jnp.asarray(np.stack(targets), jnp.float32)
-        self.node_type = jnp.asarray(designs[0]["topology"].node_type)
-        self.obj_w = jnp.asarray(obj_weights, jnp.float32)
-        self.objective = np.stack(targets)[..., 0] @ np.asarray(obj_weights, np.float64)
+    def __init__(self, cfg, designs, targets, obj_weights, slots: int):
+        self.designs, self.targets, self.obj_w = list(designs), list(targets), list(obj_weights)
+        self.weights = [loss_weights(cfg.formulation, d["topology"])["stress"] for d in self.designs]
+        self.objective = np.array([y[:, 0] @ np.asarray(w, np.float64) for y, w in zip(self.targets, self.obj_w)])
+        self.sizes = union.union_sizes(self.designs, slots)
 
     def take(self, ids):
-        return jax.tree.map(lambda a: a[ids], self.graphs), self.targets[ids]
+        """(union, targets (N, 3), weights (N,), obj_w (N,)) of the designs ``ids``, zero on padding."""
+        u = union.make_union([self.designs[i] for i in ids], self.sizes)
+        arr = lambda xs: jnp.asarray(union.node_array(u, [xs[i] for i in ids]))  # noqa: E731
+        return u, arr(self.targets), arr(self.weights), arr(self.obj_w)
 
 
 def make_step(cfg: op.OnePassConfig, model, tx):
-    """The jitted step (state, stats, graphs, targets, node_type, weights, obj_w) -> (state, loss, data, obj)."""
+    """The jitted step (state, stats, union, targets, weights, obj_w) -> (state, loss, data, obj)."""
+    form = cfg.formulation
 
     @jax.jit
-    def onepass_step(state: TrainState, stats, graphs, targets, node_type, weights, obj_w):
-        (loss, (data, obj)), grads = jax.value_and_grad(op.loss_fn, has_aux=True)(
-            state.params, model, stats, graphs, targets, node_type, weights, obj_w, cfg.lambda_obj)
+    def onepass_step(state: TrainState, stats, u, targets, weights, obj_w):
+        (loss, (data, obj)), grads = jax.value_and_grad(union.loss_fn, has_aux=True)(
+            state.params, form, model, stats, u, targets, weights, obj_w, cfg.lambda_obj)
         updates, opt_state = tx.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
         ema = optax.incremental_update(params, state.ema_params, step_size=1.0 - cfg.ema_decay)
@@ -93,14 +107,35 @@ def validation_error_pct(cfg, params, stats, val: Data | None) -> float:
     """Mean relative ``area_mean`` objective error [%] of the validation designs (nan without any)."""
     if val is None:
         return float("nan")
-    fields = op.predict_jit(cfg, params, stats, val.graphs, val.node_type)
-    pred = np.asarray(fields, np.float64)[..., 0] @ np.asarray(val.obj_w, np.float64)
+    fields = op.predict_fields(cfg, params, stats, val.designs, slots=val.sizes.slots)
+    pred = np.array([f[:, 0] @ np.asarray(w, np.float64) for f, w in zip(fields, val.obj_w)])
     return float(relative_error_pct(pred, val.objective).mean())
 
 
 def _section(cfg, traj) -> np.ndarray:
+    """The ``area_mean`` section weights (N,) of the objective's part on the trajectory's own mesh."""
     part = op.part_id(traj, cfg.objective_part)
     return objective_weights(traj.points, traj.cells, traj.cell_part, traj.node_part, part=part)
+
+
+def for_dataset(cfg: op.OnePassConfig, manifest: dict | None, *, given=()) -> op.OnePassConfig:
+    """``cfg`` with the dataset's graph settings, read from its ``manifest`` (None: an imported dataset, unchanged):
+    ``preset`` the manifest's, and that preset's ``part_identity``, ``origin`` and (unless ``scene_features`` is in
+    ``given``, the flags written) ``scene_features`` -- the rollout MGN's formulation for the preset
+    (:meth:`pcmgn_jax.config.TrainConfig.from_preset`: the box's part one-hot and layer thicknesses, the scene
+    family's heights from the plate's top with the ball radius, the stacks' role node types, materials and
+    depths with heights from the contact layer's top)."""
+    from pcmgn_jax.config import TrainConfig
+    if manifest is None:
+        return cfg
+    preset = manifest.get("preset")
+    if preset not in PRESET_NAMES:
+        raise ValueError(f"one-pass: the dataset's manifest names preset {preset!r}, not one of {PRESET_NAMES}")
+    form = TrainConfig.from_preset(preset).formulation
+    kw = dict(preset=preset, part_identity=form.part_identity, origin=form.origin)
+    if "scene_features" not in given:
+        kw["scene_features"] = form.scene_features
+    return dataclasses.replace(cfg, **kw)
 
 
 def train(cfg: op.OnePassConfig, workdir: str | Path, *, train_trajs: Sequence, val_trajs: Sequence = (),
@@ -114,25 +149,29 @@ def train(cfg: op.OnePassConfig, workdir: str | Path, *, train_trajs: Sequence, 
     say = progress or (lambda s: None)
     t_start = time.perf_counter()
     step0 = resume_point(workdir) if resume else None
-    probe = op.design_inputs(cfg, train_trajs[0])
-    radius, capacity = float(probe["index"].radius), int(probe["index"].capacity)
-    best_val, stats = float("inf"), None
+    radius = float(op.design_inputs(cfg, train_trajs[0])["index"].radius)   # one radius: the first design's
+    best_val, stats, capacity = float("inf"), None, None
     if step0 is not None:
         _, meta = checkpoint.read_meta(workdir / "checkpoints" / "periodic", step0)
         radius, capacity = meta["contact_radius"], meta["contact_capacity"]
         best_val = float("inf") if meta["best_val_error_pct"] is None else meta["best_val_error_pct"]
         stats = checkpoint.restore_stats(workdir / "checkpoints" / "periodic", step0)
     designs = [op.design_inputs(cfg, t, radius=radius, capacity=capacity) for t in train_trajs]
+    if capacity is None:   # one buffer: the largest any training design needs at its initial state
+        capacity = max(int(d["index"].capacity) for d in designs)
+        designs = [{**d, "index": d["index"].replace(capacity=capacity)} for d in designs]
     targets = [op.time_targets(t) for t in train_trajs]
-    stats = stats or op.compute_stats(cfg, designs, targets)
-    tr = Data(cfg, stats, designs, targets, _section(cfg, train_trajs[0]))
+    stats = stats or op.compute_stats(cfg, designs, targets, scene=train_trajs[0].meta.get("scene"))
+    batch = min(cfg.batch_graphs, len(train_trajs))
+    tr = Data(cfg, designs, targets, [_section(cfg, t) for t in train_trajs], batch)
     val = None
     if val_trajs:
-        val = Data(cfg, stats, [op.design_inputs(cfg, t, radius=radius, capacity=capacity) for t in val_trajs],
-                   [op.time_targets(t) for t in val_trajs], _section(cfg, val_trajs[0]))
-    weights = jnp.asarray(loss_weights(cfg.formulation, designs[0]["topology"])["stress"])
+        val = Data(cfg, [op.design_inputs(cfg, t, radius=radius, capacity=capacity) for t in val_trajs],
+                   [op.time_targets(t) for t in val_trajs], [_section(cfg, t) for t in val_trajs],
+                   min(cfg.batch_graphs, len(val_trajs)))
     model, tx = cfg.model(), optimizer(cfg)
-    params = jax.jit(model.init)(jax.random.PRNGKey(cfg.seed), jax.tree.map(lambda a: a[0], tr.graphs))
+    probe = tr.take(range(batch))[0]
+    params = union.init_params(cfg.formulation, model, stats, probe, cfg.seed)
     state = TrainState(step=jnp.zeros((), jnp.int32), params=params, opt_state=tx.init(params),
                        ema_params=jax.tree.map(jnp.array, params))
     if step0 is not None:
@@ -143,10 +182,11 @@ def train(cfg: op.OnePassConfig, workdir: str | Path, *, train_trajs: Sequence, 
     periodic = checkpoint.manager(root / "periodic", cfg.max_to_keep, create=True)
     best_mgr = checkpoint.manager(root / "best", 1, create=True)
     step_fn = make_step(cfg, model, tx)
-    batch = min(cfg.batch_graphs, len(train_trajs))
     first = int(state.step)
-    say(f"one-pass: {len(train_trajs)} training / {len(val_trajs)} validation designs, {tr.graphs.nodes.shape[1]} "
-        f"nodes, batch {batch}, steps {first} -> {cfg.num_steps}" + (" (resumed)" if first else ""))
+    n_nodes = sorted({d["topology"].n_node for d in designs})
+    say(f"one-pass: {len(train_trajs)} training / {len(val_trajs)} validation designs, {n_nodes[0]}.."
+        f"{n_nodes[-1]} nodes ({len(n_nodes)} meshes; unions of {probe.graph.points.shape[0]} nodes), batch {batch}, "
+        f"steps {first} -> {cfg.num_steps}" + (" (resumed)" if first else ""))
     log, t_train, timed_steps, t_first = (workdir / "metrics.jsonl").open("a"), 0.0, 0, None
     done = first
     try:
@@ -154,8 +194,8 @@ def train(cfg: op.OnePassConfig, workdir: str | Path, *, train_trajs: Sequence, 
             if stop_after is not None and s - first >= stop_after:
                 return {"step": s, "stopped": True}
             t0 = time.perf_counter()
-            graphs, targets = tr.take(batch_ids(cfg.seed, s, batch, len(train_trajs)))
-            state, loss, data, obj = step_fn(state, stats, graphs, targets, tr.node_type, weights, tr.obj_w)
+            u, targets, weights, obj_w = tr.take(batch_ids(cfg.seed, s, batch, len(train_trajs)))
+            state, loss, data, obj = step_fn(state, stats, u, targets, weights, obj_w)
             loss = float(loss)
             if not np.isfinite(loss):
                 raise FloatingPointError(f"one-pass training diverged at step {s + 1} (loss {loss}); the last "
