@@ -80,6 +80,7 @@ def test_the_command_writes_the_page_json_and_plot(tmp_path):
     assert (out / "compute_curve.png").stat().st_size > 1000
 
 
+@pytest.mark.slow  # 34 s here with its trained fixture; test_rollout's evaluation test stays
 def test_evaluate_without_baselines_scores_the_model_only(tiny_run, tiny_trajs):
     from pcmgn_jax.eval import evaluate as evaluation
     _, workdir, _ = tiny_run

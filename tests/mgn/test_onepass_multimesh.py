@@ -74,6 +74,7 @@ def test_a_union_of_designs_is_each_design_on_its_own(stacks):
     assert all(np.isfinite(f).all() for f in together)
 
 
+@pytest.mark.slow  # 25 s here; the union test stays in the default suite
 def test_training_on_stacks_of_several_meshes_compiles_once(stacks, tmp_path):
     train, val = stacks
     assert len({t.n_nodes for t in train + val}) == 5

@@ -113,8 +113,10 @@ def test_rows_scaled_and_zeroed_as_the_solver_does(tiny):
     np.testing.assert_allclose(a, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
 
 
-# axisymmetric: 23 s, slow (the default suite stays under 10 minutes); plane_strain runs the same code by default
-@pytest.mark.parametrize("analysis", [pytest.param("axisymmetric", marks=pytest.mark.slow), "plane_strain"])
+# 23-25 s each, slow (the default suite stays under 10 minutes); the default suite reaches the same reverse pass
+# through tests/sim/test_differentiable.py's central-difference check of the whole solver
+@pytest.mark.slow
+@pytest.mark.parametrize("analysis", ["axisymmetric", "plane_strain"])
 def test_apply_symmetric_reverse_pass_equals_autodiff(analysis):
     """apply_symmetric's hand-written reverse pass (K D g for the displacement, products for the coefficients
     and the extra forces) equals jax's own transpose of apply, for rows scaled by -free/m as in the solver."""
