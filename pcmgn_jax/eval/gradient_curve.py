@@ -11,8 +11,8 @@ hypercube), scored on its first ``n_test`` test designs by the evaluation's obje
 kinds fitted on values; n × the gradient's measured cost in solves (value included,
 :func:`pcmgn_jax.data.gradients.cost_in_solves`) for gek, which is fitted only at sizes the gradient file
 covers. Nothing is chosen on the test designs: gek's settings are fixed in :class:`surface_fit.GEK`. A kind
-that refuses a size (a ValueError or SettingError from its fit: too few samples for its parameters, say) is
-no point: it is recorded under ``not_applicable`` with its reason, and the curve goes on.
+that refuses a size (a ValueError or SettingError from its fit or its answer: too few samples for its
+parameters, or the nearest scene asked for a test stack whose layer list no training stack has) is no point: it is recorded under ``not_applicable`` with its reason, and the curve goes on.
 """
 from __future__ import annotations
 
@@ -58,12 +58,12 @@ def gradient_curve(dataset_dir: str | os.PathLike, doc: dict[str, Any], *, sizes
                 warnings.simplefilter("ignore")   # test designs outside a small sample's box: expected here
                 try:
                     s = fit_objective(kind, train[:n], **options)   # a surface without its field surface
+                    pred = np.asarray(s.predict_objective(test, reading=reading))
                 except ValueError as e:                             # SettingError is one
                     refused.append({"kind": kind, "n": n, "reason": str(e)})
                     if progress is not None:
                         progress(f"{kind:8s} n={n:4d}: not applicable: {e}")
                     continue
-                pred = np.asarray(s.predict_objective(test, reading=reading))
             err = relative_error_pct(pred, truth)
             points.append({"kind": kind, "n": n, "solves": solves, "error_pct_mean": float(err.mean()),
                            "error_pct_max": float(err.max()), "fit_seconds": float(s.fit_seconds)})

@@ -189,7 +189,7 @@ def test_the_gradient_curve_reads_the_file(fake_solver, tmp_path):
 
 @pytest.mark.filterwarnings("ignore:Data has no positive values")   # the fake objective: nearest is exact
 def test_the_gradient_curve_records_a_refusing_kind(fake_solver, monkeypatch, tmp_path):
-    """A kind whose fit refuses a size (ValueError, or SettingError, one of them) is no point: it is listed under
+    """A kind whose fit or answer refuses a size (ValueError, or SettingError, one of them) is no point: it is listed under
     not_applicable with its reason, its table cell reads n/a, and the other kinds are drawn."""
     from pcmgn_jax.errors import SettingError
     from pcmgn_jax.eval import gradient_curve as gc
@@ -204,9 +204,16 @@ def test_the_gradient_curve_records_a_refusing_kind(fake_solver, monkeypatch, tm
     def refusing(kind, train, **options):
         if kind == "gek":
             raise SettingError("gradients", "26 directions are too many here")
-        if kind == "kriging":
-            raise ValueError("kriging of 'area_mean': needs more samples")
-        return fit(kind, train, **options)
+        s = fit(kind, train, **options)
+        if kind == "kriging":           # refuses at its answer, as the nearest scene does a stack of other layers
+
+            class Refusing:
+                fit_seconds = s.fit_seconds
+
+                def predict_objective(self, *a, **k):
+                    raise ValueError("kriging of 'area_mean': needs more samples")
+            return Refusing()
+        return s
     monkeypatch.setattr(gc, "fit_objective", refusing)
     res = gc.gradient_curve(root, doc, sizes=(3,), n_test=2, progress=None)
     assert [(p["kind"], p["n"]) for p in res["points"]] == [("nearest", 3)]
