@@ -103,17 +103,15 @@ def truth_solver(scene: Scene, preset, box: DesignBox, reading: str) -> TruthSol
     return TruthSolver(scene, preset, box, reading)
 
 
-class SolverObjective(FieldObjective):
-    """The solver's objective with its exact gradient over ``box`` (the module docstring); ``part``: the OLED's
-    part id (as the other objectives; the section is the setup's). ``n_solver_runs``: this process's solver
-    calls (a replayed evaluation costs none); ``n_evals``: every evaluation of the search, replayed ones too."""
+class TruthObjective(FieldObjective):
+    """What a search on the solver does with each evaluation, whatever its box: values [MPa] (a screen, a map)
+    and values with their exact gradient [MPa per box unit], one solver run each, cached by design, each
+    appended to ``trace`` (the subclass's ``_record``) and written to the resume file before the next;
+    ``n_solver_runs``: this process's solver calls (a replayed evaluation costs none). The subclass sets
+    ``surrogate`` (a truth with ``value``, ``value_and_grad`` [Pa] and ``gs``) and defines ``_record``,
+    ``_restore``, ``fingerprint`` and ``check``."""
 
-    def __init__(self, scene: Scene, preset, box: DesignBox = DesignBox(), *, part: int,
-                 reading: str = metrics.DEFAULT_OBJECTIVE):
-        if reading not in metrics.OBJECTIVES:
-            raise ValueError(f"objective must be one of {metrics.OBJECTIVES}, got {reading!r}")
-        super().__init__(truth_solver(scene, preset, box, reading), None, part=part, reading=reading,
-                         resolution=RESOLUTION)
+    def _start_trace(self) -> None:
         self.grads: dict[tuple, np.ndarray] = {}
         self.trace: list[dict] = []
         self.n_solver_runs = 0
@@ -123,22 +121,11 @@ class SolverObjective(FieldObjective):
         """The fixed substep [s] of every evaluation."""
         return self.surrogate.gs.dt
 
-    def fingerprint(self) -> str:
-        """A short hash of what the values are of: scene, preset, reading, the parameters, dt and substeps."""
-        gs = self.surrogate.gs
-        what = {"scene": self.surrogate.scene.to_dict(), "preset": str(self.surrogate.preset), "reading": self.reading,
-                "names": list(self.surrogate.names), "dt": gs.dt, "n_sub": gs.n_sub, "n_frames": gs.n_frames,
-                "element": gs.element, "dtype": gs.dtype}
-        return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()[:16]
-
     def _record(self, x, value: float, grad, wall: float) -> None:
-        self.n_solver_runs += 1
-        self.trace.append({"design_m": [float(v) for v in x], "design_um": [float(v) * 1e6 for v in x],
-                           "mpa": value, "grad_mpa_per_m": None if grad is None else [float(v) for v in grad],
-                           "wall_s": wall, "seconds": self.search_seconds()})
+        raise NotImplementedError
 
     def _objectives(self, designs) -> np.ndarray:
-        """(B,) [MPa] of new designs (B, D) [m], values only (a screen, a map), one solver run each."""
+        """(B,) [MPa] of new designs (B, D), values only (a screen, a map), one solver run each."""
         out = []
         for x in designs:
             t0 = time.perf_counter()
@@ -147,7 +134,7 @@ class SolverObjective(FieldObjective):
         return np.array(out)
 
     def value_and_grad(self, designs) -> tuple[np.ndarray, np.ndarray]:
-        """(B,) [MPa] and the exact (B, D) [MPa/m], one solver run and reverse pass per design not yet
+        """(B,) [MPa] and the exact (B, D) [MPa per box unit], one solver run and reverse pass per design not yet
         evaluated with its gradient (each written to the resume file before the next)."""
         d = np.atleast_2d(np.asarray(designs, float))
         for x in d:
@@ -164,6 +151,34 @@ class SolverObjective(FieldObjective):
 
     def _extra(self) -> dict:
         return {"trace": self.trace}
+
+
+class SolverObjective(TruthObjective):
+    """The solver's objective with its exact gradient over ``box`` (the module docstring); ``part``: the OLED's
+    part id (as the other objectives; the section is the setup's). ``n_solver_runs``: this process's solver
+    calls (a replayed evaluation costs none); ``n_evals``: every evaluation of the search, replayed ones too."""
+
+    def __init__(self, scene: Scene, preset, box: DesignBox = DesignBox(), *, part: int,
+                 reading: str = metrics.DEFAULT_OBJECTIVE):
+        if reading not in metrics.OBJECTIVES:
+            raise ValueError(f"objective must be one of {metrics.OBJECTIVES}, got {reading!r}")
+        super().__init__(truth_solver(scene, preset, box, reading), None, part=part, reading=reading,
+                         resolution=RESOLUTION)
+        self._start_trace()
+
+    def fingerprint(self) -> str:
+        """A short hash of what the values are of: scene, preset, reading, the parameters, dt and substeps."""
+        gs = self.surrogate.gs
+        what = {"scene": self.surrogate.scene.to_dict(), "preset": str(self.surrogate.preset), "reading": self.reading,
+                "names": list(self.surrogate.names), "dt": gs.dt, "n_sub": gs.n_sub, "n_frames": gs.n_frames,
+                "element": gs.element, "dtype": gs.dtype}
+        return hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()[:16]
+
+    def _record(self, x, value: float, grad, wall: float) -> None:
+        self.n_solver_runs += 1
+        self.trace.append({"design_m": [float(v) for v in x], "design_um": [float(v) * 1e6 for v in x],
+                           "mpa": value, "grad_mpa_per_m": None if grad is None else [float(v) for v in grad],
+                           "wall_s": wall, "seconds": self.search_seconds()})
 
     def _restore(self, saved: dict) -> None:
         self.trace = list(saved.get("trace", []))

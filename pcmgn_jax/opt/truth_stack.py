@@ -32,9 +32,8 @@ import time
 import numpy as np
 
 from pcmgn_jax import metrics
-from pcmgn_jax.opt.objectives import FieldObjective
 from pcmgn_jax.opt.scenes import ParameterBox
-from pcmgn_jax.opt.truth import RESOLUTION  # [SI] rows closer than this are one evaluation (as the paper box's)
+from pcmgn_jax.opt.truth import RESOLUTION, TruthObjective  # RESOLUTION [SI]: rows closer are one evaluation
 from pcmgn_jax.scene import Scene
 
 LOG10 = ".log10_youngs"
@@ -138,7 +137,7 @@ def stack_truth(scene0: Scene, family, preset: str, box: ParameterBox, reading: 
     return _SOLVERS[key]
 
 
-class StackSolverObjective(FieldObjective):
+class StackSolverObjective(TruthObjective):
     """The solver's objective [MPa] with its exact gradient [MPa per box unit] over a stack box (module
     docstring). ``n_solver_runs``: this process's solver calls (a replayed evaluation costs none); ``n_evals``:
     every evaluation of the search, replayed ones too; ``trace``: every evaluation's row {name: SI}, value
@@ -152,14 +151,7 @@ class StackSolverObjective(FieldObjective):
         super().__init__(stack_truth(scene0, family, preset, box, reading), None, part=-1, reading=reading,
                          resolution=RESOLUTION, names=box.names)
         self.box, self.family, self.scene0, self.preset = box, family, scene0, preset
-        self.grads: dict[tuple, np.ndarray] = {}
-        self.trace: list[dict] = []
-        self.n_solver_runs = 0
-
-    @property
-    def dt(self) -> float:
-        """The fixed substep [s] of every evaluation."""
-        return self.surrogate.gs.dt
+        self._start_trace()
 
     def fingerprint(self) -> str:
         """A short hash of what the values are of: scene, family, preset, reading, the box, dt and substeps."""
@@ -177,34 +169,6 @@ class StackSolverObjective(FieldObjective):
         self.trace.append({"design": dict(zip(self.box.names, map(float, x))), "mpa": value,
                            "grad_mpa": None if grad is None else dict(zip(self.box.names, map(float, grad))),
                            "wall_s": wall, "seconds": self.search_seconds()})
-
-    def _objectives(self, designs) -> np.ndarray:
-        """(B,) [MPa] of new rows (B, D), values only (a screen), one solver run each."""
-        out = []
-        for x in designs:
-            t0 = time.perf_counter()
-            out.append(self.surrogate.value(x) * 1e-6)
-            self._record(x, out[-1], None, time.perf_counter() - t0)
-        return np.array(out)
-
-    def value_and_grad(self, designs) -> tuple[np.ndarray, np.ndarray]:
-        """(B,) [MPa] and the exact (B, D) [MPa per box unit], one solver run and reverse pass per row not yet
-        evaluated with its gradient (each written to the resume file before the next)."""
-        d = np.atleast_2d(np.asarray(designs, float))
-        for x in d:
-            key = self._key(x)
-            if key in self.grads:
-                continue
-            t0 = time.perf_counter()
-            v, g = self.surrogate.value_and_grad(x)
-            self.cache[key], self.grads[key] = v * 1e-6, g * 1e-6
-            self.n_evals += 1
-            self._record(x, v * 1e-6, g * 1e-6, time.perf_counter() - t0)
-            self._flush()
-        return (np.array([self.cache[self._key(x)] for x in d]), np.stack([self.grads[self._key(x)] for x in d]))
-
-    def _extra(self) -> dict:
-        return {"trace": self.trace}
 
     def _restore(self, saved: dict) -> None:
         self.trace = list(saved.get("trace", []))

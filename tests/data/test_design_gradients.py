@@ -165,16 +165,21 @@ def test_the_solver_gradient_at_a_family_design(family_tiny, tmp_path):
     assert rec["gradient"]["ball.velocity"] > 0      # a faster ball stresses the OLED more
 
 
+def _curve_data(tmp_path, *, n_train, n_test, n_grad):
+    """A fake-solver tiny dataset of n_train / n_test designs and the gradients of its first n_grad."""
+    rng = np.random.default_rng(1)
+    root = tmp_path / "d"
+    for split, n in (("train", n_train), ("test", n_test)):
+        ensure_dataset(root, preset="tiny", designs=rng.uniform(50e-6, 150e-6, (n, 2)), split=split,
+                       solve_fn=_fake_solve, progress=False)
+    return root, dg.design_gradients(root, "train", n=n_grad, out=tmp_path / "g.json", time_every=1, progress=None)
+
+
 def test_the_gradient_curve_reads_the_file(fake_solver, tmp_path):
     """The curve (pcmgn_jax.eval.gradient_curve) fits every kind it draws at every size, gek only where the file
     has gradients, charges gek its measured cost in solves, and writes its three files."""
     from pcmgn_jax.eval.gradient_curve import CURVE_KINDS, gradient_curve, write_gradient_curve
-    rng = np.random.default_rng(1)
-    root = tmp_path / "d"
-    for split, n in (("train", 6), ("test", 3)):
-        ensure_dataset(root, preset="tiny", designs=rng.uniform(50e-6, 150e-6, (n, 2)), split=split,
-                       solve_fn=_fake_solve, progress=False)
-    doc = dg.design_gradients(root, "train", n=4, out=tmp_path / "g.json", time_every=1, progress=None)
+    root, doc = _curve_data(tmp_path, n_train=6, n_test=3, n_grad=4)
     for r in doc["records"]:
         r["wall_value_and_grad_s"], r["wall_value_s"] = 5.0, 2.0
     res = gradient_curve(root, doc, sizes=(3, 6), n_test=3, progress=None)
@@ -189,16 +194,11 @@ def test_the_gradient_curve_reads_the_file(fake_solver, tmp_path):
 
 @pytest.mark.filterwarnings("ignore:Data has no positive values")   # the fake objective: nearest is exact
 def test_the_gradient_curve_records_a_refusing_kind(fake_solver, monkeypatch, tmp_path):
-    """A kind whose fit or answer refuses a size (ValueError, or SettingError, one of them) is no point: it is listed under
-    not_applicable with its reason, its table cell reads n/a, and the other kinds are drawn."""
+    """A kind whose fit or answer refuses a size (ValueError, or SettingError, one of them) is no point: it is
+    listed under not_applicable with its reason, its table cell reads n/a, and the other kinds are drawn."""
     from pcmgn_jax.errors import SettingError
     from pcmgn_jax.eval import gradient_curve as gc
-    rng = np.random.default_rng(1)
-    root = tmp_path / "d"
-    for split, n in (("train", 3), ("test", 2)):
-        ensure_dataset(root, preset="tiny", designs=rng.uniform(50e-6, 150e-6, (n, 2)), split=split,
-                       solve_fn=_fake_solve, progress=False)
-    doc = dg.design_gradients(root, "train", n=3, out=tmp_path / "g.json", time_every=1, progress=None)
+    root, doc = _curve_data(tmp_path, n_train=3, n_test=2, n_grad=3)
     fit = gc.fit_objective
 
     def refusing(kind, train, **options):
