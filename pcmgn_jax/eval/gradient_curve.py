@@ -12,7 +12,8 @@ kinds fitted on values; n × the gradient's measured cost in solves (value inclu
 :func:`pcmgn_jax.data.gradients.cost_in_solves`) for gek, which is fitted only at sizes the gradient file
 covers. Nothing is chosen on the test designs: gek's settings are fixed in :class:`surface_fit.GEK`. A kind
 that refuses a size (a ValueError or SettingError from its fit or its answer: too few samples for its
-parameters, or the nearest scene asked for a test stack whose layer list no training stack has) is no point: it is recorded under ``not_applicable`` with its reason, and the curve goes on.
+parameters, or the nearest scene asked for a test stack whose layer list no training stack has) is no
+point: it is recorded under ``not_applicable`` with its reason, and the curve goes on.
 """
 from __future__ import annotations
 
