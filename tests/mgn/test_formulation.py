@@ -184,3 +184,47 @@ def test_scene_feature_rows_hide_the_design_from_the_ball():
     assert np.all(rows[:3, 1:] == 0)                            # ball and cover glass: the contact pair
     traced = scene_feature_rows(scene, ("layer_thickness",), node_type, design=jnp.asarray([70e-6, 90e-6]))
     assert np.all(np.asarray(traced)[:3] == 0) and np.asarray(traced)[3, 1] == pytest.approx(70e-6)
+
+
+_NEW_FIELD = '''
+import dataclasses, json, pathlib, tempfile
+import pcmgn_jax.mgn.formulation as fm
+
+@dataclasses.dataclass(frozen=True)
+class Formulation(fm.Formulation):
+    stress_floor: float = 0.0   # a newcomer's new field: a floor under the stress target [Pa]
+
+# the one edit a new field needs, made here by patching the module before anything else imports it
+fm.Formulation = Formulation
+fm.FORMULATIONS = {k: Formulation(**{f.name: getattr(v, f.name) for f in dataclasses.fields(v)})
+                   for k, v in fm.FORMULATIONS.items()}
+from pcmgn_jax import cli
+from pcmgn_jax.config import TrainConfig
+cfg = cli.parse_config(["--preset", "tiny", "--stress_floor=2.5"])
+d = pathlib.Path(tempfile.mkdtemp())
+cfg.save_json(d / "config.json")
+saved = json.loads((d / "config.json").read_text())["formulation"]["stress_floor"]
+print(json.dumps([cfg.formulation.stress_floor, saved, TrainConfig.load(d / "config.json") == cfg,
+                  cli.parse_config(["--preset", "tiny"]).formulation.stress_floor]))
+try:
+    cli.parse_train(["--help"], prog="train")
+except SystemExit:
+    pass
+'''
+
+
+def test_a_new_formulation_field_touches_formulation_py_only(tmp_path):
+    """docs/design.md "Where to change what": a field added to ``Formulation`` (and nothing else) is a flag, a
+    config.json key that round-trips, a default, and a line of --help, in a fresh interpreter."""
+    import json
+    import os
+    import subprocess
+    import sys
+    script = tmp_path / "new_field.py"   # a file, so --help can read the field's comment from its source
+    script.write_text(_NEW_FIELD)
+    run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120,
+                         env={**os.environ, "COLUMNS": "250"}, cwd=tmp_path)
+    assert run.returncode == 0, run.stderr[-2000:]
+    first, *rest = run.stdout.splitlines()
+    assert json.loads(first) == [2.5, 2.5, True, 0.0]
+    assert "--stress_floor" in "\n".join(rest) and "a floor under the stress target" in "\n".join(rest)
