@@ -4,6 +4,7 @@
 - ``rollout_throughput``  100-frame rollouts, batched over designs (designs/s)
 - ``solver_speed``     the built-in explicit solver: substeps/s, wall time per trajectory
 - ``speed_vs_error``   trained surrogates against solver presets: wall time vs error (Pareto plot)
+- ``train_step``       the training loop's own step on a dataset: time per step, host work, FLOP rate, op profile
 
 Benchmarks are not tests: tests only run them at tiny sizes. Ratios measured in the same run carry
 the claims; absolute times depend on the machine recorded in each JSON's ``machine`` block.

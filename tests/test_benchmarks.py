@@ -262,3 +262,85 @@ def test_solver_throughput_rows(tmp_path):
         for k in ("compile_s", "call_s", "designs_per_s", "designs_per_s_full_trajectory", "prepare_s_per_design"):
             assert isinstance(r[k], float) and math.isfinite(r[k]) and r[k] > 0, (k, r[k])
         assert r["finite"] and r["extrapolated_to_frames"] == 100 and r["substeps_per_call"] > 0
+
+
+def test_profile_ops_self_time_and_op_groups():
+    """bench.profile_ops counts a lax.scan's body ops once each (its while loop only the time no op of the body
+    ran), and bench.group_ops sums op kinds into the named groups, a kind no rule knows as its own row."""
+    import jax
+    import jax.numpy as jnp
+
+    from pcmgn_jax.eval.bench import OP_KIND_GROUPS, group_ops, profile_ops
+    w = jnp.full((256, 256), 1e-3)
+    f = jax.jit(lambda x: jax.lax.scan(lambda c, _: (jnp.tanh(c @ w), None), x, None, length=4)[0])
+    x = jnp.ones((256, 256))
+    prof = profile_ops(lambda: f(x).block_until_ready(), repeats=2)
+    groups = group_ops(prof)
+    gemm = groups["GEMM (YNNPACK fusions)"]["ms"] + groups["GEMM (XLA dot)"]["ms"]
+    assert gemm > 0 and prof.get("while", 0.0) < 0.5 * sum(prof.values())
+    g = group_ops({"ynn_fusion": 2.0, "dot": 1.0, "bitcast_gather_fusion": 0.5, "multiply_add_fusion": 0.25,
+                   "copy_bitcast_fusion": 0.125, "while": 0.0625, "sort": 0.0625})
+    assert list(g) == [*OP_KIND_GROUPS, "kind sort"] and g["kind sort"]["share"] == pytest.approx(0.0625 / 4)
+    assert [g[k]["ms"] for k in OP_KIND_GROUPS] == [2.0, 1.0, 0.5, 0.25, 0.125, 0.0625]
+    assert sum(r["share"] for r in g.values()) == pytest.approx(1.0)
+
+
+TINY_STEP_FLAGS = "--contact_radius=2e-5 --latent_size=8 --message_passing_steps=1 --steps_per_dispatch=2"
+
+
+def _train_step_run(tmp_path, trajs, *flags):
+    """`benchmarks.train_step` on a directory of the tiny synthetic trajectories (an imported dataset: 3 train
+    + 1 val, the tiny preset's split); its JSON, checked to be finite and consistent (no timing assertions)."""
+    import math
+
+    from benchmarks import train_step
+    from pcmgn_jax.data.trajectory_io import write_trajectory
+    for i, t in enumerate(trajs):
+        write_trajectory(t, tmp_path / "data" / "train" / f"run{i:02d}")
+    out = tmp_path / "ts.json"
+    train_step.main(["--preset", "tiny", "--dataset_dir", str(tmp_path / "data"), f"--train_flags={TINY_STEP_FLAGS}",
+                     "--repeats", "1", "--json", str(out), *flags])
+    r = _load(out)
+    K = r["config"]["steps_per_dispatch"]
+    assert K == 2 and r["config"]["n_train"] == 3 and r["config"]["latent_size"] == 8
+    parts = ("host_gather", "transfer", "device")
+    for k in (*parts, "total"):
+        assert math.isfinite(r["per_step_ms"][k]) and r["per_step_ms"][k] > 0, k
+        assert r["per_dispatch_ms"][k] == pytest.approx(K * r["per_step_ms"][k])
+    assert r["per_step_ms"]["total"] == pytest.approx(sum(r["per_step_ms"][k] for k in parts))
+    assert 0 < r["host_share"] < 1 and r["xla_counts_loop_body_once"]
+    assert r["flops_per_step"] > 0 and r["xla"]["train_chunk"]["bytes_accessed"] > 0
+    for k in ("device", "wall"):
+        assert r["gflops"][k] > 0 and r["fraction_of_matmul"][k] == pytest.approx(r["gflops"][k] / r["matmul_gflops"])
+    assert r["machine"]["matmul_1024_gflops_jax"] > 0 and not r["contact_overflow"]
+    prof = r["profile"]["train_step"]
+    assert prof["thread_ms"] > 0 and prof["groups"]["GEMM (YNNPACK fusions)"]["ms"] > 0
+    assert sum(g["share"] for g in prof["groups"].values()) == pytest.approx(1.0)
+    assert sum(g["ms"] for g in prof["groups"].values()) == pytest.approx(prof["thread_ms"])
+    kinds = [k for g in prof["groups"].values() for k in g["kinds"]]
+    assert sorted(kinds) == sorted(prof["kinds_ms"])   # every op kind in exactly one group
+    assert "XLA op profile" in out.with_suffix(".md").read_text()
+    return r
+
+
+def test_train_step_tiny(tmp_path, tiny_trajs):
+    """`python -m benchmarks.train_step`: the training loop's own dispatch (one compilation: --no_split) on a
+    tiny dataset; the per-step times, XLA's FLOPs, the matmul fraction and the grouped op profile."""
+    r = _train_step_run(tmp_path, tiny_trajs, "--no_split")
+    assert r["config"]["processor"] == "per_frame" and r["config"]["frames_per_sample"] == 1
+    assert set(r["split_ms"]) == {"train_step_in_chunk"} and set(r["profile"]) == {"train_step"}
+
+
+@pytest.mark.slow  # ~50 s on this CPU beside other jobs: four compilations
+def test_train_step_split_realtime(tmp_path, tiny_trajs):
+    """The realtime formulation (per-design processor, 8 frames per sample) with the split: forward, backward and
+    update add up to the one-step dispatch, and XLA's FLOPs grow from the loss to value_and_grad to the step."""
+    r = _train_step_run(tmp_path, tiny_trajs, "--formulation", "realtime")
+    assert r["config"]["processor"] == "per_design" and r["config"]["frames_per_sample"] == 8
+    sp, x = r["split_ms"], r["xla"]
+    assert sp["forward"] > 0 and sp["value_and_grad"] > 0 and sp["train_step_1_per_dispatch"] > 0
+    assert sp["forward"] + sp["backward"] + sp["update_and_dispatch"] == pytest.approx(sp["train_step_1_per_dispatch"])
+    assert 0 < x["loss"]["flops"] < x["value_and_grad"]["flops"] <= x["train_chunk_1"]["flops"]
+    assert x["train_chunk_1"]["flops"] == pytest.approx(r["flops_per_step"], rel=1e-3)
+    for name in ("loss", "value_and_grad"):
+        assert sum(g["share"] for g in r["profile"][name]["groups"].values()) == pytest.approx(1.0)

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["PRESET_ORDER", "bench_graph", "jraph_graph", "machine_info", "matmul_gflops_jax", "matmul_gflops_torch",
-           "mgn_flops", "profile_ops", "roi_mesh", "time_calls"]
+__all__ = ["OP_KIND_GROUPS", "PRESET_ORDER", "bench_graph", "group_ops", "jraph_graph", "machine_info",
+           "matmul_gflops_jax", "matmul_gflops_torch", "mgn_flops", "op_group", "profile_ops", "roi_mesh", "time_calls"]
 
 
 # ---- machine ---------------------------------------------------------------------------------
@@ -237,7 +237,8 @@ def mgn_flops(n_nodes: int, n_edges: Mapping[str, int], in_dims: Mapping[str, in
 
 def profile_ops(fn, repeats: int = 3) -> dict:
     """Device time [ms per call] of ``fn()`` by XLA op kind (fusion names without their number), from a
-    jax.profiler trace read back with ``jax.profiler.ProfileData``."""
+    jax.profiler trace read back with ``jax.profiler.ProfileData``. Self time: an op that holds others (a
+    ``while`` loop, e.g. a ``lax.scan``, holds its body's ops; a ``call``) counts only the time none of them ran."""
     import collections
     import glob
     import re
@@ -256,7 +257,65 @@ def profile_ops(fn, repeats: int = 3) -> dict:
         for line in plane.lines:
             if "XLA" not in line.name:
                 continue
-            for ev in line.events:
-                if not ev.name.startswith(("Thunk", "Slinky", "end:")):
-                    tot[re.sub(r"[._]?\d+$", "", ev.name)] += ev.duration_ns
+            events = sorted(((ev.start_ns, ev.duration_ns, ev.name) for ev in line.events
+                             if not ev.name.startswith(("Thunk", "Slinky", "end:", "ThreadpoolListener"))),
+                            key=lambda e: (e[0], -e[1]))
+            stack: list[tuple[str, float]] = []   # (kind, end) of the ops that hold the current one
+            for start, dur, name in events:
+                while stack and start >= stack[-1][1]:
+                    stack.pop()
+                kind = re.sub(r"[._]?\d+$", "", name)
+                if stack:
+                    tot[stack[-1][0]] -= dur      # the holder's self time
+                tot[kind] += dur
+                stack.append((kind, start + dur))
     return {k: v / repeats / 1e6 for k, v in tot.most_common()}
+
+
+# the groups of XLA op kinds (profile_ops' names: a fusion is named by its first ops, e.g. bitcast_gather_fusion):
+# the GEMMs XLA hands to YNNPACK (with their bias / activation epilogues) and those it emits itself (dot: e.g. the
+# backward's transposed products), gathers and scatters (segment sums and their gradients), elementwise ops and
+# reductions (activations, LayerNorm, loss, optimiser; forward and backward), layout ops, and the self time of ops
+# that hold others (a lax.scan's while loop)
+OP_KIND_GROUPS = ("GEMM (YNNPACK fusions)", "GEMM (XLA dot)", "gathers / scatters", "elementwise / reductions",
+                  "copies / transposes / layout", "loop control (self time)")
+_GEMM_OPS = {"dot", "convolution"}
+_GATHER_OPS = {"gather", "scatter"}
+_ELEMENTWISE_OPS = {
+    "add", "subtract", "multiply", "divide", "maximum", "minimum", "select", "compare", "exponential",
+    "exponential-minus-one", "log", "log-plus-one", "rsqrt", "sqrt", "cbrt", "tanh", "logistic", "negate", "abs",
+    "sign", "power", "convert", "xor", "and", "or", "not", "shift-left", "shift-right-logical",
+    "shift-right-arithmetic", "floor", "ceil", "round-nearest-even", "round-nearest-afz", "clamp", "remainder",
+    "atan2", "sine", "cosine", "is-finite", "erf", "reduce", "reduce-window", "rng-bit-generator", "loop", "input"}
+_LAYOUT_OPS = {"copy", "transpose", "bitcast", "broadcast", "concatenate", "slice", "dynamic-slice",
+               "dynamic-update-slice", "pad", "reshape", "reverse", "iota", "constant", "tuple", "get-tuple-element"}
+_CONTROL_OPS = {"while", "call", "conditional"}
+_MULTIWORD_OPS = sorted((op for ops in (_ELEMENTWISE_OPS, _LAYOUT_OPS) for op in ops if "-" in op),
+                        key=len, reverse=True)
+
+
+def op_group(kind: str) -> str | None:
+    """The :data:`OP_KIND_GROUPS` entry of an XLA op kind (:func:`profile_ops`' names), by the ops its name lists:
+    YNNPACK, then dot, gather/scatter, any elementwise or reduction op, only layout ops, control; None for a name
+    no rule knows."""
+    for op in _MULTIWORD_OPS:     # an op name of several words written with underscores (dynamic_update_slice)
+        kind = kind.replace(op.replace("-", "_"), op)
+    ops = set(kind.removeprefix("wrapped_").removesuffix("fusion").strip("_").split("_"))
+    rules = (("ynn" in ops, 0), (bool(ops & _GEMM_OPS), 1), (bool(ops & _GATHER_OPS), 2),
+             (bool(ops & _ELEMENTWISE_OPS), 3), (ops <= _LAYOUT_OPS, 4), (bool(ops & _CONTROL_OPS), 5))
+    return next((OP_KIND_GROUPS[i] for hit, i in rules if hit), None)
+
+
+def group_ops(profile: Mapping[str, float]) -> dict[str, dict]:
+    """:func:`profile_ops`' ms per op kind summed into :data:`OP_KIND_GROUPS` (every group, in order, then one
+    ``kind NAME`` entry per kind :func:`op_group` does not know): {name: {"ms", "share" (of the total),
+    "kinds" (the op kinds in it, largest first)}}."""
+    out = {g: {"ms": 0.0, "kinds": []} for g in OP_KIND_GROUPS}
+    for kind, ms in sorted(profile.items(), key=lambda kv: -kv[1]):
+        row = out.setdefault(op_group(kind) or f"kind {kind}", {"ms": 0.0, "kinds": []})
+        row["ms"] += ms
+        row["kinds"].append(kind)
+    total = sum(r["ms"] for r in out.values())
+    for r in out.values():
+        r["share"] = r["ms"] / total if total > 0 else 0.0
+    return out

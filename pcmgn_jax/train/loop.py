@@ -91,6 +91,15 @@ def validation_mae_um(setup: Setup, params, trajs) -> tuple[float, bool]:
     return mae, bool(np.isfinite(mae))
 
 
+def chunk_batch(cfg: TrainConfig, setup: Setup, trajs, table, step: int, *, shards: int = 1, rows=None):
+    """The host batch of one dispatch: the unions (K, S_local, ...) of the ``steps_per_dispatch`` optimiser steps
+    from ``step`` (data order :func:`sample_ids`, a pure function of (seed, step); ``frames_per_sample`` frames
+    per sample; ``table``: :func:`pair_table` of ``trajs``), what :func:`train` hands to ``train_chunk``."""
+    ids = sample_ids(cfg.seed, step, cfg.steps_per_dispatch, cfg.batch_graphs, setup.n_pairs)
+    return gather_unions(setup.spec.sim.formulation, trajs, setup.graphs, table, ids, dt=setup.spec.sim.dt,
+                         sizes=setup.sizes, shards=shards, local_shards=rows, frames=cfg.frames)
+
+
 def replicated(dp: DataParallel, setup: Setup) -> Setup:
     """``setup`` with the jitted step's dataset-wide input (the statistics) replicated on ``dp``'s mesh."""
     return setup._replace(stats=dp.replicate(setup.stats))
@@ -159,9 +168,8 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
     if primary:
         cfg.save_json(workdir / "config.json")
         compile_notes.log_to(workdir / "compile.jsonl")  # each first compilation's seconds (console + file)
-    form = setup.spec.sim.formulation
     table = pair_table(train_trajs)
-    K, B = cfg.steps_per_dispatch, cfg.batch_graphs
+    K = cfg.steps_per_dispatch
     every = lambda n: K * max(1, math.ceil(n / K))  # noqa: E731
     log_every, ckpt_every, val_every = every(cfg.log_every), every(cfg.ckpt_every), every(cfg.val_every)
     seed_key = jax.random.PRNGKey(cfg.seed + 1)
@@ -182,10 +190,7 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
     with open(workdir / "metrics.jsonl" if primary else os.devnull, mode) as log:
         while step < end:
             t_chunk = time.perf_counter()
-            ids = sample_ids(cfg.seed, step, K, B, setup.n_pairs)
-            batch = gather_unions(form, train_trajs, setup.graphs, table, ids, dt=setup.spec.sim.dt,
-                                  sizes=setup.sizes, shards=shards, local_shards=rows,
-                                  frames=cfg.frames)
+            batch = chunk_batch(cfg, setup, train_trajs, table, step, shards=shards, rows=rows)
             if dp is not None:
                 batch = dp.put_batch(batch, shards)
             with compile_notes.first_call("the training step", (setup.spec, setup.sizes, K)):
