@@ -323,7 +323,7 @@ def _train_step_run(tmp_path, trajs, *flags):
     return r
 
 
-@pytest.mark.slow  # 20-32 s here: two compilations of the training step; the op grouping test below stays fast
+@pytest.mark.slow  # 20-32 s here: two compilations of the training step; the op-grouping test stays fast
 def test_train_step_tiny(tmp_path, tiny_trajs):
     """`python -m benchmarks.train_step`: the training loop's own dispatch (one compilation: --no_split) on a
     tiny dataset; the per-step times, XLA's FLOPs, the matmul fraction and the grouped op profile."""
