@@ -187,6 +187,9 @@ class TrainConfig:
                 "fields are outputs, never inputs, can be predicted as a baseline's residual, and the penetration "
                 f"term would judge the residual as a position (got panel_model={self.formulation.panel_model!r}, "
                 f"lambda_pen={self.lambda_pen:g})")
+        if self.residual_of and self.formulation.stress_target != "linear":
+            bad("residual_of", "needs formulation stress_target='linear': a residual stress is signed, and the log "
+                f"target is of a stress >= 0 (got stress_target={self.formulation.stress_target!r})")
         if self.residual_ball not in RESIDUAL_BALLS:
             bad("residual_ball", f"must be one of {RESIDUAL_BALLS}")
         if not 0 < self.learning_rate < 1:

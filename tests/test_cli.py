@@ -349,3 +349,18 @@ def test_no_library_error_spells_a_flag():
              for p in sorted(root.rglob("*.py")) if p.name != "cli.py"
              for text in [p.read_text()] for m in pattern.finditer(text)]
     assert not found, f"library errors that spell a flag: {found}"
+
+
+def test_stress_target_is_a_flag_and_an_older_config_json_without_it_is_linear():
+    """--stress_target=log reaches the formulation; a config.json written before the field (its formulation without
+    the key) loads with the linear target, which it was trained with."""
+    cfg = cli.parse_train(["--preset", "tiny", "--stress_target=log"]).config
+    assert cfg.formulation.stress_target == "log" and cfg.formulation.replace(stress_target="linear") == \
+        TrainConfig.from_preset("tiny").formulation
+    assert TrainConfig.from_json(cfg.to_dict()) == cfg
+    old = TrainConfig.from_preset("tiny").to_dict()
+    del old["formulation"]["stress_target"]
+    assert TrainConfig.from_json(old).formulation.stress_target == "linear"
+    assert TrainConfig.from_json(old) == TrainConfig.from_preset("tiny")
+    with pytest.raises((ValueError, SystemExit)):
+        cli.parse_train(["--preset", "tiny", "--stress_target=sqrt"])

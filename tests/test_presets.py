@@ -49,7 +49,7 @@ def test_string_options_are_literal_types_with_their_allowed_values():
                            ("normalization", fm.NORMALIZATIONS), ("features", fm.FEATURES),
                            ("loss_weighting", fm.LOSS_WEIGHTINGS), ("panel_model", fm.PANEL_MODELS),
                            ("processor", fm.PROCESSORS), ("part_identity", fm.PART_IDENTITIES),
-                           ("origin", fm.ORIGINS), ("reach", fm.REACHES)):
+                           ("origin", fm.ORIGINS), ("reach", fm.REACHES), ("stress_target", fm.STRESS_TARGETS)):
         assert typing.get_args(hints[field]) == allowed, field
     hints = typing.get_type_hints(LossConfig)
     for field, allowed in (("noise_parts", fm.NOISE_PARTS), ("residual_of", RESIDUAL_BASES),

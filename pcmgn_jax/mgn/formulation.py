@@ -3,7 +3,7 @@
 A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
 
 - the **target** of the moving nodes (model outputs [a_x, a_y] per node; the third output is the von Mises stress of the
-  next frame, for every formulation):
+  next frame, for every formulation, or its log: ``stress_target``):
 
   ======================  ==============================  ======================================
   target                  a (physical, SI)                update (u: displacement [m], v: velocity)
@@ -78,6 +78,9 @@ A :class:`Formulation` is static (hashable) and fixes, per body of the scene:
   every 4th local step and the last, :mod:`pcmgn_jax.mgn.multiscale`) or ``attention`` (a physics-attention block over
   ``reach_slices`` learned slices with ``reach_heads`` heads at the same places, :mod:`pcmgn_jax.mgn.attention`). The
   hyper-parameters are ignored by ``local``.
+- ``stress_target``: what the stress output is: ``linear`` (von Mises [Pa]) or ``log`` (s = log1p(vm / VM_REF), VM_REF =
+  1 MPa: the 1 MPa OLED and the 100 MPa cover glass are both O(1), low-stress frames are resolved relatively; read back
+  as VM_REF expm1(s) >= 0). The normaliser's statistics are s's; :mod:`pcmgn_jax.mgn.stress_target`.
 
 Noise (training): Gaussian n on the input displacement of the noised nodes (one shared sample for a rigid ball); the
 velocity input is derived from the noisy displacement (v~ = v + n/dt, as in a rollout), and the target is corrected so
@@ -93,6 +96,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from pcmgn_jax.mgn.scene_features import PER_LAYER_FEATURES, SCENE_FEATURES
+from pcmgn_jax.mgn.stress_target import StressTarget, stress_to_target
 
 Target = Literal["velocity", "displacement", "position", "acceleration", "total_displacement"]  # --help lists them
 Normalization, Features = Literal["global", "per_part"], Literal["paper", "strain"]
@@ -101,8 +105,8 @@ Processor, PartIdentity = Literal["per_frame", "per_design"], Literal["type", "m
 Origin, Reach = Literal["mesh", "contact_top", "support_top"], Literal["local", "multiscale", "attention"]
 NoiseParts = Literal["none", "ball", "panel", "all"]
 (TARGETS, NORMALIZATIONS, FEATURES, LOSS_WEIGHTINGS, PANEL_MODELS, PROCESSORS, PART_IDENTITIES, ORIGINS, REACHES,
- NOISE_PARTS) = (get_args(t) for t in (Target, Normalization, Features, LossWeighting, PanelModel, Processor,
-                                      PartIdentity, Origin, Reach, NoiseParts))   # the allowed values
+ NOISE_PARTS, STRESS_TARGETS) = (get_args(t) for t in (Target, Normalization, Features, LossWeighting, PanelModel,
+                                 Processor, PartIdentity, Origin, Reach, NoiseParts, StressTarget))  # the allowed values
 BALL_STATE_CHANNELS = 2  # quasi_static: [u_ball,y, v_ball,y] on every node (the ball moves along the axis)
 BALL_PART = 0  # scene convention: part 0 is the ball, 1.. the layers from the top (scene.py)
 
@@ -127,6 +131,7 @@ class Formulation:
     reach_slices: int = 32                    # attention: learned slices (tokens) per graph
     reach_heads: int = 4                      # attention: heads of the attention among the slices (divides latent_size)
     origin: Origin = "mesh"                   # mesh (node positions in the mesh's coordinates, y from the plate's bottom) | contact_top (y from the contact layer's top surface: layers below it may change thickness without moving the nodes above in the features) | support_top (y from the bottom layer's top: the plate's thickness moves nothing above it)
+    stress_target: StressTarget = "linear"    # linear (the stress output is von Mises [Pa]) | log (log1p(vm / 1 MPa): the 1 MPa OLED and the 100 MPa cover glass both O(1), low-stress frames resolved relatively; mgn/stress_target.py)
 
     def __post_init__(self):
         bad = [f for f in self.scene_features if f not in SCENE_FEATURES]
@@ -136,7 +141,7 @@ class Formulation:
                               ("normalization", NORMALIZATIONS), ("features", FEATURES),
                               ("loss_weighting", LOSS_WEIGHTINGS), ("panel_model", PANEL_MODELS),
                               ("processor", PROCESSORS), ("part_identity", PART_IDENTITIES),
-                              ("origin", ORIGINS), ("reach", REACHES)):
+                              ("origin", ORIGINS), ("reach", REACHES), ("stress_target", STRESS_TARGETS)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"formulation: {name}={getattr(self, name)!r} must be one of {allowed}")
         for name in ("reach_levels", "reach_slices", "reach_heads"):
@@ -333,8 +338,8 @@ def training_sample(form: Formulation, ball_mask, *, points, u_prev, u, u_next, 
                     vm=None) -> dict:
     """Inputs and physical targets of one step (NumPy, host side).
 
-    Returns dict(u (N,2), v (N,2) inputs; target (N,3) per-node [a_x, a_y, von Mises]; ball (2,) the
-    rigid ball's target (zeros unless ``form.rigid_ball``)). With a rigid ball, the ball rows of every
+    Returns dict(u (N,2), v (N,2) inputs; target (N,3) per-node [a_x, a_y, von Mises (its log: ``stress_target``)];
+    ball (2,) the rigid ball's target (zeros unless ``form.rigid_ball``)). With a rigid ball, the ball rows of every
     displacement are its mean (the ball is rigid to ~0.005 µm in the solver's data).
 
     A ``quasi_static`` panel's targets are its fields at the input's own time (displacement ``u`` and
@@ -354,11 +359,12 @@ def training_sample(form: Formulation, ball_mask, *, points, u_prev, u, u_next, 
             raise ValueError("training_sample: a quasi_static panel needs the stress at the input's time (vm)")
         panel_kw, vm_next = dict(kw, u_next=u), vm
     a = np.where(ball[:, None], per_node_target(form.ball_target, **kw), per_node_target(form.panel_target, **panel_kw))
+    vm_next = stress_to_target(form.stress_target, f(vm_next))  # [Pa], or its log (stress_target)
     rigid = np.zeros(2)
     if form.rigid_ball:
         rigid = per_node_target(form.ball_target, points=rigid_mean(points, ball), u_prev=rigid_mean(u_prev, ball),
                                 u=rigid_mean(u, ball), u_next=rigid_mean(u_next, ball), dt=dt)
-    return dict(u=u, v=(u - u_prev) / dt, target=np.concatenate([a, f(vm_next)[:, None]], axis=-1), ball=rigid)
+    return dict(u=u, v=(u - u_prev) / dt, target=np.concatenate([a, vm_next[:, None]], axis=-1), ball=rigid)
 
 
 def add_noise(form: Formulation, ball_mask, sample: dict, noise, dt: float, segments=None) -> dict:

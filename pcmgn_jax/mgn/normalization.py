@@ -14,7 +14,7 @@ Layout (T = node types, shapes of the float32 arrays)::
     node_mean/std     [T, Cn]  physical node channels (after the one-hot), see graphs.node_features
     mesh_mean/std     [T, Cm]  mesh-edge channels, by receiver type
     contact_mean/std  [Cc]     contact-edge channels (real contact edges only)
-    target_mean/std   [T, 3]   per-node targets [a_x, a_y, von Mises] in SI
+    target_mean/std   [T, 3]   per-node targets [a_x, a_y, von Mises (its log: stress_target)] in SI
     ball_mean/std     [2]      the rigid ball's target (unused unless the formulation has a rigid ball)
 
 Sums are float64 (shifted by the first batch's mean for a stable variance), so the statistics do not

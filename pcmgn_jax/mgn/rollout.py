@@ -37,6 +37,7 @@ from pcmgn_jax.mgn.batching import (
 from pcmgn_jax.mgn.formulation import BALL_PART, Formulation, integrate, model_inputs, rigidify
 from pcmgn_jax.mgn.graphs import Topology, build_graph
 from pcmgn_jax.mgn.normalization import Stats, denormalize_output, normalize_graph, normalize_last_node_channels
+from pcmgn_jax.mgn.stress_target import target_to_stress
 
 
 @dataclass(frozen=True)
@@ -240,9 +241,8 @@ def integrate_output(spec: Spec, stats: Stats, topology: Topology, points, u, v,
     u_next, v_next = integrate(form, ball_mask(topology), points=jnp.asarray(points, jnp.float32), u=u, v=v,
                                a=phys[:, :2], a_ball=a_ball, dt=spec.dt,
                                segments=None if layout is None else layout.segments)
-    # von Mises is a norm: nothing in the network keeps its output >= 0 (a late-frame band of -6 MPa
-    # along the cover glass was seen), so the rollout reads it as max(output, 0)
-    return impose_bc(topology, u_next), impose_bc(topology, v_next), jnp.maximum(phys[:, 2], 0.0)
+    # von Mises [Pa] >= 0: max(output, 0), or the log target's inverse (stress_target)
+    return impose_bc(topology, u_next), impose_bc(topology, v_next), target_to_stress(form.stress_target, phys[:, 2])
 
 
 @functools.partial(jax.jit, static_argnames=("spec",))

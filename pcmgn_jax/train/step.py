@@ -17,8 +17,12 @@ means in the paper). L_obj,g (``lambda_obj`` > 0) is the squared error of the OL
 mean von Mises of this frame, in the OLED's normalised units (one std per node type: the weighted mean of
 the normalised errors is the section mean's error over that std): the node-wise MSE weighs a coherent
 bias over the section no more than scatter, and the objective is exactly such a mean
-(:func:`pcmgn_jax.train.setup.objective_loss_weights`). The step's loss is the mean of loss_g over the real graphs of
-the batch: padding changes neither the loss nor its gradient, and a graph's loss does not depend on the other graphs.
+(:func:`pcmgn_jax.train.setup.objective_loss_weights`). With ``stress_target='log'`` the stress output is
+s = T(vm) = log1p(vm / 1 MPa) (:mod:`pcmgn_jax.mgn.stress_target`), whose section mean is not the section's mean
+stress, so the prediction is read back in Pa (vm^) and L_obj,g = ( (T(sum_i o_i vm^_i) - T(sum_i o_i vm_i)) /
+sum_i o_i std_i )^2, std_i the s channel's std of node i's type. The step's loss is the mean of loss_g over the real
+graphs of the batch: padding changes neither the loss nor its gradient, and a graph's loss does not depend on the
+other graphs.
 Noise is drawn per node from the graph's id (:func:`pcmgn_jax.train.noise.sample_noise`), so it does
 not depend on the union either.
 """
@@ -32,8 +36,9 @@ import jax.numpy as jnp
 import optax
 
 from pcmgn_jax.mgn.formulation import axial
-from pcmgn_jax.mgn.normalization import Stats, normalize_target
+from pcmgn_jax.mgn.normalization import Stats, denormalize_output, normalize_target
 from pcmgn_jax.mgn.rollout import ball_mask, ball_output, integrate_output, network, predict
+from pcmgn_jax.mgn.stress_target import stress_to_target, target_to_stress
 from pcmgn_jax.train.noise import perturb
 from pcmgn_jax.train.penetration import penetration_depth, penetration_loss
 from pcmgn_jax.train.setup import TrainSpec
@@ -135,7 +140,7 @@ def _frame_losses(spec: TrainSpec, stats: Stats, batch, sample: dict, out):
     signed = out[:, :3] - normalize_target(stats, topology.node_type, sample["target"])
     err = signed ** 2
     if spec.cfg.lambda_obj > 0:
-        loss_obj = jax.ops.segment_sum(batch.w_obj * signed[:, 2], node_graph, num_segments=n_graph) ** 2
+        loss_obj = _objective_error(form, stats, batch, out, sample["target"], signed) ** 2
     else:
         loss_obj = jnp.zeros(n_graph, jnp.float32)
     per_node = batch.w_motion * (err[:, 0] + err[:, 1]) + batch.w_stress * err[:, 2]
@@ -152,6 +157,21 @@ def _frame_losses(spec: TrainSpec, stats: Stats, batch, sample: dict, out):
     else:
         loss_pen = jnp.zeros(n_graph, jnp.float32)
     return loss_data, loss_pen, loss_obj
+
+
+def _objective_error(form, stats: Stats, batch, out, target, signed):
+    """(G,) each graph's signed objective-section error of the stress output in normalised units (L_obj,g before
+    the square, module docstring): sum_i o_i e_i,vm; with ``stress_target='log'`` the log target of the section's
+    mean predicted stress [Pa] minus the truth's, over the section's mean std of the s channel."""
+    node_graph, n_graph = batch.graph.layout.segments
+    section = lambda f: jax.ops.segment_sum(batch.w_obj * f, node_graph, num_segments=n_graph)  # noqa: E731
+    if form.stress_target == "linear":
+        return section(signed[:, 2])
+    kind, node_type = form.stress_target, batch.graph.topology.node_type
+    pred = target_to_stress(kind, denormalize_output(stats, node_type, out)[:, 2])
+    true = target_to_stress(kind, target[:, 2])
+    std = section(jnp.asarray(stats.target_std)[node_type, 2])   # 0 on a padding slot (no section weights)
+    return (stress_to_target(kind, section(pred)) - stress_to_target(kind, section(true))) / jnp.where(std > 0, std, 1)
 
 
 def _total(spec: TrainSpec, batch, loss_data, loss_pen, loss_obj, edges, step):

@@ -16,6 +16,7 @@ from pcmgn_jax.mgn.formulation import (
     previous_displacement,
     training_sample,
 )
+from pcmgn_jax.mgn.stress_target import LOG_STRESS_MAX, VM_REF, stress_to_target, target_to_stress
 
 
 def _sample(form, traj, t):
@@ -228,3 +229,65 @@ def test_a_new_formulation_field_touches_formulation_py_only(tmp_path):
     first, *rest = run.stdout.splitlines()
     assert json.loads(first) == [2.5, 2.5, True, 0.0]
     assert "--stress_floor" in "\n".join(rest) and "a floor under the stress target" in "\n".join(rest)
+
+
+VM_PA = np.concatenate([[0.0, 1e-3, 1.0], np.logspace(2, 9, 29)])   # 0 to 1 GPa
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_log_stress_target_round_trips_from_0_to_1_gpa(dtype):
+    """stress_target='log': s = log1p(vm / 1 MPa) and back, NumPy and JAX, float32 and float64; 'linear' is vm
+    itself (the same array) and max(s, 0) back (the rollout's arithmetic before the option)."""
+    vm = VM_PA.astype(dtype)
+    rtol = 2e-6 if dtype == np.float32 else 1e-12
+    s = stress_to_target("log", vm)
+    assert s.dtype == dtype and s[0] == 0 and s[-1] < 7.0
+    # the 1 MPa OLED and the 100 MPa cover glass are O(1)
+    np.testing.assert_allclose(stress_to_target("log", np.array([1e6, 1e8])), [np.log(2), np.log(101)], rtol=1e-12)
+    np.testing.assert_allclose(s, np.log1p(VM_PA / VM_REF), rtol=rtol)
+    np.testing.assert_allclose(target_to_stress("log", s), vm, rtol=rtol, atol=1e-12)
+    with jax.enable_x64(dtype == np.float64):
+        sj = stress_to_target("log", jnp.asarray(vm))
+        back = target_to_stress("log", sj)
+        assert sj.dtype == back.dtype == dtype
+        np.testing.assert_allclose(np.asarray(back), vm, rtol=4 * rtol, atol=1e-12)
+    assert stress_to_target("linear", vm) is vm
+    out = jnp.asarray(np.array([-6e6, 0.0, 3e5], np.float32))
+    np.testing.assert_array_equal(np.asarray(target_to_stress("linear", out)), np.asarray(jnp.maximum(out, 0.0)))
+    with pytest.raises(ValueError, match="stress_target must be one of"):
+        stress_to_target("sqrt", vm)
+    with pytest.raises(ValueError, match="stress_target"):
+        Formulation(stress_target="sqrt")
+
+
+def test_log_stress_decoding_is_clipped_and_its_gradients_finite():
+    """A prediction decodes to >= 0 Pa and at most VM_REF expm1(LOG_STRESS_MAX) (an s of 100 would overflow float32);
+    the transforms' gradients are finite at vm = 0 and for any output."""
+    s = jnp.asarray([-3.0, 0.0, 1.0, 100.0, 1e4], jnp.float32)
+    vm = target_to_stress("log", s)
+    assert np.all(np.isfinite(np.asarray(vm))) and float(vm[0]) == 0.0 and float(vm[1]) == 0.0
+    assert float(vm[-1]) == pytest.approx(VM_REF * np.expm1(LOG_STRESS_MAX), rel=1e-6) and float(vm[-1]) < 1.1e12
+    g = jax.grad(lambda x: jnp.sum(target_to_stress("log", x) / VM_REF))(s)
+    assert np.all(np.isfinite(np.asarray(g)))
+    np.testing.assert_allclose(float(g[2]), np.e, rtol=1e-6)   # d/ds expm1(s) = exp(s)
+    zero = jnp.zeros(3, jnp.float32)
+    for f in (lambda v: stress_to_target("log", v), lambda v: target_to_stress("log", stress_to_target("log", v))):
+        g0 = jax.grad(lambda v: jnp.sum(f(v)))(zero)
+        assert np.all(np.isfinite(np.asarray(g0)))
+    np.testing.assert_allclose(np.asarray(jax.grad(lambda v: jnp.sum(stress_to_target("log", v)))(zero)), 1 / VM_REF)
+
+
+@pytest.mark.parametrize("name", ["dynamic", "default"])
+def test_training_sample_with_a_log_stress_target(name):
+    """The stress target is log1p(vm / 1 MPa) of the stress the formulation's panel predicts (the next frame's, or a
+    quasi-static panel's own time); the motion targets and the 'linear' default (vm itself, bit for bit) unchanged."""
+    traj = make_synthetic_trajectory(1.0)
+    t = 5
+    lin = _sample(FORMULATIONS[name], traj, t)
+    log = _sample(FORMULATIONS[name].replace(stress_target="log"), traj, t)
+    vm = traj.von_mises[t + 1] if name == "dynamic" else traj.von_mises[t]
+    assert FORMULATIONS[name].stress_target == "linear" and np.ptp(vm) > 0
+    np.testing.assert_array_equal(lin["target"][:, 2], np.asarray(vm, np.float64))
+    np.testing.assert_allclose(log["target"][:, 2], np.log1p(np.asarray(vm, np.float64) / 1e6), rtol=1e-15)
+    np.testing.assert_array_equal(log["target"][:, :2], lin["target"][:, :2])
+    np.testing.assert_array_equal(log["ball"], lin["ball"])

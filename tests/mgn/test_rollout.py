@@ -254,3 +254,27 @@ def test_a_given_ball_path_drives_the_ball_and_its_own_path_changes_nothing(tiny
         dyn = dataclasses.replace(spec, formulation=spec.formulation.replace(panel_model="dynamic",
                                                                              panel_target="velocity"))
         rl.rollout_designs(dyn, n, mgn.sim.params, mgn.sim.stats, [dict(design, ball_u=path, ball_v=path)])
+
+
+def test_a_log_stress_target_rollout_reads_the_stress_back_in_pa(tiny_trajs):
+    """stress_target='log': every path that turns the network's stress output into a stress (the scan, the one
+    step) decodes it as VM_REF expm1(s), clipped: an untrained network's arbitrary s gives finite stresses >= 0 [Pa]."""
+    from fixtures.helpers import tiny_config
+    from pcmgn_jax.mgn.normalization import normalize_graph
+    from pcmgn_jax.mgn.stress_target import LOG_STRESS_MAX, VM_REF
+    from pcmgn_jax.train.setup import prepare
+
+    s = prepare(tiny_config(stress_target="log"), tiny_trajs[:3])
+    spec, topo, idx, t = s.spec.sim, s.graphs[0].topology, s.graphs[0].index, tiny_trajs[3]
+    g, _ = rl.input_graph(spec.formulation, topo, idx, t.points, t.displacement[0], t.velocity[0])
+    params = spec.model.init(jax.random.PRNGKey(1), normalize_graph(s.stats, g, topo.node_type))
+    res = rl.rollout(spec, 4, params, s.stats, topo, idx, *_args(t))
+    vm = np.asarray(res.von_mises)
+    assert np.all(np.isfinite(vm)) and vm.min() >= 0 and vm.max() <= VM_REF * np.expm1(LOG_STRESS_MAX) * 1.001
+    # read back as a stress, not as s: the log statistics' outputs are O(1) (0.7 is 1 MPa)
+    assert vm[1:].max() > 1e4 and np.asarray(s.stats.target_mean)[:, 2].max() < 10.0
+    out = 3.0 * jax.random.normal(jax.random.PRNGKey(2), (t.n_nodes, spec.formulation.output_size))
+    s_out = np.asarray(out[:, 2] * s.stats.target_std[topo.node_type, 2] + s.stats.target_mean[topo.node_type, 2])
+    assert s_out.min() < 0
+    vm_out = rl.integrate_output(spec, s.stats, topo, t.points, t.displacement[0], t.velocity[0], out)[2]
+    np.testing.assert_allclose(np.asarray(vm_out), VM_REF * np.expm1(np.clip(s_out, 0.0, LOG_STRESS_MAX)), rtol=1e-5)

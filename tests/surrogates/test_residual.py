@@ -78,6 +78,8 @@ def test_config_names_what_a_residual_run_needs():
         tiny_config(residual_of="rom", lambda_pen=10.0)
     with pytest.raises(ValueError, match="residual_of.*quasi_static"):
         tiny_config(residual_of="rom", formulation="dynamic")
+    with pytest.raises(ValueError, match="residual_of.*stress_target='log'"):   # a residual stress is signed
+        tiny_config(residual_of="rom", stress_target="log")
 
 
 @pytest.mark.slow  # ~60 s: a tiny training run and its evaluation

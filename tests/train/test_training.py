@@ -235,3 +235,80 @@ def test_oled_stress_weight_raises_the_oled_share_of_the_stress_term(tiny_trajs)
     np.testing.assert_allclose(ratio, ratio[0], rtol=1e-5)            # every other node scaled alike
     with pytest.raises(ValueError, match="oled_stress_weight != 1 needs a part named 'OLED'"):
         prepare(tiny_config(oled_stress_weight=2.0), tiny_trajs[:2])
+
+
+@pytest.mark.slow  # ~31 s: test_rollout's log-stress rollout and the log objective term stay in the default suite
+def test_log_stress_target_trains_and_rolls_out_in_pa(tiny_trajs, tmp_path):
+    """stress_target='log': the normaliser sees s = log1p(vm / 1 MPa) (O(1) rows, not Pa), a few steps train with
+    a finite loss, and a rollout reads the stress back in Pa: finite, >= 0, of the truth's order."""
+    from pcmgn_jax.mgn.stress_target import stress_to_target
+    from pcmgn_jax.train.sampling import sample
+
+    cfg = tiny_config(stress_target="log", num_steps=40, ckpt_every=40, val_every=40)
+    res = training.train(cfg, tmp_path, train_trajs=tiny_trajs[:3], val_trajs=tiny_trajs[3:])
+    setup, params = res["setup"], res["state"].params
+    assert setup.spec.sim.formulation.stress_target == "log"
+    targets = np.concatenate([sample(setup.spec.sim.formulation, t, k, setup.spec.sim.dt)["target"][:, 2]
+                              for t in tiny_trajs[:3] for k in range(t.n_frames - 1)])
+    # the quasi-static panel's stress target is the stress at the sample's own time (frames 0 .. T-2)
+    assert setup.spec.sim.formulation.panel_model == "quasi_static"
+    truth = np.concatenate([t.von_mises[:-1].ravel() for t in tiny_trajs[:3]])
+    assert truth.max() > 1e5 and targets.max() < 10.0          # Pa in the data, O(1) in the target
+    np.testing.assert_allclose(targets, stress_to_target("log", truth), rtol=1e-12)
+    mean, std = np.asarray(setup.stats.target_mean)[:, 2], np.asarray(setup.stats.target_std)[:, 2]
+    assert np.all(np.abs(mean) < 10.0) and np.all(std < 10.0)   # the log target's statistics, not Pa's
+    recs = [json.loads(line) for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
+    assert all(np.isfinite(r["loss"]) for r in recs if "loss" in r)
+    t = tiny_trajs[3]
+    out = rl.rollout(setup.spec.sim, t.n_frames - 1, params, setup.stats, setup.graphs[0].topology,
+                     setup.graphs[0].index, t.points, t.displacement[0], t.velocity[0], t.von_mises[0])
+    vm = np.asarray(out.von_mises)
+    assert np.all(np.isfinite(vm)) and vm.min() >= 0 and 1e3 < vm[1:].max() < 1e3 * t.von_mises.max()
+
+
+def test_objective_term_with_a_log_stress_target_is_the_section_mean_stress_error(tiny_trajs):
+    """stress_target='log': lambda_obj's term reads the prediction back in Pa, per graph ((T(sum_i o_i vm^_i) -
+    T(sum_i o_i vm_i)) / sum_i o_i std_i)^2 with T = log1p(. / 1 MPa); 0 for the exact output; its gradient is finite
+    where the true and the predicted stress are 0."""
+    import dataclasses
+
+    from fixtures.helpers import one_union, tiny_config
+    from pcmgn_jax.mgn.normalization import normalize_target
+    from pcmgn_jax.train import step as step_lib
+    from pcmgn_jax.train.setup import prepare
+
+    trajs = tiny_trajs[:2]
+    setup = prepare(tiny_config(stress_target="log"), trajs)
+    batch = one_union(setup, trajs, [(0, 3), (1, 4)])
+    topo = batch.graph.topology
+    # stand-in section weights: each graph's 6 most stressed nodes, 1/6 each
+    first, n_node = np.zeros(batch.u.shape[0], np.float32), np.asarray(batch.graph.layout.n_node)
+    starts = np.concatenate([[0], np.cumsum(n_node)[:-1]])[:2]
+    sections = [start + np.argsort(np.asarray(batch.target)[start:start + n, 2])[-6:]
+                for start, n in zip(starts, n_node)]
+    for sec in sections:
+        first[sec] = 1.0 / 6
+    batch = batch._replace(w_obj=jnp.asarray(first))
+    spec = dataclasses.replace(setup.spec, cfg=setup.spec.cfg.replace(lambda_obj=2.0))
+    sample = dict(points=batch.graph.points, u=batch.u, v=batch.v, target=batch.target, ball=batch.ball)
+    exact = normalize_target(setup.stats, topo.node_type, batch.target)
+    out = jnp.concatenate([exact, jnp.zeros((exact.shape[0], 1))], axis=1)
+    frame = jax.jit(step_lib._frame_losses, static_argnums=0)
+    np.testing.assert_allclose(np.asarray(frame(spec, setup.stats, batch, sample, out)[2])[:2], 0.0, atol=1e-8)
+    # a normalised error of 0 or 0.6 on alternate nodes: 0.3 on average, but the mean stress's log error is not 0.3
+    shift = 0.6 * (np.arange(exact.shape[0]) % 2)
+    _, _, obj = frame(spec, setup.stats, batch, sample, out.at[:, 2].add(jnp.asarray(shift, jnp.float32)))
+    std = np.asarray(setup.stats.target_std, np.float64)[np.asarray(topo.node_type), 2]
+    s_true = np.asarray(batch.target, np.float64)[:, 2]
+    vm_true, vm_pred = 1e6 * np.expm1(s_true), 1e6 * np.expm1(s_true + shift * std)
+    for g, sec in enumerate(sections):
+        assert vm_true[sec].min() > 1e5
+        want = (np.log1p(vm_pred[sec].mean() / 1e6) - np.log1p(vm_true[sec].mean() / 1e6)) / std[sec].mean()
+        assert float(obj[g]) == pytest.approx(want ** 2, rel=1e-4) and abs(want ** 2 - 0.09) > 1e-3, want ** 2
+    # the stress 0 everywhere (truth and prediction): finite gradients
+    zero = batch._replace(target=jnp.asarray(batch.target).at[:, 2].set(0.0))
+    sample0 = dict(sample, target=zero.target)
+    out0 = jnp.concatenate([normalize_target(setup.stats, topo.node_type, zero.target),
+                            jnp.zeros((exact.shape[0], 1))], axis=1)
+    grad = jax.grad(lambda o: jnp.sum(step_lib._frame_losses(spec, setup.stats, zero, sample0, o)[2]))(out0)
+    assert np.all(np.isfinite(np.asarray(grad)))
