@@ -80,16 +80,15 @@ def prepare_run(a: TrainStepArgs, cfg) -> dict:
 
     from pcmgn_jax.data.splits import load_splits
     from pcmgn_jax.train.loop import chunk_batch, init_params
+    from pcmgn_jax.train.pipeline import network_trajectories
     from pcmgn_jax.train.sampling import pair_table
     from pcmgn_jax.train.setup import prepare
     from pcmgn_jax.train.sharding import data_parallel
     from pcmgn_jax.train.step import init_state, train_chunk
     if data_parallel(cfg.devices, cfg.batch_graphs) is not None:
         raise ValueError(f"devices={cfg.devices}: this benchmark times one device (--train_flags=--devices=1)")
-    train, val, _ = load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train, n_val=cfg.n_val, n_test=0)
-    if cfg.residual_of:  # as the pipeline does: the network learns the baseline's residual
-        from pcmgn_jax.surrogates.residual import residual_splits
-        train, val = residual_splits(cfg.residual_of, train, val)
+    train, val = network_trajectories(cfg, *load_splits(cfg.resolved_dataset_dir, n_train=cfg.n_train,
+                                                        n_val=cfg.n_val, n_test=0)[:2])
     say(f"{len(train)} training trajectories from {cfg.resolved_dataset_dir}; preparing (statistics, graphs)")
     t0 = time.perf_counter()
     setup = prepare(cfg, train)

@@ -125,10 +125,17 @@ def _run_locked(cfg: TrainConfig, workdir: Path, data: tuple, *, resume: bool) -
               f"last {len(val)} of {have} trajectories in {root / 'train'} by name"
               + (f"; {unused} in between unused (raise n_train to use them)" if unused else ""))
     write_data_record(workdir, root, source, train, val)
-    if cfg.residual_of:  # the network learns the baseline's error (pcmgn_jax/surrogates/residual.py)
-        from pcmgn_jax.surrogates.residual import residual_splits
-        train, val = residual_splits(cfg.residual_of, train, val)
+    train, val = network_trajectories(cfg, train, val)
     return training.train(cfg, str(workdir), train_trajs=train, val_trajs=val, resume=resume)
+
+
+def network_trajectories(cfg: TrainConfig, train, val) -> tuple:
+    """What the network is trained and validated on: the trajectories, or with ``residual_of`` the baseline's error
+    on them (pcmgn_jax/surrogates/residual.py)."""
+    if not cfg.residual_of:
+        return train, val
+    from pcmgn_jax.surrogates.residual import residual_splits
+    return residual_splits(cfg.residual_of, train, val)
 
 
 SIZE_FIELDS = ("n_train", "n_val", "n_test", "data_seed")
