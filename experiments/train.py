@@ -35,14 +35,14 @@ def main(argv=None) -> int:
     args = cli.parse_train(argv, description=__doc__, prog="python -m experiments.train")
     args.initialize_distributed()  # several hosts only (--coordinator_address); before jax computes anything
     from pcmgn_jax.train import run
+    from pcmgn_jax.train.loop import best_line
     from pcmgn_jax.train.pipeline import RunFolderError, fit_to_dataset
     cfg = args.config if args.resume else fit_to_dataset(args.config, given=cli.given_flags(argv or sys.argv[1:]))
     try:
         res = run(cfg, args.run_dir, resume=args.resume, overwrite=args.overwrite)
     except RunFolderError as err:   # the library names values; say it in this command's flags
         raise ValueError(flag_message(err)) from None
-    print(f"done: {res['step']} steps in {res['seconds']:.0f} s; best validation position MAE "
-          f"{res['best_val_position_mae_um']:.3f} µm; run directory {args.run_dir}")
+    print(f"done: {res['step']} steps in {res['seconds']:.0f} s; {best_line(res)}; run directory {args.run_dir}")
     if res.get("best_predates_penalty"):
         print(f"note: --lambda_pen={cfg.lambda_pen:g} never switched on (lambda_start); the kept model was "
               "trained without the penetration term (checkpoint meta best_predates_penalty)")

@@ -29,6 +29,8 @@ from pcmgn_jax.surrogates.kinds import names as kind_names
 ResidualBase = Literal[("",) + kind_names(residual_base=True)]
 ResidualBall = Literal["baseline", "network"]  # residual_ball: who moves the rigid ball in a residual run's rollout
 RESIDUAL_BASES, RESIDUAL_BALLS = get_args(ResidualBase), get_args(ResidualBall)
+SelectOn = Literal["position", "objective"]     # select_on: the validation figure the best checkpoint is chosen on
+SELECT_ON = get_args(SelectOn)
 
 
 @dataclass(frozen=True)
@@ -122,6 +124,9 @@ class LogConfig:
     log_every: int = 100             # steps between metrics.jsonl lines (rounded to the dispatch)
     ckpt_every: int = 1000           # steps between periodic checkpoints (rounded to the dispatch)
     val_every: int = 500             # steps between validation rollouts (best checkpoint)
+    # what the best checkpoint is chosen on: position (the validation rollouts' position MAE) | objective (their
+    # area-mean OLED objective's mean relative error, the evaluation's figure; needs an 'OLED' part)
+    select_on: SelectOn = "position"
     max_to_keep: int = 2             # periodic checkpoints kept
     progress: bool = True            # tqdm progress bar
 
@@ -160,6 +165,8 @@ class TrainConfig:
             bad("formulation_name", f"must be one of {sorted(FORMULATIONS)}")
         if not isinstance(self.formulation, Formulation):
             bad("formulation", "must be a pcmgn_jax.mgn.formulation.Formulation")
+        if self.select_on not in SELECT_ON:
+            bad("select_on", f"must be one of {SELECT_ON}")
         if self.noise_parts not in NOISE_PARTS:
             bad("noise_parts", f"must be one of {NOISE_PARTS}")
         for name in ("n_train", "latent_size", "mlp_layers", "batch_graphs", "steps_per_dispatch",

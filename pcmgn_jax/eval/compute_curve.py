@@ -2,6 +2,7 @@
 training compute at which the fit meets a baseline.
 
     points = [curve_point(run) for run in runs]          # one per trained run (RUN/config.json, RUN/eval/...)
+    points += [kept_point("16000:1:results/.../metrics.json")]   # a run whose folder is gone, its evaluation kept
     fits = {m: fit_power_law(points, m) for m in CURVE_METRICS}  # error = a * steps ** -b, least squares in log-log
     s = crossing(fits[m], baseline_value)                   # steps at which the fit meets the baseline
 
@@ -22,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from pcmgn_jax import metrics as M
+from pcmgn_jax.errors import SettingError
 
 # (metrics.json key, label); the objective is the area-mean reading the task table scores
 CURVE_METRICS = (("oled_objective_area_rel_error_pct_mean", "objective error, area mean [%]"),
@@ -54,15 +56,34 @@ def curve_point(run: str | Path) -> CurvePoint:
     ``RUN/eval/metrics.json``)."""
     run = Path(run)
     cfg = _read_json(run / "config.json", "config.json")
-    m = _read_json(run / "eval" / "metrics.json", "eval/metrics.json")
     log = run / "metrics.jsonl"
     rates = [r["steps_per_s"] for r in map(json.loads, log.read_text().splitlines()[1:] if log.is_file() else [])
              if np.isfinite(r.get("steps_per_s", np.nan))]
     steps = int(cfg.get("num_steps") or 0)
     if steps <= 0:
         raise ValueError(f"{run / 'config.json'}: num_steps {steps}: the curve needs runs of a fixed step count")
-    return CurvePoint(run=str(run), steps=steps, seed=int(cfg.get("seed", 0)),
-                      steps_per_s=float(np.median(rates)) if rates else float("nan"),
+    return _point(run, run / "eval" / "metrics.json", steps, int(cfg.get("seed", 0)),
+                  float(np.median(rates)) if rates else float("nan"))
+
+
+def kept_point(spec: str) -> CurvePoint:
+    """The point of a run whose folder is gone but whose evaluation was kept: ``STEPS:SEED:PATH`` with PATH its
+    ``eval/metrics.json`` (e.g. one committed under ``results/``). Its training rate is unknown (nan: the hours
+    use the other runs' rate)."""
+    parts = spec.split(":", 2)
+    if len(parts) != 3 or not parts[0].strip().isdigit() or not parts[1].strip().isdigit() or int(parts[0]) <= 0:
+        raise SettingError("kept", f"{spec!r}: expected STEPS:SEED:PATH (e.g. 16000:0:results/.../metrics.json)")
+    path = Path(parts[2].strip())
+    return _point(path, path, int(parts[0]), int(parts[1]), float("nan"))
+
+
+def _point(run: Path, metrics_path: Path, steps: int, seed: int, steps_per_s: float) -> CurvePoint:
+    m = _read_json(metrics_path, "evaluation metrics")
+    missing = [k for k in (*(k for k, _ in CURVE_METRICS), "oled_objective_area_true_mpa",
+                           "oled_objective_area_pred_mpa") if k not in m]
+    if missing:
+        raise ValueError(f"{metrics_path}: no {', '.join(missing)} (not an experiments.evaluate metrics.json)")
+    return CurvePoint(run=str(run), steps=steps, seed=seed, steps_per_s=steps_per_s,
                       errors={k: float(m[k]) for k, _ in CURVE_METRICS},
                       objective_true=np.asarray(m["oled_objective_area_true_mpa"], np.float64),
                       objective_pred=np.asarray(m["oled_objective_area_pred_mpa"], np.float64),
@@ -148,7 +169,8 @@ def summary(points: list[CurvePoint], *, gpu_steps_per_s: float | None = None) -
     if not points:
         raise ValueError("no runs given")
     points = sorted(points, key=lambda p: (p.steps, p.seed))
-    rate = float(np.nanmedian([p.steps_per_s for p in points]))
+    rates = [p.steps_per_s for p in points if np.isfinite(p.steps_per_s)]
+    rate = float(np.median(rates)) if rates else float("nan")
     scored = [p for p in points if p.baselines]
     if not scored:
         raise ValueError("no run's evaluation scored the baselines (evaluate one run without --no_baselines)")
@@ -180,6 +202,10 @@ def _steps(s: float) -> str:
     return "never (the fit does not fall)" if not np.isfinite(s) else f"{s:.3g}"
 
 
+def _rate(r: float) -> str:
+    return f"{r:.2f}" if np.isfinite(r) else "— (kept evaluation)"
+
+
 def _hours(h: float) -> str:
     return "—" if not np.isfinite(h) else (f"{h:.3g} h" if h < 24 * 365 else f"{h / 24 / 365:.3g} years")
 
@@ -188,7 +214,7 @@ def markdown_lines(s: dict) -> list[str]:
     """The page's tables: the runs, then per metric the fit and the crossings."""
     from pcmgn_jax import markdown
     lines = markdown.table(["run", "steps", "seed", "steps/s (CPU)", *(label for _, label in CURVE_METRICS)],
-                           [[Path(r["run"]).name, r["steps"], r["seed"], f"{r['steps_per_s']:.2f}",
+                           [[Path(r["run"]).name, r["steps"], r["seed"], _rate(r["steps_per_s"]),
                              *(f"{r[k]:.4g}" for k, _ in CURVE_METRICS)] for r in s["runs"]])
     for key, e in s["metrics"].items():
         lines += ["", f"**{e['label']}**: error = {e['a']:.4g} × steps^−{e['b']:.3f} (b ± {e['b_se']:.3f}, "

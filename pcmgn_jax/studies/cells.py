@@ -78,6 +78,7 @@ def _run_cell(workdir: Path, settings: dict, extra_data: dict[str, str] | None) 
     from pcmgn_jax import eval as evaluation, train
     from pcmgn_jax.atomic import atomic_write_json
     from pcmgn_jax.eval.evaluate import summary_table
+    from pcmgn_jax.train.loop import best_line
     from pcmgn_jax.train.pipeline import fit_to_dataset
     metrics = workdir / "eval" / "metrics.json"
     if not metrics.exists():
@@ -89,8 +90,7 @@ def _run_cell(workdir: Path, settings: dict, extra_data: dict[str, str] | None) 
             cfg = config_of(settings) if resume else fit_to_dataset(config_of(settings), given=set(settings))
         t0 = time.perf_counter()
         res = train.run(cfg, workdir, resume=resume)
-        print(f"{workdir}: trained {res['step']} steps in {res['seconds']:.0f} s; best validation position MAE "
-              f"{res['best_val_position_mae_um']:.3f} µm", flush=True)
+        print(f"{workdir}: trained {res['step']} steps in {res['seconds']:.0f} s; {best_line(res)}", flush=True)
         secs = workdir / "train_seconds.json"
         if not (resume and secs.exists()):
             atomic_write_json(secs, {"seconds": time.perf_counter() - t0, "resumed": resume})

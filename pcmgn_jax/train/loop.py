@@ -6,7 +6,9 @@
   ``lax.scan``; checkpoints, logs and validation happen at chunk boundaries (their intervals are rounded
   up to whole chunks). A contact-buffer overflow grows the buffer and re-runs the chunk.
 - Validation: full rollouts of the validation trajectories, position MAE by
-  :func:`pcmgn_jax.metrics.position_mae_um`; the best one is kept in ``checkpoints/best``. With
+  :func:`pcmgn_jax.metrics.position_mae_um` and, with ``select_on='objective'``, the area-mean OLED objective's
+  mean relative error [%] (:func:`pcmgn_jax.metrics.oled_objective_of`, the evaluation's figure); the best by
+  ``select_on`` is kept in ``checkpoints/best`` (its meta: ``best_val``, in that figure's unit). With
   ``ema_decay`` > 0 the moving average of the parameters is what is validated and kept as best. With
   ``lambda_pen`` > 0 only validations after the penetration term has switched on (:func:`penalty_on`)
   compete for best; if none did, the final state is kept as best and its meta says
@@ -35,14 +37,14 @@ import numpy as np
 
 from pcmgn_jax import compile_notes
 from pcmgn_jax.config import TrainConfig, check_resume
-from pcmgn_jax.metrics import position_mae_um
+from pcmgn_jax.metrics import oled_objective_of, position_mae_um, relative_error_pct
 from pcmgn_jax.mgn import checkpoint, contact as contact_lib
 from pcmgn_jax.mgn.normalization import normalize_graph
 from pcmgn_jax.mgn.rollout import input_graph, rollout_designs
 from pcmgn_jax.train import startup_cache
 from pcmgn_jax.train.resume import resume_point
 from pcmgn_jax.train.sampling import gather_unions, pair_table, sample_ids
-from pcmgn_jax.train.setup import Setup, graph_for, prepare
+from pcmgn_jax.train.setup import Setup, graph_for, oled_part, prepare, scene_of
 from pcmgn_jax.train.sharding import DataParallel, data_parallel
 from pcmgn_jax.train.step import TrainState, eval_params, init_state, learning_rate, penalty_weight, train_chunk
 
@@ -82,13 +84,30 @@ def rollout_frames(setup: Setup, params, trajs):
             [np.asarray(r.von_mises, np.float64) for r in out.rollouts])
 
 
-def validation_mae_um(setup: Setup, params, trajs) -> tuple[float, bool]:
-    """Position MAE [µm] of full validation rollouts (the evaluation's definition); finite flag."""
+# select_on -> the validation figure's key in metrics.jsonl: position MAE [µm] | area-mean objective error [%]
+VAL_KEYS = dict(position="val_position_mae_um", objective="val_objective_error_pct")
+
+
+def best_line(res: dict) -> str:
+    """The summary's best validation figure in words, e.g. 'best validation position MAE 0.220 µm'."""
+    unit = dict(position=("position MAE", "µm"), objective=("objective error", "%"))[res.get("select_on", "position")]
+    return f"best validation {unit[0]} {res['best_val']:.3f} {unit[1]}"
+
+
+def validation_scores(setup: Setup, params, trajs, *, objective: bool = False) -> dict:
+    """Full validation rollouts scored as the evaluation scores a test split: {val_position_mae_um [µm]} and, with
+    ``objective``, {val_objective_error_pct}: the mean relative error [%] of the area-mean OLED objective (each
+    trajectory's OLED found by name on its own mesh; evaluate's ``oled_objective_area_rel_error_pct_mean``)."""
+    keys = [VAL_KEYS["position"]] + ([VAL_KEYS["objective"]] if objective else [])
     if not trajs:
-        return float("nan"), True
-    pred_u, _ = rollout_frames(setup, params, trajs)
-    mae = position_mae_um(pred_u, [t.displacement for t in trajs])
-    return mae, bool(np.isfinite(mae))
+        return dict.fromkeys(keys, float("nan"))
+    pred_u, pred_vm = rollout_frames(setup, params, trajs)
+    out = {keys[0]: position_mae_um(pred_u, [t.displacement for t in trajs])}
+    if objective:
+        pred = [float(oled_objective_of(t, vm, reading="area_mean")) for t, vm in zip(trajs, pred_vm)]
+        true = [float(oled_objective_of(t, reading="area_mean")) for t in trajs]
+        out[keys[1]] = float(np.mean(relative_error_pct(pred, true)))
+    return out
 
 
 def chunk_batch(cfg: TrainConfig, setup: Setup, trajs, table, step: int, *, shards: int = 1, rows=None):
@@ -139,6 +158,9 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
     workdir.mkdir(parents=True, exist_ok=True)
     if resume:
         check_resume(cfg, workdir)  # a resumed run keeps its config.json; a changed config is refused
+    if cfg.select_on == "objective":   # refused now, not at the first validation
+        for t in val_trajs:
+            oled_part(scene_of(t), f"select_on='objective' (validation trajectory {t.meta.get('name', '?')})")
     dp = data_parallel(cfg.devices, cfg.batch_graphs)  # None on one device; checks the batch split first
     periodic_dir = workdir / "checkpoints" / "periodic"
     # damaged checkpoints set aside, later ones and log lines cut (by process 0 on several hosts)
@@ -227,10 +249,12 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
                 if cfg.lambda_obj > 0:
                     rec["loss_obj"] = float(np.mean(m["loss_obj"]))
             if val_trajs and (step % val_every == 0 or step >= total):
-                val, finite = validation_mae_um(setup, eval_params(cfg, state), val_trajs)
+                scores = validation_scores(setup, eval_params(cfg, state), val_trajs,
+                                           objective=cfg.select_on == "objective")
                 rec = rec or dict(step=step)
-                rec["val_position_mae_um"] = val
-                if finite and val < best_val and penalty_on(setup, step):
+                rec.update(scores)
+                val = scores[VAL_KEYS[cfg.select_on]]
+                if np.isfinite(val) and val < best_val and penalty_on(setup, step):
                     best_val = val
                     checkpoint.save(best_mgr, _best(cfg, state), setup.stats,
                                     _meta(cfg, setup, best_val=best_val, best_step=step, best_predates_penalty=False))
@@ -253,6 +277,6 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
             print(f"lambda_pen={cfg.lambda_pen:g}: no finite validation with the penetration term on; the final "
                   f"state (step {step}) is kept as best" + (" and predates the term (it never switched on)"
                                                           if predates else ""))
-    return dict(step=step, best_val_position_mae_um=best_val, state=state, setup=setup,
+    return dict(step=step, best_val=best_val, select_on=cfg.select_on, state=state, setup=setup,
                 seconds=time.perf_counter() - t_start, best_predates_penalty=predates)
 

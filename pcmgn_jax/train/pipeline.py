@@ -17,7 +17,8 @@ from pcmgn_jax.lock import hold
 
 def run(cfg: TrainConfig, workdir: str | Path, *, resume: bool = False, overwrite: bool = False) -> dict:
     """Train ``cfg`` in ``workdir``; returns :func:`pcmgn_jax.train.loop.train`'s result dict
-    (``step``, ``seconds``, ``best_val_position_mae_um``, ...). ``resume``: continue from the last checkpoint.
+    (``step``, ``seconds``, ``best_val`` in the unit of ``select_on``, ...). ``resume``: continue from the last
+    checkpoint.
 
     A workdir that holds a run is never replaced silently (:func:`claim`): without ``resume`` it is refused
     unless ``overwrite``, which moves the earlier run aside. The dataset is made (when missing), loaded and

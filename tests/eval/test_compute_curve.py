@@ -81,6 +81,29 @@ def test_the_command_writes_the_page_json_and_plot(tmp_path):
 
 
 @pytest.mark.slow  # 34 s here with its trained fixture; test_rollout's evaluation test stays
+def test_a_kept_evaluation_enters_the_curve_as_its_run_did(tmp_path):
+    """A run whose folder is gone enters by its kept metrics.json (steps and seed given): the same point, the same
+    fit, no training rate (the hours use the others'); a malformed spec or a file that is not an evaluation is
+    refused by name."""
+    runs = [_run(tmp_path / "runs", s, 0, e, 0.3, 2.0) for s, e in ((1000, 3.0), (4000, 2.0), (16000, 1.5))]
+    kept = tmp_path / "kept_metrics.json"
+    kept.write_text((runs[-1] / "eval" / "metrics.json").read_text())
+    whole = cc.summary([cc.curve_point(r) for r in runs])
+    mixed = cc.summary([cc.curve_point(r) for r in runs[:2]] + [cc.kept_point(f"16000:0:{kept}")])
+    assert mixed["metrics"][cc.OBJECTIVE]["b"] == pytest.approx(whole["metrics"][cc.OBJECTIVE]["b"], rel=1e-12)
+    assert mixed["cpu_steps_per_s"] == 5.0 and np.isnan(mixed["runs"][-1]["steps_per_s"])
+    out = tmp_path / "out"
+    assert cli_curve.main(["--runs", ",".join(map(str, runs[:2])), "--kept", f"16000:0:{kept}",
+                           "--out", str(out)]) == 0
+    assert "kept evaluation" in (out / "compute_curve.md").read_text()
+    for bad in ("16000:kept_metrics.json", "x:0:" + str(kept), "0:0:" + str(kept)):
+        with pytest.raises(ValueError, match="STEPS:SEED:PATH"):
+            cc.kept_point(bad)
+    (tmp_path / "other.json").write_text(json.dumps(dict(position_mae_um=1.0)))
+    with pytest.raises(ValueError, match="other.json: no oled_objective_area_rel_error_pct_mean"):
+        cc.kept_point(f"16000:0:{tmp_path / 'other.json'}")
+
+
 def test_evaluate_without_baselines_scores_the_model_only(tiny_run, tiny_trajs):
     from pcmgn_jax.eval import evaluate as evaluation
     _, workdir, _ = tiny_run

@@ -261,7 +261,7 @@ def test_run_cell_trains_once_resumes_a_killed_training_and_evaluates(tmp_path, 
     def fake_train(cfg, workdir, *, resume=False):
         trained.append((cfg, resume))
         cfg.save_json(workdir / "config.json")
-        return {"step": 7, "seconds": 1.0, "best_val_position_mae_um": 2.0}
+        return {"step": 7, "seconds": 1.0, "best_val": 2.0}
 
     def fake_eval(workdir, *, which="best", data="", name="", contact_projection=""):
         scored.append((data, name))

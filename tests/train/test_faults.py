@@ -82,7 +82,7 @@ def test_overwrite_moves_the_earlier_run_aside_and_trains(data, tmp_path, capsys
 
     def fake_training(cfg, workdir, data, *, resume):   # the training itself is covered elsewhere: what it finds
         seen.append(sorted(p.name for p in workdir.iterdir()))
-        return dict(step=0, seconds=0.0, best_val_position_mae_um=float("nan"))
+        return dict(step=0, seconds=0.0, best_val=float("nan"))
     monkeypatch.setattr(pipeline, "_run_locked", fake_training)
     assert cli.run(train.main, [*TRAIN_FLAGS, f"--dataset_dir={data}", f"--workdir={run}", "--overwrite"]) == 0
     out = capsys.readouterr().out
@@ -163,7 +163,7 @@ def _assert_same_run(workdir: Path, res: dict, reference) -> None:
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert _steps_logged(workdir) == _steps_logged(ref_dir)        # every step once, in order
     assert checkpoint.steps(workdir / "checkpoints" / "best") == checkpoint.steps(ref_dir / "checkpoints" / "best")
-    assert res["best_val_position_mae_um"] == ref["best_val_position_mae_um"]
+    assert res["best_val"] == ref["best_val"]
 
 
 @pytest.mark.slow   # 22 s; the other kill and resume tests here run by default

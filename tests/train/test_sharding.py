@@ -101,7 +101,7 @@ cfg = tiny_config(devices=0, batch_graphs=16, num_steps=20, steps_per_dispatch=1
 res = loop.train(cfg, workdir, train_trajs=trajs, val_trajs=trajs[:1])
 losses = [json.loads(l)["loss"] for l in open(workdir + "/metrics.jsonl")] if pid == 0 else []
 print(json.dumps(dict(rows=data_parallel(0, 16).local_rows(10, 8).tolist(), losses=losses,
-                      val=res["best_val_position_mae_um"])))
+                      val=res["best_val"])))
 '''
 
 
