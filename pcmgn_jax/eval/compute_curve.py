@@ -202,6 +202,11 @@ def _steps(s: float) -> str:
     return "never (the fit does not fall)" if not np.isfinite(s) else f"{s:.3g}"
 
 
+def _exponent(b: float) -> str:
+    """−b as an exponent: a falling fit reads steps^−0.19, a rising one steps^+0.06."""
+    return f"−{b:.3f}" if b >= 0 else f"+{-b:.3f}"
+
+
 def _rate(r: float) -> str:
     return f"{r:.2f}" if np.isfinite(r) else "— (kept evaluation)"
 
@@ -217,7 +222,7 @@ def markdown_lines(s: dict) -> list[str]:
                            [[Path(r["run"]).name, r["steps"], r["seed"], _rate(r["steps_per_s"]),
                              *(f"{r[k]:.4g}" for k, _ in CURVE_METRICS)] for r in s["runs"]])
     for key, e in s["metrics"].items():
-        lines += ["", f"**{e['label']}**: error = {e['a']:.4g} × steps^−{e['b']:.3f} (b ± {e['b_se']:.3f}, "
+        lines += ["", f"**{e['label']}**: error = {e['a']:.4g} × steps^{_exponent(e['b'])} (b ± {e['b_se']:.3f}, "
                   f"{e['n']} runs)", ""]
         head = ["baseline", "its error", "fit meets it at [steps]", "16–84 % [steps]", "CPU time"]
         if s.get("gpu_steps_per_s"):
