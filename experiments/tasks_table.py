@@ -7,7 +7,9 @@
 The manifest (TOML) has one ``[tasks]`` table: each key a task (a | b | c | d, see
 pcmgn_jax.eval.tasks.TASKS) or ``T.VARIANT``, each value the list of evaluate()'s metrics.json files, one
 per MGN seed; ``--task T=FILES`` gives the same on the command line (both may be used; a key given twice is
-an error). A task not given is listed as not measured. When ``--out`` exists and holds the line
+an error). An optional ``[baselines]`` table, ``"T" = "metrics.json"``, lends a task whose files were evaluated
+with ``--no_baselines`` the baselines of another evaluation of the same test split (checked: the test designs'
+true objectives must be identical). A task not given is listed as not measured. When ``--out`` exists and holds the line
 :data:`KEEP_MARKER`, everything from that line on (the hand-written reading) is kept below the new tables.
 """
 import sys
@@ -33,16 +35,31 @@ class TasksArgs:
 KEEP_MARKER = "<!-- hand-written below this line: kept when the tables are regenerated -->"
 
 
-def manifest_specs(path: str) -> list[str]:
-    """The ``[tasks]`` table of a TOML manifest as ``--task`` specs (``T=a.json,b.json``); ValueError naming the
-    file and the key for a missing file, bad TOML, a missing table or a value that is not a list of paths."""
+def _manifest(path: str) -> tuple[Path, dict]:
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"--manifest: {p} does not exist")
     try:
-        tasks = tomllib.loads(p.read_text()).get("tasks")
+        return p, tomllib.loads(p.read_text())
     except tomllib.TOMLDecodeError as err:
         raise ValueError(f"--manifest: {p} is not TOML ({err})") from None
+
+
+def manifest_baselines(path: str) -> dict[str, str]:
+    """The optional ``[baselines]`` table of a manifest: {task: metrics.json whose baselines it borrows}."""
+    p, doc = _manifest(path)
+    table = doc.get("baselines", {})
+    bad = [k for k, v in table.items() if not (isinstance(v, str) and v)] if isinstance(table, dict) else ["(table)"]
+    if bad:
+        raise ValueError(f"--manifest {p}: baselines.{bad[0]} must be one metrics.json path")
+    return table
+
+
+def manifest_specs(path: str) -> list[str]:
+    """The ``[tasks]`` table of a TOML manifest as ``--task`` specs (``T=a.json,b.json``); ValueError naming the
+    file and the key for a missing file, bad TOML, a missing table or a value that is not a list of paths."""
+    p, doc = _manifest(path)
+    tasks = doc.get("tasks")
     if not isinstance(tasks, dict) or not tasks:
         raise ValueError(f"--manifest: {p} has no [tasks] table of TASK = [metrics.json, ...]")
     specs = []
@@ -56,11 +73,16 @@ def manifest_specs(path: str) -> list[str]:
 def main(argv=None) -> int:
     args = cli.parse(TasksArgs, argv, description=__doc__, prog="python -m experiments.tasks_table")
     from pcmgn_jax.atomic import atomic_write_text
-    from pcmgn_jax.eval.tasks import code_note, summary_table, task_rows, task_table
+    from pcmgn_jax.eval.tasks import code_note, lend_baselines, summary_table, task_rows, task_table
     specs = (manifest_specs(args.manifest) if args.manifest else []) + list(args.task)
     if not specs:
         raise ValueError("give --manifest FILE.toml or --task T=metrics.json[,...]")
     runs = cli.keyed_json_files(specs, "task")
+    for task, path in (manifest_baselines(args.manifest) if args.manifest else {}).items():
+        if task not in runs:
+            raise ValueError(f"--manifest {args.manifest}: baselines.{task} names a task the [tasks] table lacks")
+        source = cli.keyed_json_files([f"{task}={path}"], "manifest")[task][0]
+        runs[task] = lend_baselines(runs[task], source, name=path)
     seeds = {task: len(files) for task, files in runs.items()}
     command = cli.command_line("experiments.tasks_table", argv)
     rows = task_rows(runs)

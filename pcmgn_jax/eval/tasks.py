@@ -67,6 +67,27 @@ def task_rows(runs: Mapping[str, Sequence[dict]]) -> dict[str, dict[str, dict[st
     return rows
 
 
+TRUTH_KEYS = ("oled_objective_area_true_mpa", "oled_objective_true_mpa")   # a test split's fingerprint
+
+
+def lend_baselines(files: Sequence[dict], source: dict, *, name: str = "the baselines' file") -> list[dict]:
+    """``files`` (evaluate's metrics.json dicts; those evaluated with ``--no_baselines`` have none) with the
+    baselines of ``source``, an evaluation of the same test split: the baselines do not depend on the MGN. The
+    split is checked, not assumed: every file's test designs' true objectives must equal the source's (ValueError
+    naming ``name`` otherwise). A file that scored its own baselines keeps them."""
+    key = next((k for k in TRUTH_KEYS if k in source), None)
+    if key is None or not source.get("baselines"):
+        raise ValueError(f"{name}: no baselines and test truths to lend (it must be an evaluation that scored the "
+                         "baselines)")
+    out = []
+    for i, m in enumerate(files):
+        if m.get(key) is None or not np.array_equal(np.asarray(m[key]), np.asarray(source[key])):
+            raise ValueError(f"{name}: its test split is not that of file {i + 1} of the task ({key} differ): "
+                             "baselines are lent only within one test split")
+        out.append(m if m.get("baselines") else {**m, "baselines": source["baselines"]})
+    return out
+
+
 def winners(row: dict[str, dict[str, float]]) -> dict[str, str]:
     """{metric: the predictor with the lowest value} among those that report it (ground truth excluded:
     'none' is a predictor too; ties go to the first listed)."""
@@ -140,7 +161,9 @@ def _table(row: dict[str, dict[str, float]]) -> list[str]:
         body.append((name, *cells))
     named = ", ".join(f"{dict(METRICS)[k]}: **{n}**" for k, n in win.items())
     head = ("predictor", *(label for _, label in METRICS))
-    return markdown.table(head, body) + ["", f"Winner per metric: {named}.", ""]
+    verdict = (f"Winner per metric: {named}." if len(row) > 1 else
+               "No baselines in these files (evaluated with `--no_baselines`): nothing to compare with.")
+    return markdown.table(head, body) + ["", verdict, ""]
 
 
 def code_note(runs: Mapping[str, Sequence[dict]]) -> str:

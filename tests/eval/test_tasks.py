@@ -141,3 +141,33 @@ def test_manifest_drives_the_tables_and_the_reading_is_kept(tmp_path):
     man.write_text(f'[tasks]\na = ["{f}"]\n')
     with pytest.raises(ValueError, match="given twice"):
         tasks_table.main(["--manifest", str(man), "--task", f"a={f}"])
+
+
+def test_a_task_evaluated_without_baselines_borrows_them_within_its_test_split(tmp_path):
+    """[baselines] lends a --no_baselines task the baselines of another evaluation of the same test split, checked
+    by the test designs' true objectives; a table with no baselines says so instead of crowning the MGN."""
+    from experiments import tasks_table
+    from pcmgn_jax.eval.tasks import lend_baselines
+    with_b = {**_m(0.3, 2.0, 0.1, 0.05), "oled_objective_area_true_mpa": [1.0, 1.2]}
+    bare = {k: v for k, v in _m(0.2, 3.0, 0, 0).items() if k != "baselines"}
+    bare["oled_objective_area_true_mpa"] = [1.0, 1.2]
+    assert "No baselines in these files" in task_table(task_rows({"b.x": [bare]}))
+    lent = lend_baselines([bare, with_b], with_b)
+    assert lent[0]["baselines"] == with_b["baselines"] and lent[0]["position_mae_um"] == 0.2 and "baselines" not in bare
+    other = {**bare, "oled_objective_area_true_mpa": [1.0, 1.3]}
+    with pytest.raises(ValueError, match="src.json: its test split is not that of file 1"):
+        lend_baselines([other], with_b, name="src.json")
+    with pytest.raises(ValueError, match="no baselines and test truths to lend"):
+        lend_baselines([bare], bare)
+    fb, fs = tmp_path / "bare.json", tmp_path / "src.json"
+    fb.write_text(json.dumps(bare))
+    fs.write_text(json.dumps(with_b))
+    man = tmp_path / "tasks.toml"
+    man.write_text(f'[tasks]\n"b.x" = ["{fb}"]\n[baselines]\n"b.x" = "{fs}"\n')
+    out = tmp_path / "t.md"
+    assert tasks_table.main(["--manifest", str(man), "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "| kriging |" in text and "Winner per metric" in text and "No baselines" not in text
+    man.write_text(f'[tasks]\n"b.x" = ["{fb}"]\n[baselines]\n"b.y" = "{fs}"\n')
+    with pytest.raises(ValueError, match="baselines.b.y names a task the \\[tasks\\] table lacks"):
+        tasks_table.main(["--manifest", str(man)])
