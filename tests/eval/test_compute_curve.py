@@ -80,7 +80,6 @@ def test_the_command_writes_the_page_json_and_plot(tmp_path):
     assert (out / "compute_curve.png").stat().st_size > 1000
 
 
-@pytest.mark.slow  # 34 s here with its trained fixture; test_rollout's evaluation test stays
 def test_a_kept_evaluation_enters_the_curve_as_its_run_did(tmp_path):
     """A run whose folder is gone enters by its kept metrics.json (steps and seed given): the same point, the same
     fit, no training rate (the hours use the others'); a malformed spec or a file that is not an evaluation is
@@ -104,6 +103,7 @@ def test_a_kept_evaluation_enters_the_curve_as_its_run_did(tmp_path):
         cc.kept_point(f"16000:0:{tmp_path / 'other.json'}")
 
 
+@pytest.mark.slow  # 34 s here with its trained fixture; test_rollout's evaluation test stays
 def test_evaluate_without_baselines_scores_the_model_only(tiny_run, tiny_trajs):
     from pcmgn_jax.eval import evaluate as evaluation
     _, workdir, _ = tiny_run
