@@ -7,7 +7,7 @@
   up to whole chunks). A contact-buffer overflow grows the buffer and re-runs the chunk.
 - Validation: full rollouts of the validation trajectories, position MAE by
   :func:`pcmgn_jax.metrics.position_mae_um` and, with ``select_on='objective'``, the area-mean OLED objective's
-  mean relative error [%] (:func:`pcmgn_jax.metrics.oled_objective_of`, the evaluation's figure); the best by
+  mean relative error [%] (:func:`pcmgn_jax.metrics.oled_objective`, the evaluation's figure); the best by
   ``select_on`` is kept in ``checkpoints/best`` (its meta: ``best_val``, in that figure's unit). With
   ``ema_decay`` > 0 the moving average of the parameters is what is validated and kept as best. With
   ``lambda_pen`` > 0 only validations after the penetration term has switched on (:func:`penalty_on`)
@@ -37,7 +37,7 @@ import numpy as np
 
 from pcmgn_jax import compile_notes
 from pcmgn_jax.config import TrainConfig, check_resume
-from pcmgn_jax.metrics import oled_objective_of, position_mae_um, relative_error_pct
+from pcmgn_jax.metrics import objective_weights, oled_objective, position_mae_um, relative_error_pct
 from pcmgn_jax.mgn import checkpoint, contact as contact_lib
 from pcmgn_jax.mgn.normalization import normalize_graph
 from pcmgn_jax.mgn.rollout import input_graph, rollout_designs
@@ -84,29 +84,40 @@ def rollout_frames(setup: Setup, params, trajs):
             [np.asarray(r.von_mises, np.float64) for r in out.rollouts])
 
 
-# select_on -> the validation figure's key in metrics.jsonl: position MAE [µm] | area-mean objective error [%]
-VAL_KEYS = dict(position="val_position_mae_um", objective="val_objective_error_pct")
+# select_on -> (the validation figure's key in metrics.jsonl, its name, its unit)
+VAL_FIGURES = dict(position=("val_position_mae_um", "position MAE", "µm"),
+                   objective=("val_objective_error_pct", "objective error", "%"))
 
 
 def best_line(res: dict) -> str:
     """The summary's best validation figure in words, e.g. 'best validation position MAE 0.220 µm'."""
-    unit = dict(position=("position MAE", "µm"), objective=("objective error", "%"))[res.get("select_on", "position")]
-    return f"best validation {unit[0]} {res['best_val']:.3f} {unit[1]}"
+    _, name, unit = VAL_FIGURES[res.get("select_on", "position")]
+    return f"best validation {name} {res['best_val']:.3f} {unit}"
 
 
-def validation_scores(setup: Setup, params, trajs, *, objective: bool = False) -> dict:
+def objective_readings(trajs) -> list[tuple[np.ndarray, float]]:
+    """Per validation trajectory, the area-mean OLED objective's section weights (N,) on its own mesh and its true
+    objective [MPa]: fixed over training, so computed once. ValueError naming the trajectory without an 'OLED'."""
+    out = []
+    for t in trajs:
+        part = oled_part(scene_of(t), f"select_on='objective' (validation trajectory {t.meta.get('name', '?')})")
+        w = objective_weights(t.points, t.cells, t.cell_part, t.node_part, part=part, reading="area_mean")
+        out.append((w, float(oled_objective(t.von_mises, w, reading="area_mean"))))
+    return out
+
+
+def validation_scores(setup: Setup, params, trajs, *, objective: list | None = None) -> dict:
     """Full validation rollouts scored as the evaluation scores a test split: {val_position_mae_um [µm]} and, with
-    ``objective``, {val_objective_error_pct}: the mean relative error [%] of the area-mean OLED objective (each
-    trajectory's OLED found by name on its own mesh; evaluate's ``oled_objective_area_rel_error_pct_mean``)."""
-    keys = [VAL_KEYS["position"]] + ([VAL_KEYS["objective"]] if objective else [])
+    ``objective`` (:func:`objective_readings` of ``trajs``), {val_objective_error_pct}: the mean relative error [%]
+    of the area-mean OLED objective (evaluate's ``oled_objective_area_rel_error_pct_mean``)."""
+    keys = [VAL_FIGURES["position"][0]] + ([VAL_FIGURES["objective"][0]] if objective is not None else [])
     if not trajs:
         return dict.fromkeys(keys, float("nan"))
     pred_u, pred_vm = rollout_frames(setup, params, trajs)
     out = {keys[0]: position_mae_um(pred_u, [t.displacement for t in trajs])}
-    if objective:
-        pred = [float(oled_objective_of(t, vm, reading="area_mean")) for t, vm in zip(trajs, pred_vm)]
-        true = [float(oled_objective_of(t, reading="area_mean")) for t in trajs]
-        out[keys[1]] = float(np.mean(relative_error_pct(pred, true)))
+    if objective is not None:
+        pred = [float(oled_objective(vm, w, reading="area_mean")) for vm, (w, _) in zip(pred_vm, objective)]
+        out[keys[1]] = float(np.mean(relative_error_pct(pred, [true for _, true in objective])))
     return out
 
 
@@ -158,9 +169,8 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
     workdir.mkdir(parents=True, exist_ok=True)
     if resume:
         check_resume(cfg, workdir)  # a resumed run keeps its config.json; a changed config is refused
-    if cfg.select_on == "objective":   # refused now, not at the first validation
-        for t in val_trajs:
-            oled_part(scene_of(t), f"select_on='objective' (validation trajectory {t.meta.get('name', '?')})")
+    # the objective's weights and truths once (a validation set without an OLED is refused now, not at step 500)
+    readings = objective_readings(val_trajs) if cfg.select_on == "objective" else None
     dp = data_parallel(cfg.devices, cfg.batch_graphs)  # None on one device; checks the batch split first
     periodic_dir = workdir / "checkpoints" / "periodic"
     # damaged checkpoints set aside, later ones and log lines cut (by process 0 on several hosts)
@@ -249,11 +259,10 @@ def train(cfg: TrainConfig, workdir: str | Path, *, train_trajs: Sequence, val_t
                 if cfg.lambda_obj > 0:
                     rec["loss_obj"] = float(np.mean(m["loss_obj"]))
             if val_trajs and (step % val_every == 0 or step >= total):
-                scores = validation_scores(setup, eval_params(cfg, state), val_trajs,
-                                           objective=cfg.select_on == "objective")
+                scores = validation_scores(setup, eval_params(cfg, state), val_trajs, objective=readings)
                 rec = rec or dict(step=step)
                 rec.update(scores)
-                val = scores[VAL_KEYS[cfg.select_on]]
+                val = scores[VAL_FIGURES[cfg.select_on][0]]
                 if np.isfinite(val) and val < best_val and penalty_on(setup, step):
                     best_val = val
                     checkpoint.save(best_mgr, _best(cfg, state), setup.stats,

@@ -45,7 +45,7 @@ def test_the_validation_objective_is_the_evaluations_figure(scene_trajs):
     cfg = tiny_config()
     setup = prepare(cfg, scene_trajs[:2])
     params = eval_params(cfg, init_state(setup.spec, loop.init_params(setup, scene_trajs[0], 0)))
-    got = loop.validation_scores(setup, params, scene_trajs, objective=True)
+    got = loop.validation_scores(setup, params, scene_trajs, objective=loop.objective_readings(scene_trajs))
     _, vm = loop.rollout_frames(setup, params, scene_trajs)
     want = objective_scores(scene_trajs, {"area_mean": objective_of_fields(scene_trajs, vm)})
     assert got["val_objective_error_pct"] == pytest.approx(want["oled_objective_area_rel_error_pct_mean"], rel=1e-9)
