@@ -35,30 +35,17 @@ class TasksArgs:
 KEEP_MARKER = "<!-- hand-written below this line: kept when the tables are regenerated -->"
 
 
-def _manifest(path: str) -> tuple[Path, dict]:
+def manifest(path: str) -> tuple[list[str], dict[str, str]]:
+    """A TOML manifest, read once: its ``[tasks]`` table as ``--task`` specs (``T=a.json,b.json``) and its optional
+    ``[baselines]`` table ({task: the metrics.json whose baselines it borrows}); ValueError naming the file and the
+    key for a missing file, bad TOML, a missing table or a value that is not a list of paths (one path)."""
     p = Path(path)
     if not p.is_file():
         raise ValueError(f"--manifest: {p} does not exist")
     try:
-        return p, tomllib.loads(p.read_text())
+        doc = tomllib.loads(p.read_text())
     except tomllib.TOMLDecodeError as err:
         raise ValueError(f"--manifest: {p} is not TOML ({err})") from None
-
-
-def manifest_baselines(path: str) -> dict[str, str]:
-    """The optional ``[baselines]`` table of a manifest: {task: metrics.json whose baselines it borrows}."""
-    p, doc = _manifest(path)
-    table = doc.get("baselines", {})
-    bad = [k for k, v in table.items() if not (isinstance(v, str) and v)] if isinstance(table, dict) else ["(table)"]
-    if bad:
-        raise ValueError(f"--manifest {p}: baselines.{bad[0]} must be one metrics.json path")
-    return table
-
-
-def manifest_specs(path: str) -> list[str]:
-    """The ``[tasks]`` table of a TOML manifest as ``--task`` specs (``T=a.json,b.json``); ValueError naming the
-    file and the key for a missing file, bad TOML, a missing table or a value that is not a list of paths."""
-    p, doc = _manifest(path)
     tasks = doc.get("tasks")
     if not isinstance(tasks, dict) or not tasks:
         raise ValueError(f"--manifest: {p} has no [tasks] table of TASK = [metrics.json, ...]")
@@ -67,18 +54,23 @@ def manifest_specs(path: str) -> list[str]:
         if not (isinstance(files, list) and files and all(isinstance(f, str) and f for f in files)):
             raise ValueError(f"--manifest {p}: tasks.{key} must be a non-empty list of metrics.json paths")
         specs.append(f"{key}={','.join(files)}")
-    return specs
+    table = doc.get("baselines", {})
+    bad = [k for k, v in table.items() if not (isinstance(v, str) and v)] if isinstance(table, dict) else ["(table)"]
+    if bad:
+        raise ValueError(f"--manifest {p}: baselines.{bad[0]} must be one metrics.json path")
+    return specs, table
 
 
 def main(argv=None) -> int:
     args = cli.parse(TasksArgs, argv, description=__doc__, prog="python -m experiments.tasks_table")
     from pcmgn_jax.atomic import atomic_write_text
     from pcmgn_jax.eval.tasks import code_note, lend_baselines, summary_table, task_rows, task_table
-    specs = (manifest_specs(args.manifest) if args.manifest else []) + list(args.task)
+    specs, lent = manifest(args.manifest) if args.manifest else ([], {})
+    specs = specs + list(args.task)
     if not specs:
         raise ValueError("give --manifest FILE.toml or --task T=metrics.json[,...]")
     runs = cli.keyed_json_files(specs, "task")
-    for task, path in (manifest_baselines(args.manifest) if args.manifest else {}).items():
+    for task, path in lent.items():
         if task not in runs:
             raise ValueError(f"--manifest {args.manifest}: baselines.{task} names a task the [tasks] table lacks")
         source = cli.keyed_json_files([f"{task}={path}"], "manifest")[task][0]
